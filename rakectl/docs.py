@@ -1,0 +1,55 @@
+"""The configuration reference, rendered from the declarations in rakectl.settings."""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import typing
+from collections.abc import Iterator
+from typing import Any
+
+from rakectl.settings import Settings
+
+
+def _type_name(tp: Any) -> str:
+    if isinstance(tp, type) and issubclass(tp, enum.Enum):
+        return " \\| ".join(m.value for m in tp)
+    if typing.get_origin(tp) is tuple:
+        return f"list of {typing.get_args(tp)[0].__name__}"
+    return getattr(tp, "__name__", str(tp))
+
+
+def _default(f: dataclasses.Field[Any]) -> str:
+    if f.default is not dataclasses.MISSING:
+        value = f.default
+    elif f.default_factory is not dataclasses.MISSING:
+        value = f.default_factory()
+    else:
+        return "required"
+    if isinstance(value, enum.Enum):
+        return f"`{value.value}`"
+    if isinstance(value, tuple):
+        return f"{len(value)} entries" if value else "none"
+    return f"`{value:g}`" if isinstance(value, float) else f"`{value}`"
+
+
+def rows(cls: type = Settings, prefix: str = "") -> Iterator[tuple[str, ...]]:
+    """(key, type, default, unit, bounds, doc) for every option below ``cls``."""
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        tp = hints[f.name]
+        item = typing.get_args(tp)[0] if typing.get_origin(tp) is tuple else None
+        if dataclasses.is_dataclass(tp):
+            yield from rows(tp, f"{prefix}{f.name}.")  # type: ignore[arg-type]
+            continue
+        bounds = f.metadata.get("bounds")
+        yield (f"{prefix}{f.name}", _type_name(tp), _default(f), f.metadata.get("unit", ""),
+               bounds.describe() if bounds else "", f.metadata.get("doc", ""))
+        if item is not None and dataclasses.is_dataclass(item):
+            yield from rows(item, f"{prefix}{f.name}[].")  # type: ignore[arg-type]
+
+
+def settings_reference(cls: type = Settings) -> str:
+    lines = ["| key | type | default | unit | bounds | meaning |", "|---|---|---|---|---|---|"]
+    lines += ["| " + " | ".join(row) + " |" for row in rows(cls)]
+    return "\n".join(lines)

@@ -1,0 +1,33 @@
+"""One exception tree for the whole project.
+
+Each subclass also inherits the matching built-in, so callers that only know
+Python's own exceptions still catch them.
+"""
+
+
+class RakeError(Exception):
+    """Base of every error raised on purpose by rakectl."""
+
+
+class ConfigError(RakeError, ValueError):
+    """A configuration file or override is invalid; the message names where."""
+
+
+class KinematicsError(RakeError, ValueError):
+    """A pose is outside the workspace or singular."""
+
+
+class NonFiniteError(RakeError, ArithmeticError):
+    """A NaN or infinity reached a place where only finite numbers may be."""
+
+
+class SafetyLimitExceeded(RakeError):
+    """A safety bound was or would be exceeded."""
+
+
+class DriveFault(RakeError):
+    """A drive reported a fault or behaved outside its protocol."""
+
+
+class CommsTimeout(RakeError, TimeoutError):
+    """Expected traffic did not arrive in time."""

@@ -1,0 +1,194 @@
+"""Every configuration option, declared once (pure: no file or YAML handling here).
+
+An option is a field of a frozen dataclass declared with :func:`setting`: its
+annotation is the type, and the metadata carries the default, the unit, the
+bounds and the documentation. The loader (:mod:`rakectl.config`) validates
+against these declarations and ``rakectl config-docs`` renders them, so nothing
+is written twice. Names carry their units (``_m``, ``_s``, ``_n_per_m`` …).
+
+Sections are dataclasses nested with :func:`section`; ``tuple[X, ...]`` of a
+section dataclass is a list of such sections in YAML.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import operator
+from dataclasses import MISSING, dataclass, field
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Bounds:
+    """Numeric bounds of an option; None means unbounded on that side."""
+
+    gt: float | None = None
+    ge: float | None = None
+    lt: float | None = None
+    le: float | None = None
+
+    def violation(self, value: float) -> str | None:
+        """Why ``value`` is out of bounds, or None if it is inside."""
+        if not math.isfinite(value):
+            return f"must be finite, got {value}"
+        for limit, op, ok in (
+            (self.gt, ">", operator.gt),
+            (self.ge, ">=", operator.ge),
+            (self.lt, "<", operator.lt),
+            (self.le, "<=", operator.le),
+        ):
+            if limit is not None and not ok(value, limit):
+                return f"must be {op} {limit:g}, got {value:g}"
+        return None
+
+    def describe(self) -> str:
+        parts = []
+        for limit, op in ((self.gt, ">"), (self.ge, "≥"), (self.lt, "<"), (self.le, "≤")):
+            if limit is not None:
+                parts.append(f"{op} {limit:g}")
+        return ", ".join(parts)
+
+
+def setting(
+    default: Any,
+    doc: str,
+    *,
+    unit: str = "",
+    gt: float | None = None,
+    ge: float | None = None,
+    lt: float | None = None,
+    le: float | None = None,
+) -> Any:
+    """Declare an option: default, documentation, unit and bounds in one place."""
+    meta = {"doc": doc, "unit": unit, "bounds": Bounds(gt=gt, ge=ge, lt=lt, le=le)}
+    if isinstance(default, tuple):
+        return field(default_factory=lambda: default, metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+def section(cls: type, doc: str | None = None) -> Any:
+    """Declare a nested section whose defaults are the section's own."""
+    return field(default_factory=cls, metadata={"doc": doc or (cls.__doc__ or "").strip()})
+
+
+def has_default(f: Any) -> bool:
+    return bool(f.default is not MISSING or f.default_factory is not MISSING)
+
+
+# --------------------------------------------------------------------------- kinds
+
+
+class PlantKind(enum.StrEnum):
+    """What ``rakectl simulate`` closes the loop around."""
+
+    FIRST_ORDER = "first_order"  # the paper's P(s) = 1/(τs + 1) on the vertical axis
+    RAKE = "rake"  # motors, arm and soil models of drivers/
+
+
+class TrajectoryKind(enum.StrEnum):
+    RAMP = "ramp"  # x_d = start + speed · (t − t0) for t ≥ t0
+    STEP = "step"  # x_d = start + amplitude for t ≥ t0
+
+
+# --------------------------------------------------------------------------- sections
+
+
+@dataclass(frozen=True)
+class PlantSettings:
+    """The plant of an offline simulation."""
+
+    kind: PlantKind = setting(PlantKind.FIRST_ORDER, "Plant model: first_order or rake.")
+    time_constant_s: float = setting(
+        0.2, "Time constant τ of the first-order position loop P(s) = 1/(τs+1).", unit="s", gt=0
+    )
+
+
+@dataclass(frozen=True)
+class ImpedanceSettings:
+    """Desired impedance M_d ẍ_c + B_d ẋ_c + K_d x_c = F_d − F̂ on the vertical axis."""
+
+    mass_kg: float = setting(0.39, "Desired mass M_d.", unit="kg", gt=0, le=1e4)
+    damping_ns_per_m: float = setting(
+        1.33e4, "Desired damping B_d.", unit="N·s/m", gt=0, le=1e8
+    )
+    stiffness_n_per_m: float = setting(
+        1.0e4, "Desired stiffness K_d.", unit="N/m", gt=0, le=1e8
+    )
+
+
+@dataclass(frozen=True)
+class EstimatorSettings:
+    """Force estimate F̂ = K_e (x(t) − x(t − α)) from delayed measured positions."""
+
+    environment_stiffness_n_per_m: float = setting(
+        2.0e5, "Assumed soil stiffness K_e.", unit="N/m", gt=0, le=1e9
+    )
+    delay_s: float = setting(
+        0.01, "Delay α of the undeformed-soil estimate x_e = x(t − α); 0 = free space.",
+        unit="s", ge=0, le=1.0,
+    )
+    max_delay_s: float = setting(
+        0.5, "Longest α the position history can serve (sizes the ring).", unit="s", gt=0, le=5.0
+    )
+
+
+@dataclass(frozen=True)
+class TrajectorySettings:
+    """Desired vertical trajectory x_d(t) (depth into the soil, positive down)."""
+
+    kind: TrajectoryKind = setting(TrajectoryKind.RAMP, "ramp or step.")
+    start_m: float = setting(0.0, "x_d before the trajectory starts.", unit="m", ge=-1, le=1)
+    start_time_s: float = setting(0.0, "When the ramp or step starts.", unit="s", ge=0)
+    speed_m_per_s: float = setting(0.007, "Ramp speed.", unit="m/s", ge=-1, le=1)
+    amplitude_m: float = setting(0.01, "Step height.", unit="m", ge=-1, le=1)
+
+
+@dataclass(frozen=True)
+class GeometrySettings:
+    """Geometry and joint limits of the r-θ rake."""
+
+    pivot_height_m: float = setting(0.6, "Height of the θ pivot above the ground.", unit="m",
+                                    gt=0, le=5)
+    r_min_m: float = setting(0.35, "Shortest rake length.", unit="m", ge=0.01, le=10)
+    r_max_m: float = setting(1.6, "Longest rake length.", unit="m", gt=0.01, le=10)
+    theta_min_rad: float = setting(-0.2, "Lowest joint angle (θ below horizontal).",
+                                   unit="rad", gt=-1.5, lt=1.5)
+    theta_max_rad: float = setting(1.3, "Highest joint angle (θ below horizontal).",
+                                   unit="rad", gt=-1.5, lt=1.5)
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Root of the configuration: a scenario or the daemon's configuration file."""
+
+    plant: PlantSettings = section(PlantSettings)
+    impedance: ImpedanceSettings = section(ImpedanceSettings)
+    estimator: EstimatorSettings = section(EstimatorSettings)
+    trajectory: TrajectorySettings = section(TrajectorySettings)
+    geometry: GeometrySettings = section(GeometrySettings)
+    desired_force_n: float = setting(0.0, "Desired contact force F_d.", unit="N", ge=-90, le=90)
+    duration_s: float = setting(20.0, "Length of a simulation.", unit="s", gt=0, le=3600)
+    rate_hz: float = setting(1000.0, "Control loop rate.", unit="Hz", ge=10, le=10000)
+
+
+def cross_checks(s: Settings) -> list[tuple[str, str]]:
+    """Constraints between options: (dotted key, message) for each violation."""
+    errors: list[tuple[str, str]] = []
+    g = s.geometry
+    if not g.r_max_m > g.r_min_m:
+        errors.append(("geometry.r_max_m", f"must be > geometry.r_min_m ({g.r_min_m:g})"))
+    if not g.theta_max_rad > g.theta_min_rad:
+        errors.append(
+            ("geometry.theta_max_rad", f"must be > geometry.theta_min_rad ({g.theta_min_rad:g})")
+        )
+    if s.estimator.delay_s > s.estimator.max_delay_s:
+        errors.append(
+            ("estimator.delay_s", f"must be <= estimator.max_delay_s ({s.estimator.max_delay_s:g})")
+        )
+    delay_ticks = s.estimator.delay_s * s.rate_hz
+    if not math.isclose(delay_ticks, round(delay_ticks), abs_tol=1e-6):
+        errors.append(
+            ("estimator.delay_s", f"must be a whole number of loop periods (1/{s.rate_hz:g} s)")
+        )
+    return errors
