@@ -1,0 +1,5 @@
+import sys
+
+from rakectl.cli import main
+
+sys.exit(main())

@@ -1,0 +1,111 @@
+"""The ``rakectl`` command line: the composition root for offline work.
+
+Errors are one line on stderr and a non-zero exit status: 2 for bad usage or
+configuration, 1 for any other failure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from rakectl.errors import ConfigError, RakeError
+
+EXIT_FAILURE = 1
+EXIT_USAGE = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, but usage errors raise instead of exiting from library code."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise ConfigError(f"{self.prog}: {message}")
+
+
+def _add_simulate(sub: argparse._SubParsersAction[_Parser]) -> None:
+    p = sub.add_parser("simulate", help="run a scenario in simulated time")
+    p.add_argument("scenario", type=Path, help="scenario YAML file (see config/scenarios/)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override one option, e.g. --set estimator.delay_s=0.02 (repeatable)")
+    p.add_argument("--out", type=Path, required=True, help="directory for telemetry and summary")
+    p.add_argument("--plot", action="store_true", help="also write DIR/plot.png")
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON line")
+
+
+def _build_parser() -> _Parser:
+    parser = _Parser(prog="rakectl", description=__doc__.splitlines()[0] if __doc__ else None)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    _add_simulate(sub)
+    docs = sub.add_parser("config-docs", help="print the configuration reference (Markdown)")
+    docs.set_defaults()
+    bench = sub.add_parser("bench", help="micro-benchmarks that print figures")
+    bench.add_argument("--ticks", type=int, default=200_000, help="ticks to time")
+    return parser
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from rakectl.config import load_settings
+    from rakectl.progress import Progress
+    from rakectl.simulate import run, write_results
+
+    settings = load_settings(args.scenario, args.overrides)
+    if args.plot:
+        from rakectl.plot import pyplot
+
+        pyplot()  # fail before the work, not after it
+    result = run(settings, progress=Progress(f"simulating {args.scenario.name}"))
+    write_results(result, args.out)
+    if args.plot:
+        from rakectl.plot import plot_paper_panels
+
+        plot_paper_panels(result, args.out / "plot.png", title=f"{args.scenario.name}")
+    summary = result.summary()
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        for key, value in summary.items():
+            print(f"{key:>24}: {value:.6g}" if isinstance(value, float) else f"{key:>24}: {value}")
+        print(f"{'written to':>24}: {args.out}")
+    return 0
+
+
+def _cmd_config_docs(args: argparse.Namespace) -> int:
+    from rakectl.docs import settings_reference
+
+    print(settings_reference())
+    return 0
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from rakectl.bench import bench_controller_step
+
+    if args.ticks < 1000:
+        raise ConfigError("bench: --ticks must be >= 1000")
+    print(bench_controller_step(args.ticks))
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    commands = {"simulate": _cmd_simulate, "config-docs": _cmd_config_docs, "bench": _cmd_bench}
+    try:
+        args = _build_parser().parse_args(argv)
+        return commands[args.command](args)
+    except ConfigError as exc:
+        print(f"rakectl: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except RakeError as exc:
+        print(f"rakectl: error: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
+    except OSError as exc:
+        print(f"rakectl: error: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
+    except KeyboardInterrupt:
+        print("rakectl: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

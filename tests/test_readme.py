@@ -1,0 +1,27 @@
+"""The README's promises: its configuration table and its commands are the real ones."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+from rakectl.docs import settings_reference
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+
+
+def test_configuration_reference_is_generated_from_the_declarations() -> None:
+    match = re.search(r"config-reference:start.*?-->\n(.*?)\n<!-- config-reference:end",
+                      README, re.S)
+    assert match, "README lacks the generated configuration reference"
+    assert match.group(1).strip() == settings_reference().strip(), (
+        "README configuration table is stale: regenerate with `rakectl config-docs`"
+    )
+
+
+def test_ci_runs_exactly_the_readme_test_command() -> None:
+    blocks = re.findall(r"```sh\n(.*?)\n```", README, re.S)
+    assert len(blocks) >= 2
+    test_command = blocks[1].strip()
+    assert test_command in (ROOT / ".ci" / "run").read_text()
