@@ -1,0 +1,408 @@
+"""Rigid-body dynamics of the r-θ rake arm in its vertical plane (pure model).
+
+Generalized coordinates q = (r, θ): rake length and angle below the horizontal.
+The rake and its carriage (mass m, length L) are a uniform slender rod whose
+centre of mass lies s = r − L/2 from the pivot along the rake; the platform
+rotates with θ, its centre of mass on the pivot. From the Lagrangian::
+
+    T = ½ M_r ṙ² + ½ M_θ(r) θ̇²,   M_r = m + J_r/k_r²,
+    M_θ(r) = m s² + m L²/12 + I_platform + J_θ/k_θ²
+    V = m g (h − s sin θ)
+
+the mass matrix is diagonal (polar coordinates of a rigid rod) and, with
+momenta p_r = M_r ṙ and p_θ = M_θ θ̇::
+
+    ṗ_θ = m g s cos θ + Q_θ
+    ṗ_r = m g sin θ + m s θ̇² + Q_r
+
+Q holds the motor loads (drivers.motor), joint damping, hard stops at the
+Workspace limits and the tip contact force mapped through Jᵀ by
+``rakectl.kinematics.joint_loads``.
+
+Integration: symplectic Euler, p first from q_n, then q from p_{n+1}. Because
+∂H/∂r depends on p_θ only and ∂H/∂θ on neither momentum, this is explicit and
+exactly symplectic: the energy error is bounded (≈ h/2 × the power exchanged
+between kinetic and potential energy) and does not drift. Friction (motor
+Coulomb plus gear efficiency) is resolved implicitly as stick-slip, and the
+hard stops as a linearly implicit spring-damper that only pushes back into the
+workspace, so both are unconditionally stable. The currents are integrated
+exactly per substep (drivers.motor), so L/R does not limit the substep either.
+
+What stays explicit is the dissipation of the drives and joints (checked at
+construction: h·c/M < 0.1) and the contact, which the ground computes from
+the tip's state at the start of each substep. With M_tip the tip's apparent
+mass along the contact direction (:func:`tip_apparent_masses_kg`, down to
+≈1.7 kg with the defaults), a contact of stiffness K and damping slope c is
+stable while h·√(K/M_tip) < 2 and h·c/M_tip < 2. The soil bounds its drag's
+damping slope at c_max = 2·10⁴ N·s/m (drivers.soil), so at the default substep
+of 50 µs h·c/M_tip ≤ 0.6, and a stone's 10⁷ N/m penalty spring is resolved with
+h·ω ≈ 0.12. (Without that bound the drag −H·tanh(v/v_s) of a deep cut has a
+slope H/v_s up to ≈1.3·10⁵ N·s/m and makes the tip chatter at 0.1 ms.)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from drivers.motor import (
+    Bridge,
+    MotorDrive,
+    MotorParams,
+    check_declared_bounds,
+    reflected_inertia,
+    stick_slip_velocity,
+    substeps_in,
+)
+from rakectl import kinematics
+from rakectl.errors import ConfigError, NonFiniteError
+from rakectl.kinematics import Workspace
+from rakectl.settings import setting
+
+DEFAULT_SUBSTEP_S = 5e-5  # set by the contact; see the module docstring
+MAX_EXPLICIT_DAMPING = 0.1  # largest allowed h·c/M of an explicitly integrated damper
+
+
+@dataclass(frozen=True)
+class ArmParams:
+    """Mass, geometry and end stops of the rake arm (the r-θ links, not the motors).
+
+    Defaults: an aluminium rake with tines and a sliding carriage, 4 kg over
+    1.6 m; it weighs ≈31 N·m about the pivot when held horizontal at full reach.
+    """
+
+    rake_mass_kg: float = setting(
+        4.0, "Mass moving along r: rake, tines and sliding carriage.", unit="kg", gt=0, le=1e3
+    )
+    rake_length_m: float = setting(
+        1.6, "Length of the rake; its centre of mass is r − length/2 from the pivot.",
+        unit="m", gt=0, le=10,
+    )
+    platform_inertia_kgm2: float = setting(
+        0.3, "Rotating platform about the θ pivot (centre of mass on the pivot).",
+        unit="kg·m²", ge=0, le=1e3,
+    )
+    gravity_m_per_s2: float = setting(9.81, "Gravitational acceleration.", unit="m/s²",
+                                      ge=0, le=100)
+    stop_stiffness_r_n_per_m: float = setting(
+        2.0e6, "Stiffness of the r end stops (0 = none).", unit="N/m", ge=0, le=1e10
+    )
+    stop_damping_r_ns_per_m: float = setting(
+        5.0e3, "Damping of the r end stops (only pushes back).", unit="N·s/m", ge=0, le=1e8
+    )
+    stop_stiffness_theta_nm_per_rad: float = setting(
+        1.0e6, "Stiffness of the θ end stops (0 = none).", unit="N·m/rad", ge=0, le=1e10
+    )
+    stop_damping_theta_nms_per_rad: float = setting(
+        2.0e3, "Damping of the θ end stops (only pushes back).", unit="N·m·s/rad", ge=0, le=1e8
+    )
+    damping_r_ns_per_m: float = setting(
+        2.0, "Viscous damping of the r slide (seals, guides).", unit="N·s/m", ge=0, le=1e5
+    )
+    damping_theta_nms_per_rad: float = setting(
+        0.5, "Viscous damping of the θ pivot bearings.", unit="N·m·s/rad", ge=0, le=1e5
+    )
+
+    def __post_init__(self) -> None:
+        check_declared_bounds(self)
+
+
+class ContactModel(Protocol):
+    """The ground as the tip feels it (implemented by the soil model)."""
+
+    def step(
+        self,
+        reach_m: float,
+        height_m: float,
+        reach_vel_m_per_s: float,
+        height_vel_m_per_s: float,
+        dt_s: float,
+    ) -> tuple[float, float]:
+        """Force ON the tip by the ground (f_reach_n, f_height_n); advance the ground by dt_s."""
+        ...
+
+
+@dataclass(frozen=True)
+class ArmState:
+    """True state of the arm and its motor currents."""
+
+    r_m: float
+    theta_rad: float
+    r_vel_m_per_s: float = 0.0
+    theta_vel_rad_per_s: float = 0.0
+    current_r_a: float = 0.0
+    current_theta_a: float = 0.0
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """What the drives report at the end of a step.
+
+    Positions are encoder counts converted back to joint units (incremental
+    encoders zeroed at joint position 0, so the error is in (−1, 0] count);
+    velocities are the difference of the last two such samples over the step;
+    currents carry seeded Gaussian noise.
+    """
+
+    r_m: float
+    theta_rad: float
+    r_vel_m_per_s: float
+    theta_vel_rad_per_s: float
+    current_r_a: float
+    current_theta_a: float
+
+
+@dataclass(frozen=True, slots=True)
+class _HardStop:
+    lower: float
+    upper: float
+    stiffness: float
+    damping: float
+
+
+def gravity_joint_loads(arm: ArmParams, r_m: float, theta_rad: float) -> tuple[float, float]:
+    """Loads (F_r in N, τ_θ in N·m) the motors must supply to hold the pose against gravity."""
+    weight_n = arm.rake_mass_kg * arm.gravity_m_per_s2
+    com_m = r_m - 0.5 * arm.rake_length_m
+    return -weight_n * math.sin(theta_rad), -weight_n * com_m * math.cos(theta_rad)
+
+
+def joint_masses(
+    arm: ArmParams, motor_r: MotorParams, motor_theta: MotorParams, r_m: float
+) -> tuple[float, float]:
+    """Diagonal of the mass matrix at rake length r_m: (M_r in kg, M_θ in kg·m²)."""
+    com_m = r_m - 0.5 * arm.rake_length_m
+    return arm.rake_mass_kg + reflected_inertia(motor_r), (
+        _inertia_at_com(arm) + arm.platform_inertia_kgm2 + reflected_inertia(motor_theta)
+        + arm.rake_mass_kg * com_m * com_m
+    )
+
+
+def tip_apparent_masses_kg(
+    arm: ArmParams, motor_r: MotorParams, motor_theta: MotorParams, r_m: float, theta_rad: float
+) -> tuple[float, float]:
+    """Mass the tip presents to a force along reach and along height: 1 / (uᵀ J M⁻¹ Jᵀ u)."""
+    mass_r, inertia_theta = joint_masses(arm, motor_r, motor_theta, r_m)
+    j11, j12, j21, j22 = kinematics.jacobian(r_m, theta_rad)
+    return (
+        1.0 / (j11 * j11 / mass_r + j12 * j12 / inertia_theta),
+        1.0 / (j21 * j21 / mass_r + j22 * j22 / inertia_theta),
+    )
+
+
+def _inertia_at_com(arm: ArmParams) -> float:
+    return arm.rake_mass_kg * arm.rake_length_m**2 / 12.0
+
+
+def _joint_velocity(
+    momentum: float, force: float, mass: float, position: float, stop: _HardStop,
+    band: tuple[float, float], h: float,
+) -> float:
+    """Velocity at the end of a substep: stick-slip drive band, implicit one-sided stop."""
+    upper_depth, lower_depth = position - stop.upper, position - stop.lower
+    depth = upper_depth if upper_depth > 0.0 else min(lower_depth, 0.0)
+    plus, minus = band
+    if depth != 0.0:
+        stiff, damp = stop.stiffness, stop.damping
+        denom = mass + h * (damp + h * stiff)
+        vel = stick_slip_velocity(momentum + h * (force - stiff * depth), h * plus, h * minus,
+                                  denom)
+        if (stiff * (depth + h * vel) + damp * vel) * depth >= 0.0:  # pushes back: accept
+            return vel
+    return stick_slip_velocity(momentum + h * force, h * plus, h * minus, mass)
+
+
+class ArmPlant:
+    """The arm, its two motors and drives, advanced in fixed substeps."""
+
+    def __init__(
+        self,
+        arm: ArmParams,
+        motor_r: MotorParams,
+        motor_theta: MotorParams,
+        workspace: Workspace,
+        substep_s: float = DEFAULT_SUBSTEP_S,
+        seed: int = 0,
+    ) -> None:
+        if not 0.0 < substep_s <= 1e-3:
+            raise ConfigError(f"substep_s must be in (0, 1 ms], got {substep_s:g}")
+        self.arm, self.workspace, self.substep_s = arm, workspace, substep_s
+        self._drive_r = MotorDrive(motor_r, substep_s)
+        self._drive_theta = MotorDrive(motor_theta, substep_s)
+        self._mass_r, _ = joint_masses(arm, motor_r, motor_theta, 0.0)
+        self._inertia_theta_0 = joint_masses(arm, motor_r, motor_theta, arm.rake_length_m / 2)[1]
+        self._stop_r = _HardStop(workspace.r_min_m, workspace.r_max_m,
+                                 arm.stop_stiffness_r_n_per_m, arm.stop_damping_r_ns_per_m)
+        self._stop_theta = _HardStop(workspace.theta_min_rad, workspace.theta_max_rad,
+                                     arm.stop_stiffness_theta_nm_per_rad,
+                                     arm.stop_damping_theta_nms_per_rad)
+        self._check_explicit_damping()
+        self._rng = np.random.default_rng(seed)
+        self._bridge_r, self._bridge_theta = Bridge.DRIVEN, Bridge.DRIVEN
+        self._time_s, self._last_tip_force_n, self._last_contact_loads = 0.0, (0.0, 0.0), (0.0, 0.0)
+        self.set_state(ArmState(workspace.r_min_m, 0.0))
+
+    def _check_explicit_damping(self) -> None:
+        for name, damping, mass in (
+            ("r", self._drive_r.emf_damping + self.arm.damping_r_ns_per_m, self._mass_r),
+            ("theta", self._drive_theta.emf_damping + self.arm.damping_theta_nms_per_rad,
+             self._inertia_theta_0),
+        ):
+            if self.substep_s * damping / mass > MAX_EXPLICIT_DAMPING:
+                raise ConfigError(f"substep_s={self.substep_s:g} s is too long for the {name} "
+                                  f"joint's damping ({damping:g}) on its mass ({mass:g})")
+
+    # ------------------------------------------------------------------- state
+
+    def set_state(self, state: ArmState) -> None:
+        """Put the arm in a state; the drives' velocity estimates restart at zero."""
+        self._r_m, self._theta_rad = state.r_m, state.theta_rad
+        self._p_r = self._mass_r * state.r_vel_m_per_s
+        self._p_theta = self._inertia_theta(state.r_m) * state.theta_vel_rad_per_s
+        self._current_r_a, self._current_theta_a = state.current_r_a, state.current_theta_a
+        self._counts_r = self._drive_r.counts(state.r_m)
+        self._counts_theta = self._drive_theta.counts(state.theta_rad)
+        self._measured = Measurement(
+            self._counts_r * self._drive_r.resolution,
+            self._counts_theta * self._drive_theta.resolution,
+            0.0, 0.0, state.current_r_a, state.current_theta_a,
+        )
+
+    def set_pose_at_rest(self, r_m: float, theta_rad: float) -> None:
+        self.set_state(ArmState(r_m, theta_rad))
+
+    def set_bridges(self, r: Bridge, theta: Bridge) -> None:
+        """Drive (DRIVEN) or disconnect (OPEN) each motor."""
+        self._bridge_r, self._bridge_theta = r, theta
+
+    def state(self) -> ArmState:
+        return ArmState(self._r_m, self._theta_rad, self.r_vel_m_per_s,
+                        self.theta_vel_rad_per_s, self._current_r_a, self._current_theta_a)
+
+    @property
+    def time_s(self) -> float:
+        return self._time_s
+
+    @property
+    def r_m(self) -> float:
+        return self._r_m
+
+    @property
+    def theta_rad(self) -> float:
+        return self._theta_rad
+
+    @property
+    def r_vel_m_per_s(self) -> float:
+        return self._p_r / self._mass_r
+
+    @property
+    def theta_vel_rad_per_s(self) -> float:
+        return self._p_theta / self._inertia_theta(self._r_m)
+
+    @property
+    def current_r_a(self) -> float:
+        return self._current_r_a
+
+    @property
+    def current_theta_a(self) -> float:
+        return self._current_theta_a
+
+    @property
+    def last_tip_force_n(self) -> tuple[float, float]:
+        """Force on the tip by the ground in the last substep: (reach, height) in N."""
+        return self._last_tip_force_n
+
+    @property
+    def last_contact_joint_loads(self) -> tuple[float, float]:
+        """That force as joint loads Jᵀ F: (F_r in N, τ_θ in N·m)."""
+        return self._last_contact_loads
+
+    def tip_m(self) -> tuple[float, float]:
+        """True tip (reach_m, height_m)."""
+        return kinematics.forward(self.workspace, self._r_m, self._theta_rad)
+
+    def tip_vel_m_per_s(self) -> tuple[float, float]:
+        return kinematics.tip_velocity(self._r_m, self._theta_rad, self.r_vel_m_per_s,
+                                       self.theta_vel_rad_per_s)
+
+    def mechanical_energy_j(self) -> float:
+        """Kinetic (rake, platform, reflected rotors) plus gravitational energy."""
+        kinetic_j = 0.5 * (self._p_r**2 / self._mass_r
+                           + self._p_theta**2 / self._inertia_theta(self._r_m))
+        com_m = self._r_m - 0.5 * self.arm.rake_length_m
+        height_m = self.workspace.pivot_height_m - com_m * math.sin(self._theta_rad)
+        return kinetic_j + self.arm.rake_mass_kg * self.arm.gravity_m_per_s2 * height_m
+
+    def measure(self) -> Measurement:
+        """The drives' report, sampled at the end of the last step."""
+        return self._measured
+
+    # ------------------------------------------------------------------- dynamics
+
+    def _inertia_theta(self, r_m: float) -> float:
+        com_m = r_m - 0.5 * self.arm.rake_length_m
+        return self._inertia_theta_0 + self.arm.rake_mass_kg * com_m * com_m
+
+    def step(
+        self, voltage_r_v: float, voltage_theta_v: float, contact: ContactModel, dt_s: float
+    ) -> None:
+        """Advance dt_s (a whole number of substeps) at constant voltage commands."""
+        if not (math.isfinite(voltage_r_v) and math.isfinite(voltage_theta_v)):
+            raise NonFiniteError(f"voltages must be finite, got {voltage_r_v}, {voltage_theta_v}")
+        for _ in range(substeps_in(dt_s, self.substep_s)):
+            self._substep(voltage_r_v, voltage_theta_v, contact)
+        self._time_s += dt_s
+        self._sample(dt_s)
+
+    def _contact_loads(self, contact: ContactModel, vel_r: float, vel_theta: float) -> tuple[
+        float, float
+    ]:
+        r_m, theta_rad = self._r_m, self._theta_rad
+        reach_m, height_m = kinematics.forward(self.workspace, r_m, theta_rad)
+        reach_vel, height_vel = kinematics.tip_velocity(r_m, theta_rad, vel_r, vel_theta)
+        force = contact.step(reach_m, height_m, reach_vel, height_vel, self.substep_s)
+        if not math.isfinite(force[0] + force[1]):
+            raise NonFiniteError(f"contact force must be finite, got {force}")
+        self._last_tip_force_n = force
+        self._last_contact_loads = kinematics.joint_loads(r_m, theta_rad, force[0], force[1])
+        return self._last_contact_loads
+
+    def _substep(self, voltage_r_v: float, voltage_theta_v: float, contact: ContactModel) -> None:
+        h, arm, r_m, theta_rad = self.substep_s, self.arm, self._r_m, self._theta_rad
+        inertia_theta = self._inertia_theta(r_m)
+        vel_r, vel_theta = self._p_r / self._mass_r, self._p_theta / inertia_theta
+        load_r, load_theta = self._contact_loads(contact, vel_r, vel_theta)
+        self._current_r_a, mean_r_a = self._drive_r.currents(
+            self._current_r_a, voltage_r_v, vel_r, self._bridge_r)
+        self._current_theta_a, mean_theta_a = self._drive_theta.currents(
+            self._current_theta_a, voltage_theta_v, vel_theta, self._bridge_theta)
+        com_m, weight_n = r_m - 0.5 * arm.rake_length_m, arm.rake_mass_kg * arm.gravity_m_per_s2
+        force_theta = (weight_n * com_m * math.cos(theta_rad) + load_theta
+                       - arm.damping_theta_nms_per_rad * vel_theta)
+        band = self._drive_theta.load_band(mean_theta_a, vel_theta)
+        vel_theta = _joint_velocity(self._p_theta, force_theta, inertia_theta, theta_rad,
+                                    self._stop_theta, band, h)
+        force_r = (weight_n * math.sin(theta_rad) + load_r - arm.damping_r_ns_per_m * vel_r
+                   + arm.rake_mass_kg * com_m * vel_theta * vel_theta)  # centrifugal: p_θ new
+        band = self._drive_r.load_band(mean_r_a, vel_r)
+        vel_r = _joint_velocity(self._p_r, force_r, self._mass_r, r_m, self._stop_r, band, h)
+        self._p_theta, self._p_r = inertia_theta * vel_theta, self._mass_r * vel_r
+        self._r_m, self._theta_rad = r_m + h * vel_r, theta_rad + h * vel_theta
+
+    def _sample(self, dt_s: float) -> None:
+        counts_r = self._drive_r.counts(self._r_m)
+        counts_theta = self._drive_theta.counts(self._theta_rad)
+        res_r, res_theta = self._drive_r.resolution, self._drive_theta.resolution
+        noise = self._rng.standard_normal(2)
+        self._measured = Measurement(
+            counts_r * res_r,
+            counts_theta * res_theta,
+            (counts_r - self._counts_r) * res_r / dt_s,
+            (counts_theta - self._counts_theta) * res_theta / dt_s,
+            self._current_r_a + self._drive_r.params.current_noise_a * float(noise[0]),
+            self._current_theta_a + self._drive_theta.params.current_noise_a * float(noise[1]),
+        )
+        self._counts_r, self._counts_theta = counts_r, counts_theta

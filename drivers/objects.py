@@ -1,0 +1,262 @@
+"""Buried objects and the :class:`Ground` that combines them with the soil (pure model).
+
+Each object is a rectangle in the (reach, height) plane: ``width_m`` along the
+reach centred on ``reach_m``, from its top at ``−depth_m`` (below ground level
+0) down ``thickness_m``; it is assumed to span the rake's width. It is felt
+only while the tip is strictly inside that rectangle. The face pressed is the
+one the tip is least deep behind (top, robot side, far side): a penalty
+contact F = K·penetration + K·τ·(approach speed), clipped at 0 (no pulling).
+Above its bottom and within its extent an object shields the soil below its
+top: the soil model never sees the tip lower than the object's top.
+
+* STONE: rigid (K = 1e7 N/m), never yields or collapses.
+* ROOT: elastic–perfectly plastic: K from a 2 cm wooden root bent over
+  0.3 m (48EI/L³ with E = 10 GPa ≈ 1.4e5 N/m), force capped at the yield force
+  (M_y = σ_y I/(d/2) with σ_y = 40 MPa, F = 4M_y/L ≈ 400 N); beyond it the root
+  is pushed along (permanent set) and, once moved by ``break_displacement_m``,
+  it has broken or been torn aside and is felt no more. While it is pushed
+  down, the soil under it is squeezed as under the tip (the soil's saw-tooth,
+  ≤ its collapse force, adds to the yield force).
+* MINE: rigid body (K = 5e6 N/m, a plastic casing) whose whole top is the
+  pressure plate (conservative). It is activated — latched — the first step
+  the vertical force on its top exceeds ``activation_force_n``; a push on its
+  side does not activate it (side forces are recorded as ``peak_side_n``).
+  Force passed down through covering soil is not counted: it never exceeds the
+  tip's total vertical force, which :class:`GroundTruth` records as
+  ``max_force_down_n``, so the 90 N criterion on that total is the
+  conservative check.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+from drivers.soil import Soil, SoilParams
+from rakectl.errors import NonFiniteError
+from rakectl.settings import section, setting
+
+
+class Contact(enum.Enum):
+    """What the tip is touching (objects take precedence over soil)."""
+
+    NONE = "none"
+    SOIL = "soil"
+    STONE = "stone"
+    ROOT = "root"
+    MINE = "mine"
+
+
+@dataclass(frozen=True)
+class StoneParams:
+    """A stone: rigid, never yields."""
+
+    reach_m: float = setting(1.0, "Centre along the reach.", unit="m", ge=0, le=20)
+    depth_m: float = setting(0.08, "Depth of its top below ground level 0 (< 0 protrudes).",
+                             unit="m", ge=-0.5, le=2)
+    width_m: float = setting(0.10, "Extent along the reach.", unit="m", gt=0, le=2)
+    thickness_m: float = setting(0.08, "Extent below its top.", unit="m", gt=0, le=2)
+    stiffness_n_per_m: float = setting(1.0e7, "Contact stiffness.", unit="N/m", gt=0, le=1e9)
+    damping_time_s: float = setting(2.0e-4, "Contact dashpot as a time constant: B = K·τ.",
+                                    unit="s", ge=0, le=0.1)
+
+
+@dataclass(frozen=True)
+class RootParams:
+    """A root crossing the lane: elastic, then plastic above its yield force."""
+
+    reach_m: float = setting(1.0, "Centre along the reach.", unit="m", ge=0, le=20)
+    depth_m: float = setting(0.06, "Depth of its top below ground level 0.", unit="m",
+                             ge=-0.5, le=2)
+    width_m: float = setting(0.02, "Diameter along the reach.", unit="m", gt=0, le=2)
+    thickness_m: float = setting(0.02, "Diameter, vertically.", unit="m", gt=0, le=2)
+    stiffness_n_per_m: float = setting(1.4e5, "Bending stiffness 48EI/L³.", unit="N/m",
+                                       gt=0, le=1e9)
+    damping_time_s: float = setting(2.0e-4, "Contact dashpot as a time constant: B = K·τ.",
+                                    unit="s", ge=0, le=0.1)
+    yield_force_n: float = setting(400.0, "Force above which it bends permanently.",
+                                   unit="N", gt=0, le=1e5)
+    break_displacement_m: float = setting(0.03, "Permanent set at which it breaks.", unit="m",
+                                          gt=0, le=2)
+
+
+@dataclass(frozen=True)
+class MineParams:
+    """A pressure-fused anti-personnel mine; its whole top is the pressure plate."""
+
+    reach_m: float = setting(1.0, "Centre along the reach.", unit="m", ge=0, le=20)
+    depth_m: float = setting(0.05, "Depth of its top (the plate) below ground level 0.",
+                             unit="m", ge=-0.5, le=2)
+    width_m: float = setting(0.08, "Diameter along the reach.", unit="m", gt=0, le=2)
+    thickness_m: float = setting(0.05, "Height of the body.", unit="m", gt=0, le=2)
+    stiffness_n_per_m: float = setting(5.0e6, "Contact stiffness.", unit="N/m", gt=0, le=1e9)
+    damping_time_s: float = setting(2.0e-4, "Contact dashpot as a time constant: B = K·τ.",
+                                    unit="s", ge=0, le=0.1)
+    activation_force_n: float = setting(
+        90.0, "Plate force that fires it (typical AP mines: 80–100 N).", unit="N",
+        gt=0, le=1e4)
+
+
+@dataclass(frozen=True)
+class BuriedObjects:
+    """The objects buried in the lane."""
+
+    stones: tuple[StoneParams, ...] = setting((), "Stones.")
+    roots: tuple[RootParams, ...] = setting((), "Roots.")
+    mines: tuple[MineParams, ...] = setting((), "Mines.")
+
+
+class Body:
+    """Runtime state of one buried object; ``touch`` writes the forces on the tip."""
+
+    __slots__ = ("activated", "activation_force_n", "bottom_m", "break_m", "broken",
+                 "damping_s", "force_reach_n", "force_up_n", "kind", "left_m", "moved_m",
+                 "peak_down_n", "peak_side_n", "right_m", "stiffness_n_per_m", "top_m",
+                 "yield_force_n")
+
+    def __init__(self, kind: Contact, p: StoneParams | RootParams | MineParams) -> None:
+        self.kind = kind
+        self.left_m, self.right_m = p.reach_m - 0.5 * p.width_m, p.reach_m + 0.5 * p.width_m
+        self.top_m, self.bottom_m = -p.depth_m, -p.depth_m - p.thickness_m
+        self.stiffness_n_per_m, self.damping_s = p.stiffness_n_per_m, p.damping_time_s
+        self.yield_force_n = p.yield_force_n if isinstance(p, RootParams) else math.inf
+        self.break_m = p.break_displacement_m if isinstance(p, RootParams) else math.inf
+        self.activation_force_n = (p.activation_force_n if isinstance(p, MineParams)
+                                   else math.inf)
+        self.moved_m = self.force_reach_n = self.force_up_n = 0.0
+        self.peak_down_n = self.peak_side_n = 0.0
+        self.broken = self.activated = False
+
+    def touch(self, reach_m: float, height_m: float, reach_vel_m_per_s: float,
+              height_vel_m_per_s: float) -> bool:
+        """Forces on the tip at this position; False (and zero forces) if not touching."""
+        self.force_reach_n = self.force_up_n = 0.0
+        if self.broken or not (self.left_m < reach_m < self.right_m
+                               and self.bottom_m < height_m < self.top_m):
+            return False
+        top_m, near_m, far_m = self.top_m - height_m, reach_m - self.left_m, self.right_m - reach_m
+        if top_m <= near_m and top_m <= far_m:
+            self.force_up_n = self._resist(top_m, -height_vel_m_per_s, 0.0, -1.0)
+            self._record_top(self.force_up_n)
+        elif near_m < far_m:
+            self.force_reach_n = -self._resist(near_m, reach_vel_m_per_s, 1.0, 0.0)
+            self._record_side(-self.force_reach_n)
+        else:
+            self.force_reach_n = self._resist(far_m, -reach_vel_m_per_s, -1.0, 0.0)
+            self._record_side(self.force_reach_n)
+        return True
+
+    def _resist(self, depth_m: float, approach_m_per_s: float, dx: float, dz: float) -> float:
+        """Penalty force of a face; a root yields, moving along (dx, dz)."""
+        elastic_n = self.stiffness_n_per_m * depth_m
+        if elastic_n > self.yield_force_n:
+            self._yield((elastic_n - self.yield_force_n) / self.stiffness_n_per_m, dx, dz)
+            elastic_n = self.yield_force_n
+        force_n = elastic_n + self.stiffness_n_per_m * self.damping_s * approach_m_per_s
+        return force_n if force_n > 0.0 else 0.0
+
+    def _yield(self, set_m: float, dx: float, dz: float) -> None:
+        self.left_m += dx * set_m
+        self.right_m += dx * set_m
+        self.top_m += dz * set_m
+        self.bottom_m += dz * set_m
+        self.moved_m += set_m
+        if self.moved_m > self.break_m:
+            self.broken = True
+
+    def _record_top(self, force_n: float) -> None:
+        if force_n > self.peak_down_n:
+            self.peak_down_n = force_n
+        if force_n > self.activation_force_n:
+            self.activated = True
+
+    def _record_side(self, force_n: float) -> None:
+        if force_n > self.peak_side_n:
+            self.peak_side_n = force_n
+
+
+def make_bodies(objects: BuriedObjects) -> tuple[Body, ...]:
+    return (tuple(Body(Contact.STONE, p) for p in objects.stones)
+            + tuple(Body(Contact.ROOT, p) for p in objects.roots)
+            + tuple(Body(Contact.MINE, p) for p in objects.mines))
+
+
+class GroundTruth:
+    """What really happened at the tip, updated in place by every :meth:`Ground.step`.
+
+    ``force_down_n``: vertical force the tip applies on the ground (> 0 pressing
+    down); ``force_drag_n``: horizontal force the tip applies on the ground,
+    > 0 toward the robot (a contact stroke); ``interface_height_m``: undeformed
+    soil interface x_e under the tip; ``surface_height_m``: top of the soil just
+    ahead of the tip; ``cut_depth_m``; ``contact``; ``mine_activated`` (latched);
+    ``max_force_down_n``: the largest vertical force so far, peaks inside a step
+    included.
+    """
+
+    __slots__ = ("contact", "cut_depth_m", "force_down_n", "force_drag_n",
+                 "interface_height_m", "max_force_down_n", "mine_activated",
+                 "surface_height_m")
+
+    def __init__(self) -> None:
+        self.force_down_n = self.force_drag_n = self.max_force_down_n = 0.0
+        self.interface_height_m = self.surface_height_m = self.cut_depth_m = 0.0
+        self.contact = Contact.NONE
+        self.mine_activated = False
+
+
+@dataclass(frozen=True)
+class GroundParams:
+    """Soil and buried objects of a lane."""
+
+    soil: SoilParams = section(SoilParams)
+    objects: BuriedObjects = section(BuriedObjects)
+
+
+class Ground:
+    """Soil plus buried objects: the force on the rake tip, one substep at a time."""
+
+    __slots__ = ("bodies", "soil", "truth")
+
+    def __init__(self, params: GroundParams, seed: int) -> None:
+        self.soil = Soil(params.soil, seed)
+        self.bodies = make_bodies(params.objects)
+        self.truth = GroundTruth()
+
+    def step(self, reach_m: float, height_m: float, reach_vel_m_per_s: float,
+             height_vel_m_per_s: float, dt_s: float) -> tuple[float, float]:
+        """Force ON the tip BY the ground, (f_reach_n, f_height_n); advances the ground's state.
+
+        The models are quasi-static, so ``dt_s`` only has to be finite.
+        """
+        if not math.isfinite(reach_m + height_m + reach_vel_m_per_s + height_vel_m_per_s + dt_s):
+            raise NonFiniteError("Ground.step: non-finite tip state or time step")
+        truth, shield_m, f_reach_n, f_up_n = self.truth, -math.inf, 0.0, 0.0
+        contact = Contact.NONE
+        for body in self.bodies:
+            if (not body.broken and body.left_m < reach_m < body.right_m
+                    and height_m > body.bottom_m and body.top_m > shield_m):
+                shield_m = body.top_m
+            if body.touch(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s):
+                f_reach_n += body.force_reach_n
+                f_up_n += body.force_up_n
+                contact = body.kind
+                if body.activated:
+                    truth.mine_activated = True
+        soil = self.soil
+        soil.step(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s, shield_m)
+        self._record(truth, contact, f_reach_n + soil.force_reach_n, f_up_n)
+        return truth.force_drag_n, truth.force_down_n
+
+    def _record(self, truth: GroundTruth, contact: Contact, f_reach_n: float,
+                f_up_objects_n: float) -> None:
+        soil = self.soil
+        truth.force_drag_n = f_reach_n
+        truth.force_down_n = f_up_objects_n + soil.force_up_n
+        peak_n = f_up_objects_n + soil.peak_up_n
+        if peak_n > truth.max_force_down_n:
+            truth.max_force_down_n = peak_n
+        truth.contact = Contact.SOIL if contact is Contact.NONE and soil.touching else contact
+        truth.interface_height_m = soil.interface_height_m
+        truth.surface_height_m = soil.surface_height_m
+        truth.cut_depth_m = soil.cut_depth_m

@@ -1,0 +1,165 @@
+"""Buried objects and the combined Ground: felt only where they are; stones, roots, mines."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from drivers.objects import (
+    Body,
+    BuriedObjects,
+    Contact,
+    Ground,
+    GroundParams,
+    MineParams,
+    RootParams,
+    StoneParams,
+)
+from drivers.soil import SoilLayer, SoilParams
+from rakectl.errors import NonFiniteError
+
+DT_S = 1e-4
+QUIET_SOIL = SoilParams(layers=(SoilLayer(damping_time_s=0.0),), stiffness_rel_std=0.0,
+                        strength_rel_std=0.0)
+
+
+def ground(*, stones: tuple[StoneParams, ...] = (), roots: tuple[RootParams, ...] = (),
+           mines: tuple[MineParams, ...] = (), soil: SoilParams = QUIET_SOIL) -> Ground:
+    return Ground(GroundParams(soil=soil, objects=BuriedObjects(stones, roots, mines)), seed=0)
+
+
+def press(g: Ground, reach_m: float, start_m: float, stop_m: float,
+          step_m: float = 2e-6) -> tuple[np.ndarray, np.ndarray]:
+    """Descend quasi-statically at reach_m: (heights, vertical force on the tip)."""
+    heights = np.arange(start_m, stop_m, -step_m)
+    forces = np.array([g.step(reach_m, h, 0.0, 0.0, DT_S)[1] for h in heights])
+    return heights, forces
+
+
+# The object below spans reach 0.95–1.05 m and heights −0.13 to −0.05 m; each case
+# puts the tip a distance outside one face and level with (or across) the others.
+gap = st.floats(0.0, 0.3)
+outside = st.one_of(
+    st.tuples(gap.map(lambda d: 0.95 - d), st.floats(-0.13, -0.05)),  # nearer the robot
+    st.tuples(gap.map(lambda d: 1.05 + d), st.floats(-0.13, -0.05)),  # beyond it
+    st.tuples(st.floats(0.95, 1.05), gap.map(lambda d: -0.05 + d)),  # above its top
+    st.tuples(st.floats(0.95, 1.05), gap.map(lambda d: -0.13 - d)),  # below its bottom
+    st.tuples(st.floats(0.3, 1.7), st.floats(-0.2, 0.1)),
+)
+kinds = st.sampled_from(["stones", "roots", "mines"])
+
+
+@settings(max_examples=150, deadline=None)
+@given(outside, kinds, st.floats(-1, 1), st.floats(-1, 1))
+def test_an_object_is_felt_only_where_it_is(at: tuple[float, float], kind: str, vr: float,
+                                            vh: float) -> None:
+    reach_m, height_m = at
+    body = dict(reach_m=1.0, depth_m=0.05, width_m=0.1, thickness_m=0.08)
+    objects = {"stones": BuriedObjects(stones=(StoneParams(**body),)),
+               "roots": BuriedObjects(roots=(RootParams(**body),)),
+               "mines": BuriedObjects(mines=(MineParams(**body),))}[kind]
+    with_object = Ground(GroundParams(soil=QUIET_SOIL, objects=objects), seed=0)
+    without = ground()
+    forces = with_object.step(reach_m, height_m, vr, vh, DT_S)
+    obj = with_object.bodies[0]
+    assert obj.force_reach_n == 0.0 and obj.force_up_n == 0.0
+    assert forces == without.step(reach_m, height_m, vr, vh, DT_S)
+    assert with_object.truth.contact in (Contact.NONE, Contact.SOIL)
+    if height_m > 0.0:
+        assert with_object.truth.contact is Contact.NONE and forces == (0.0, 0.0)
+
+
+def test_an_object_is_felt_inside_its_extent() -> None:
+    body = Body(Contact.STONE, StoneParams(reach_m=1.0, depth_m=0.05, width_m=0.1))
+    assert body.touch(1.02, -0.0501, 0.0, -0.01)
+    assert body.force_up_n == pytest.approx(1e7 * 1e-4 + 1e7 * 2e-4 * 0.01)
+    assert not body.touch(1.06, -0.0501, 0.0, -0.01) and body.force_up_n == 0.0
+
+
+def test_a_stone_stays_rigid() -> None:
+    g = ground(stones=(StoneParams(depth_m=0.002),))
+    heights, force = press(g, 1.0, 0.001, -0.00215)
+    on = heights < -0.002
+    assert np.all(np.diff(force[on]) > 0.0)  # grows, never collapses
+    assert force[-1] > 1000.0 and g.truth.contact is Contact.STONE
+    soil_part = force[on] - 1e7 * (-0.002 - heights[on])  # shielded: the soil stops changing
+    assert np.ptp(soil_part) < 1e-6 and 0.0 <= soil_part[0] <= 10.0
+    surface = np.array(g.soil.surface_heights_m())
+    assert surface.min() >= -0.002  # the soil under the stone is shielded
+
+
+def test_a_stone_side_is_a_rigid_wall() -> None:
+    g = ground(stones=(StoneParams(reach_m=1.0, depth_m=0.01, width_m=0.1),))
+    g.step(1.2, -0.02, 0.0, 0.0, DT_S)
+    reach = np.arange(1.2, 1.0495, -5e-6)
+    f = np.array([g.step(r, -0.02, -0.05, 0.0, DT_S)[0] for r in reach])
+    against = reach < 1.05
+    assert np.all(f[against] > 0.0)  # pushes the tip back, away from the robot
+    assert f[-1] > 1e7 * 0.0004 and g.truth.contact is Contact.STONE
+
+
+@pytest.mark.parametrize("activation_n", [80.0, 90.0, 100.0])
+def test_a_mine_fires_exactly_when_its_plate_force_exceeds_activation(
+        activation_n: float) -> None:
+    g = ground(mines=(MineParams(depth_m=0.003, activation_force_n=activation_n),))
+    mine = g.bodies[0]
+    g.step(1.0, 0.001, 0.0, 0.0, DT_S)
+    fired_at = None
+    for h in np.arange(-0.0025, -0.004, -1e-7):
+        g.step(1.0, float(h), 0.0, -0.001, DT_S)
+        if fired_at is None:
+            assert mine.activated == (mine.force_up_n > activation_n) == g.truth.mine_activated
+            fired_at = h if mine.activated else None
+    assert fired_at is not None
+    assert mine.peak_down_n > activation_n
+    for h in np.arange(-0.003, 0.01, 1e-4):  # lift off: latched
+        g.step(1.0, float(h), 0.0, 0.01, DT_S)
+        assert mine.activated and g.truth.mine_activated
+    assert g.truth.contact is Contact.NONE
+
+
+def test_a_push_on_a_mine_side_does_not_fire_it_but_is_recorded() -> None:
+    g = ground(mines=(MineParams(reach_m=1.0, depth_m=0.01, width_m=0.08),))
+    mine = g.bodies[0]
+    for r in np.arange(1.1, 1.0395, -5e-6):
+        g.step(float(r), -0.03, -0.05, 0.0, DT_S)
+    assert mine.peak_side_n > 1000.0 and not mine.activated and not g.truth.mine_activated
+    assert g.truth.contact is Contact.MINE and g.truth.force_drag_n > 1000.0
+
+
+def test_a_root_yields_then_breaks() -> None:
+    root = RootParams(depth_m=0.003, yield_force_n=400.0, break_displacement_m=0.01)
+    g = ground(roots=(root,))
+    body = g.bodies[0]
+    heights, force = press(g, 1.0, 0.001, -0.02, step_m=2e-5)
+    touching = (heights < -0.003) & ~np.isclose(force, 0.0)
+    assert force.max() <= 400.0 + QUIET_SOIL.layers[0].collapse_force_n
+    assert np.any(force[touching] > 399.0)
+    assert body.broken and body.moved_m > 0.01
+    assert g.truth.contact is not Contact.ROOT and force[-1] < 20.0
+
+
+def test_ground_record_and_interface() -> None:
+    g = ground(mines=(MineParams(reach_m=1.4),))
+    f_reach, f_up = g.step(1.0, -0.01, -0.05, -0.007, DT_S)
+    t = g.truth
+    assert (f_reach, f_up) == (t.force_drag_n, t.force_down_n)
+    assert t.contact is Contact.SOIL and t.cut_depth_m == pytest.approx(0.01)
+    assert t.surface_height_m == 0.0 and t.interface_height_m == pytest.approx(-0.01)
+    g.step(1.0, -0.01002, 0.0, 0.0, DT_S)
+    assert t.force_down_n > 0.0 and t.max_force_down_n >= t.force_down_n
+    for bad in (math.nan, math.inf):
+        with pytest.raises(NonFiniteError):
+            g.step(1.0, bad, 0.0, 0.0, DT_S)
+
+
+def test_max_force_down_includes_the_peak_inside_a_step() -> None:
+    g = ground()
+    g.step(1.0, 0.001, 0.0, 0.0, DT_S)
+    g.step(1.0, -0.000149, 0.0, -1.0, DT_S)  # two collapses inside one step
+    assert g.truth.force_down_n < 10.0
+    assert g.truth.max_force_down_n == pytest.approx(10.0)
