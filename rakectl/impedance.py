@@ -57,10 +57,17 @@ class ImpedanceFilter:
 
 
 class DelayForceEstimator:
-    """F̂ = K_e (x(t) − x(t − α)) from a ring of measured positions.
+    """F̂ = K_e (x(t) − x(t − α)) from a ring of measured positions, floored at 0.
 
     The ring always records, so α can be switched from 0 (free space) to a
-    contact value at any tick without waiting for history.
+    contact value at any tick without waiting for history. Two deviations
+    from the paper, which only considers an increasing x: soil takes no
+    tension, so F̂ is never negative (a negative F̂ would make the impedance
+    filter push the tip deeper while it rises); and on entering contact the
+    history is re-anchored at the current position (:meth:`enter_contact`),
+    because the soil is undeformed where the tip meets it: the free-space
+    motion before that is not soil deformation (at 0.15 m/s it would read as
+    300 N with α = 10 ms).
     """
 
     __slots__ = ("_delay_ticks", "_index", "_ring", "_size", "dt_s", "stiffness_n_per_m",
@@ -92,6 +99,11 @@ class DelayForceEstimator:
             )
         self._delay_ticks = ticks
 
+    def enter_contact(self, delay_s: float, x_m: float) -> None:
+        """Switch to α = ``delay_s`` with the undeformed soil at ``x_m`` (the tip, now)."""
+        self.set_delay(delay_s)
+        self.reset(x_m)
+
     def reset(self, x_m: float) -> None:
         """Fill the history with ``x_m``: the soil is undeformed at the start."""
         self._ring = [x_m] * self._size
@@ -109,7 +121,7 @@ class DelayForceEstimator:
         j = i - self._delay_ticks
         x_e = ring[j]  # negative j wraps around the ring
         self.x_e_m = x_e
-        return self.stiffness_n_per_m * (x_m - x_e)
+        return self.stiffness_n_per_m * (x_m - x_e) if x_m > x_e else 0.0
 
 
 class ImpedanceController:
