@@ -11,8 +11,13 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rakectl.errors import ConfigError, RakeError
+
+if TYPE_CHECKING:
+    from rakectl.scenario import Scenario
+    from rakectl.simulate import SimulationResult
 
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
@@ -49,9 +54,10 @@ def _build_parser() -> _Parser:
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from rakectl.config import load_settings
     from rakectl.progress import Progress
+    from rakectl.scenario import Scenario
     from rakectl.simulate import run, write_results
 
-    settings = load_settings(args.scenario, args.overrides)
+    settings = load_settings(args.scenario, args.overrides, root=Scenario)
     if args.plot:
         from rakectl.plot import pyplot
 
@@ -59,9 +65,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     result = run(settings, progress=Progress(f"simulating {args.scenario.name}"))
     write_results(result, args.out)
     if args.plot:
-        from rakectl.plot import plot_paper_panels
-
-        plot_paper_panels(result, args.out / "plot.png", title=f"{args.scenario.name}")
+        _plot(settings, result, args.out / "plot.png", args.scenario.name)
     summary = result.summary()
     if args.json:
         print(json.dumps(summary))
@@ -72,6 +76,18 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _plot(settings: Scenario, result: SimulationResult, path: Path, title: str) -> None:
+    from rakectl.plot import plot_lane, plot_paper_panels
+    from rakectl.settings import PlantKind, TrajectoryKind
+
+    if settings.plant.kind is PlantKind.RAKE and settings.trajectory.kind is TrajectoryKind.LANE:
+        mines = [(m.reach_m, m.depth_m, m.width_m, m.thickness_m)
+                 for m in settings.emulator.ground.objects.mines]
+        plot_lane(result, path, mines, title)
+    else:
+        plot_paper_panels(result, path, title)
+
+
 def _cmd_config_docs(args: argparse.Namespace) -> int:
     from rakectl.docs import settings_reference
 
@@ -80,11 +96,12 @@ def _cmd_config_docs(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from rakectl.bench import bench_controller_step
+    from rakectl.bench import bench_controller_step, bench_emulator_step
 
     if args.ticks < 1000:
         raise ConfigError("bench: --ticks must be >= 1000")
     print(bench_controller_step(args.ticks))
+    print(bench_emulator_step(max(1000, args.ticks // 50)))
     return 0
 
 

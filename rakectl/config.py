@@ -24,6 +24,7 @@ from rakectl.errors import ConfigError
 from rakectl.settings import Bounds, Settings, cross_checks, has_default
 
 T = TypeVar("T")
+S = TypeVar("S", bound=Settings)
 
 # YAML 1.1 (PyYAML) reads 1.33e4 as a string; accept YAML 1.2 number literals.
 _NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
@@ -76,6 +77,15 @@ def parse_yaml(text: str, source: str) -> dict[str, Any]:
     return tree
 
 
+def _annotate(value: Any, where: str) -> Any:
+    """A plain value (from --set) in the annotated form that _plain gives for files."""
+    if isinstance(value, dict):
+        return {str(k): (where, _annotate(v, where)) for k, v in value.items()}
+    if isinstance(value, list):
+        return [(where, _annotate(item, where)) for item in value]
+    return _Value(value, where)
+
+
 def _apply_override(tree: dict[str, Any], assignment: str) -> None:
     where = f"--set {assignment}"
     key, sep, text = assignment.partition("=")
@@ -93,7 +103,7 @@ def _apply_override(tree: dict[str, Any], assignment: str) -> None:
             entry = (where, {})
             node[part] = entry
         node = entry[1]
-    node[parts[-1]] = (where, _Value(value, where))
+    node[parts[-1]] = (where, _annotate(value, where))
 
 
 def _suggest(key: str, known: Iterable[str]) -> str:
@@ -146,7 +156,10 @@ def _build(cls: type[T], tree: Mapping[str, Any], prefix: str, where: str) -> T:
             continue
         key_where, raw = tree[name]
         kwargs[name] = _field_value(hints[name], raw, prefix + name, key_where, f)
-    return cls(**kwargs)
+    try:
+        return cls(**kwargs)
+    except ConfigError as exc:  # a section's own cross-field check
+        raise ConfigError(f"{where}: {prefix.rstrip('.') or 'settings'}: {exc}") from None
 
 
 def _field_value(tp: Any, raw: Any, dotted: str, where: str, f: dataclasses.Field[Any]) -> Any:
@@ -183,8 +196,8 @@ def _list_item(tp: Any, raw: Any, dotted: str, where: str, f: dataclasses.Field[
 def load_settings(
     path: str | Path | None = None,
     overrides: Iterable[str] = (),
-    root: type[Settings] = Settings,
-) -> Settings:
+    root: type[S] = Settings,  # type: ignore[assignment]
+) -> S:
     """Read ``path`` (or only defaults if None), apply ``--set`` overrides, validate.
 
     Raises ConfigError with a one-line message naming the file, line and key.

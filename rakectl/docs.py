@@ -49,7 +49,19 @@ def rows(cls: type = Settings, prefix: str = "") -> Iterator[tuple[str, ...]]:
             yield from rows(item, f"{prefix}{f.name}[].")  # type: ignore[arg-type]
 
 
-def settings_reference(cls: type = Settings) -> str:
+def _table(cls: type, prefix: str = "") -> str:
     lines = ["| key | type | default | unit | bounds | meaning |", "|---|---|---|---|---|---|"]
-    lines += ["| " + " | ".join(row) + " |" for row in rows(cls)]
+    lines += ["| " + " | ".join(row) + " |" for row in rows(cls, prefix)]
     return "\n".join(lines)
+
+
+def settings_reference() -> str:
+    """Markdown reference of the controller's settings and of the emulator's."""
+    from drivers.settings import EmulatorSettings
+
+    return "\n".join([
+        "### Controller (`rakectl.yaml`, and every scenario)", "",
+        _table(Settings), "",
+        "### Emulated hardware (scenarios and the emulator: `emulator.…`)", "",
+        _table(EmulatorSettings, "emulator."),
+    ])

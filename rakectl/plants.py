@@ -18,12 +18,16 @@ class Plant(Protocol):
         """Put the plant in its initial state; return the first measured x in m."""
         ...
 
-    def step(self, x_ref_m: float) -> float:
-        """Hold ``x_ref_m`` for one period; return the measured x at its end."""
+    def step(self, reach_ref_m: float, x_ref_m: float) -> float:
+        """Hold the reference for one period; return the measured x at its end."""
         ...
 
     def truth(self) -> tuple[float, ...]:
         """Ground truth at the current tick, one value per name in ``columns``."""
+        ...
+
+    def summary(self) -> dict[str, float | int | bool]:
+        """Ground-truth figures of the whole run."""
         ...
 
 
@@ -43,9 +47,13 @@ class FirstOrderPlant:
         self.x_m = self._x0_m
         return self.x_m
 
-    def step(self, x_ref_m: float) -> float:
+    def step(self, reach_ref_m: float, x_ref_m: float) -> float:
+        """The reach is ignored: this plant is the vertical axis alone."""
         self.x_m = self._decay * self.x_m + (1.0 - self._decay) * x_ref_m
         return self.x_m
 
     def truth(self) -> tuple[float, ...]:
         return ()
+
+    def summary(self) -> dict[str, float | int | bool]:
+        return {}

@@ -56,3 +56,49 @@ def plot_paper_panels(result: SimulationResult, path: Path, title: str = "") -> 
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def plot_lane(result: SimulationResult, path: Path, mines: list[tuple[float, float, float, float]],
+              title: str = "") -> None:
+    """A raked lane: the tip's path in the vertical plane, depth and forces against time.
+
+    ``mines`` are (reach_m, top_depth_m, width_m, thickness_m) rectangles to draw.
+    """
+    plt = pyplot()
+    t = result.column("t_s")
+    fig, (ax_path, ax_depth, ax_f) = plt.subplots(3, 1, figsize=(9, 10))
+    ax_path.plot(result.column("tip_reach_m"), 1e3 * result.column("tip_depth_m"), lw=0.8,
+                 label="tip path")
+    ax_path.axhline(0.0, color="saddlebrown", lw=1, label="ground level")
+    for reach_m, depth_m, width_m, thickness_m in mines:
+        ax_path.add_patch(plt.Rectangle((reach_m - width_m / 2, 1e3 * depth_m), width_m,
+                                        1e3 * thickness_m, color="tab:red", alpha=0.4,
+                                        label="mine"))
+    ax_path.invert_yaxis()
+    ax_path.set_xlabel("reach from the pivot [m]")
+    ax_path.set_ylabel("depth below ground [mm]")
+    ax_path.set_title("(a) tip path (the robot is to the left)")
+    ax_path.legend(loc="lower left")
+    ax_depth.plot(t, 1e3 * result.column("x_d_m"), "--", lw=0.8, label="desired depth $x_d$")
+    ax_depth.plot(t, 1e3 * result.column("tip_depth_m"), lw=0.8, label="tip depth")
+    ax_depth.invert_yaxis()
+    ax_depth.set_ylabel("depth [mm]")
+    ax_depth.set_title("(b) depth against time")
+    ax_depth.legend(loc="lower left")
+    ax_f.plot(t, result.column("f_true_x_n"), color="0.6", lw=0.6, label="true drag $F_x$")
+    ax_f.plot(t, result.column("f_true_z_n"), color="tab:blue", lw=0.6,
+              label="true vertical $F_z$")
+    ax_f.plot(t, result.column("f_hat_n"), color="tab:green", lw=0.6,
+              label=r"estimated $\hat{F}_e$")
+    ax_f.axhline(90.0, color="tab:red", ls="--", lw=1, label="90 N limit (vertical)")
+    ax_f.set_ylabel("force [N]")
+    ax_f.set_xlabel("time [s]")
+    ax_f.set_title("(c) forces of the tip on the ground")
+    ax_f.legend(loc="upper left", fontsize="small")
+    for ax in (ax_path, ax_depth, ax_f):
+        ax.grid(True, alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

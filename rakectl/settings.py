@@ -67,9 +67,10 @@ def setting(
     return field(default=default, metadata=meta)
 
 
-def section(cls: type, doc: str | None = None) -> Any:
-    """Declare a nested section whose defaults are the section's own."""
-    return field(default_factory=cls, metadata={"doc": doc or (cls.__doc__ or "").strip()})
+def section(cls: type, default: Any = None, doc: str | None = None) -> Any:
+    """Declare a nested section; its default is ``default`` or the section's own defaults."""
+    factory = cls if default is None else (lambda: default)
+    return field(default_factory=factory, metadata={"doc": doc or (cls.__doc__ or "").strip()})
 
 
 def has_default(f: Any) -> bool:
@@ -87,8 +88,9 @@ class PlantKind(enum.StrEnum):
 
 
 class TrajectoryKind(enum.StrEnum):
-    RAMP = "ramp"  # x_d = start + speed · (t − t0) for t ≥ t0
-    STEP = "step"  # x_d = start + amplitude for t ≥ t0
+    RAMP = "ramp"  # x_d = start + speed · (t − t0) for t ≥ t0, at a fixed reach
+    STEP = "step"  # x_d = start + amplitude for t ≥ t0, at a fixed reach
+    LANE = "lane"  # raking strokes over a lane, deeper each cycle (paper Fig. 3)
 
 
 # --------------------------------------------------------------------------- sections
@@ -142,6 +144,60 @@ class TrajectorySettings:
     start_time_s: float = setting(0.0, "When the ramp or step starts.", unit="s", ge=0)
     speed_m_per_s: float = setting(0.007, "Ramp speed.", unit="m/s", ge=-1, le=1)
     amplitude_m: float = setting(0.01, "Step height.", unit="m", ge=-1, le=1)
+    reach_m: float = setting(1.0, "Horizontal reach of the tip for ramp and step.", unit="m",
+                             gt=0, le=10)
+
+
+@dataclass(frozen=True)
+class LaneSettings:
+    """Raking a lane (paper Fig. 3): contact strokes toward the robot, deeper each cycle."""
+
+    reach_far_m: float = setting(1.3, "Where each contact stroke starts.", unit="m", gt=0,
+                                 le=10)
+    reach_near_m: float = setting(0.8, "Where each contact stroke ends.", unit="m", gt=0,
+                                  le=10)
+    depth_step_m: float = setting(0.01, "Depth added after each cycle.", unit="m", gt=0,
+                                  le=0.1)
+    target_depth_m: float = setting(0.05, "Depth of the last stroke below ground level 0.",
+                                    unit="m", gt=0, le=0.5)
+    clearance_m: float = setting(0.03, "Height of the tip above ground on the return.",
+                                 unit="m", ge=0.005, le=0.5)
+    stroke_speed_m_per_s: float = setting(0.05, "Tip speed along a contact stroke.",
+                                          unit="m/s", gt=0, le=1)
+    plunge_speed_m_per_s: float = setting(0.007, "Descent speed into the soil.", unit="m/s",
+                                          gt=0, le=1)
+    travel_speed_m_per_s: float = setting(0.15, "Tip speed in free space.", unit="m/s", gt=0,
+                                          le=2)
+    accel_m_per_s2: float = setting(0.5, "Tip acceleration limit of the reference; it stops "
+                                    "at every corner of the path.", unit="m/s²", gt=0, le=20)
+
+
+@dataclass(frozen=True)
+class JointLoopSettings:
+    """Gains of one joint position loop (PID with velocity feed-forward); per joint unit."""
+
+    kp_v_per_unit: float = setting(2000.0, "Proportional gain.", unit="V/(m or rad)", ge=0,
+                                   le=1e7)
+    ki_v_per_unit_s: float = setting(1000.0, "Integral gain.", unit="V/((m or rad)·s)", ge=0,
+                                     le=1e9)
+    kd_v_s_per_unit: float = setting(40.0, "Derivative gain on the measured velocity.",
+                                     unit="V·s/(m or rad)", ge=0, le=1e5)
+    kff_v_s_per_unit: float = setting(16.0, "Velocity feed-forward (back-EMF).",
+                                      unit="V·s/(m or rad)", ge=0, le=1e5)
+
+
+@dataclass(frozen=True)
+class JointControlSettings:
+    """Joint position loops: the physical counterpart of the paper's P(s)."""
+
+    r: JointLoopSettings = section(JointLoopSettings)
+    theta: JointLoopSettings = section(
+        JointLoopSettings,
+        JointLoopSettings(kp_v_per_unit=800.0, ki_v_per_unit_s=600.0, kd_v_s_per_unit=40.0,
+                          kff_v_s_per_unit=7.0),
+    )
+    voltage_limit_v: float = setting(24.0, "Largest voltage the loops command.", unit="V",
+                                     gt=0, le=60)
 
 
 @dataclass(frozen=True)
@@ -166,7 +222,9 @@ class Settings:
     impedance: ImpedanceSettings = section(ImpedanceSettings)
     estimator: EstimatorSettings = section(EstimatorSettings)
     trajectory: TrajectorySettings = section(TrajectorySettings)
+    lane: LaneSettings = section(LaneSettings)
     geometry: GeometrySettings = section(GeometrySettings)
+    joint_control: JointControlSettings = section(JointControlSettings)
     desired_force_n: float = setting(0.0, "Desired contact force F_d.", unit="N", ge=-90, le=90)
     duration_s: float = setting(20.0, "Length of a simulation.", unit="s", gt=0, le=3600)
     rate_hz: float = setting(1000.0, "Control loop rate.", unit="Hz", ge=10, le=10000)
@@ -185,6 +243,10 @@ def cross_checks(s: Settings) -> list[tuple[str, str]]:
     if s.estimator.delay_s > s.estimator.max_delay_s:
         errors.append(
             ("estimator.delay_s", f"must be <= estimator.max_delay_s ({s.estimator.max_delay_s:g})")
+        )
+    if not s.lane.reach_far_m > s.lane.reach_near_m:
+        errors.append(
+            ("lane.reach_far_m", f"must be > lane.reach_near_m ({s.lane.reach_near_m:g})")
         )
     delay_ticks = s.estimator.delay_s * s.rate_hz
     if not math.isclose(delay_ticks, round(delay_ticks), abs_tol=1e-6):

@@ -11,20 +11,42 @@ import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from rakectl.errors import NonFiniteError
+from rakectl.excavation import LanePlanner
 from rakectl.impedance import DelayForceEstimator, ImpedanceController, ImpedanceFilter
 from rakectl.plants import FirstOrderPlant, Plant
-from rakectl.settings import PlantKind, Settings
-from rakectl.trajectory import desired_position_m
+from rakectl.settings import PlantKind, Settings, TrajectoryKind
+from rakectl.trajectory import TrajectoryReference
 
 BASE_COLUMNS = ("t_s", "x_d_m", "x_ref_m", "x_m", "x_e_hat_m", "x_c_m", "f_hat_n")
 ProgressCallback = Callable[[int, int], None]
+# After a lane is done the run goes on this long, holding, then stops.
+HOLD_AFTER_DONE_S = 0.5
+# Ticks whose true vertical force is below this count as out of contact when
+# comparing F̂ with the truth.
+CONTACT_FORCE_N = 0.5
+
+
+class Reference(Protocol):
+    """Where the tip should be this tick, and whether it is meant to touch the soil."""
+
+    reach_m: float
+    depth_m: float
+
+    @property
+    def contact(self) -> bool: ...
+
+    @property
+    def done(self) -> bool: ...
+
+    def step(self) -> None: ...
 
 
 @dataclass
@@ -32,15 +54,17 @@ class SimulationResult:
     columns: tuple[str, ...]
     data: NDArray[np.float64]  # one row per tick
     wall_time_s: float
+    plant_summary: dict[str, float | int | bool] = field(default_factory=dict)
 
     def column(self, name: str) -> NDArray[np.float64]:
         return self.data[:, self.columns.index(name)]
 
-    def summary(self) -> dict[str, float | int]:
+    def summary(self) -> dict[str, float | int | bool]:
         f_hat = self.column("f_hat_n")
         t = self.column("t_s")
-        simulated_s = float(t[-1] - t[0]) + (float(t[1] - t[0]) if len(t) > 1 else 0.0)
-        return {
+        dt_s = float(t[1] - t[0]) if len(t) > 1 else 0.0
+        simulated_s = float(t[-1] - t[0]) + dt_s
+        out: dict[str, float | int | bool] = {
             "ticks": len(t),
             "duration_s": simulated_s,
             "f_hat_final_n": float(f_hat[-1]),
@@ -48,6 +72,25 @@ class SimulationResult:
             "tracking_error_final_m": float(self.column("x_d_m")[-1] - self.column("x_m")[-1]),
             "wall_time_s": self.wall_time_s,
             "realtime_factor": simulated_s / self.wall_time_s if self.wall_time_s > 0 else math.inf,
+        }
+        out.update(self.plant_summary)
+        if "f_true_z_n" in self.columns:
+            out.update(self._estimate_vs_truth())
+        return out
+
+    def _estimate_vs_truth(self) -> dict[str, float]:
+        """How well F̂ bounds the true vertical force, over the ticks in contact."""
+        f_true, f_hat = self.column("f_true_z_n"), self.column("f_hat_n")
+        touching = f_true > CONTACT_FORCE_N
+        if not touching.any():
+            return {"contact_ticks": 0}
+        shortfall = (f_true - f_hat)[touching]
+        under = shortfall > 0
+        return {
+            "contact_ticks": int(touching.sum()),
+            "f_hat_below_true_share": float(under.mean()),
+            "f_hat_shortfall_median_n": float(np.median(shortfall[under])) if under.any() else 0.0,
+            "f_hat_shortfall_max_n": float(shortfall.max()) if under.any() else 0.0,
         }
 
 
@@ -61,42 +104,69 @@ def build_controller(settings: Settings) -> ImpedanceController:
     )
 
 
-def build_plant(settings: Settings) -> Plant:
+def build_reference(settings: Settings) -> Reference:
+    dt_s = 1.0 / settings.rate_hz
+    if settings.trajectory.kind is TrajectoryKind.LANE:
+        lane = settings.lane
+        return LanePlanner(lane, dt_s, lane.reach_far_m, -lane.clearance_m)
+    return TrajectoryReference(settings.trajectory, dt_s)
+
+
+def build_plant(settings: Settings, reference: Reference) -> Plant:
     dt_s = 1.0 / settings.rate_hz
     if settings.plant.kind is PlantKind.FIRST_ORDER:
-        return FirstOrderPlant(settings.plant.time_constant_s, dt_s, settings.trajectory.start_m)
-    raise NotImplementedError(f"plant kind {settings.plant.kind.value} is not available yet")
+        return FirstOrderPlant(settings.plant.time_constant_s, dt_s, reference.depth_m)
+    from rakectl.rake_plant import RakePlant  # the emulator's physics, for simulation only
+    from rakectl.scenario import Scenario
+
+    if not isinstance(settings, Scenario):
+        raise TypeError("plant kind rake needs a Scenario (controller + emulator settings)")
+    return RakePlant(settings, reference.reach_m, reference.depth_m)
 
 
-def run(settings: Settings, plant: Plant | None = None,
-        progress: ProgressCallback | None = None) -> SimulationResult:
-    """Simulate ``settings.duration_s`` at ``settings.rate_hz``, as fast as possible."""
-    plant = plant if plant is not None else build_plant(settings)
+def run(settings: Settings, progress: ProgressCallback | None = None) -> SimulationResult:
+    """Simulate at ``settings.rate_hz`` for ``duration_s`` (or until a lane is done)."""
+    reference = build_reference(settings)
+    plant = build_plant(settings, reference)
     controller = build_controller(settings)
     dt_s = 1.0 / settings.rate_hz
-    ticks = round(settings.duration_s * settings.rate_hz)
+    max_ticks = round(settings.duration_s * settings.rate_hz)
+    hold_ticks = round(HOLD_AFTER_DONE_S * settings.rate_hz)
     columns = BASE_COLUMNS + plant.columns
-    data = np.empty((ticks, len(columns)))
+    data = np.empty((max_ticks, len(columns)))
     x_m = plant.reset()
     controller.reset(x_m)
-    traj = settings.trajectory
+    contact_delay_s = settings.estimator.delay_s
+    in_contact: bool | None = None
     started = time.perf_counter()
-    for k in range(ticks):
-        t_s = k * dt_s
-        x_d_m = desired_position_m(traj, t_s)
-        x_c_m = controller.filter.x_c_m
+    ticks = max_ticks
+    for k in range(max_ticks):
+        if reference.contact is not in_contact:
+            in_contact = reference.contact
+            if in_contact:
+                controller.estimator.enter_contact(contact_delay_s, x_m)
+            else:
+                controller.estimator.set_delay(0.0)
+        x_d_m, x_c_m = reference.depth_m, controller.filter.x_c_m
         x_ref_m = controller.step(x_d_m, x_m)
-        data[k, :7] = (t_s, x_d_m, x_ref_m, x_m, controller.estimator.x_e_m, x_c_m,
+        data[k, :7] = (k * dt_s, x_d_m, x_ref_m, x_m, controller.estimator.x_e_m, x_c_m,
                        controller.f_hat_n)
-        data[k, 7:] = plant.truth()
         if not (math.isfinite(x_ref_m) and math.isfinite(controller.f_hat_n)):
-            raise NonFiniteError(f"non-finite value at tick {k} (t = {t_s:.3f} s)")
-        x_m = plant.step(x_ref_m)
+            raise NonFiniteError(f"non-finite value at tick {k} (t = {k * dt_s:.3f} s)")
+        x_m = plant.step(reference.reach_m, x_ref_m)
+        data[k, 7:] = plant.truth()
+        reference.step()
         if progress is not None and k % 1000 == 0:
-            progress(k, ticks)
+            progress(k, max_ticks)
+        if reference.done:
+            hold_ticks -= 1
+            if hold_ticks < 0:
+                ticks = k + 1
+                break
     if progress is not None:
-        progress(ticks, ticks)
-    return SimulationResult(columns, data, time.perf_counter() - started)
+        progress(max_ticks, max_ticks)
+    return SimulationResult(columns, data[:ticks], time.perf_counter() - started,
+                            plant.summary())
 
 
 def write_results(result: SimulationResult, out_dir: Path) -> None:

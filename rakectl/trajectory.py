@@ -13,3 +13,21 @@ def desired_position_m(traj: TrajectorySettings, t_s: float) -> float:
     if traj.kind is TrajectoryKind.RAMP:
         return traj.start_m + traj.speed_m_per_s * elapsed_s
     return traj.start_m + traj.amplitude_m
+
+
+class TrajectoryReference:
+    """A ramp or step at a fixed reach, as a per-tick reference (always in contact)."""
+
+    contact = True
+    done = False
+
+    def __init__(self, traj: TrajectorySettings, dt_s: float) -> None:
+        self.traj = traj
+        self.dt_s = dt_s
+        self.ticks = 0
+        self.reach_m = traj.reach_m
+        self.depth_m = desired_position_m(traj, 0.0)
+
+    def step(self) -> None:
+        self.ticks += 1
+        self.depth_m = desired_position_m(self.traj, self.ticks * self.dt_s)

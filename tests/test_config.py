@@ -100,6 +100,27 @@ def test_bad_overrides_are_named(override: str, expected: str) -> None:
     assert expected in _error(None, (override,))
 
 
+def test_overrides_can_give_lists_of_sections() -> None:
+    from rakectl.scenario import Scenario
+
+    settings = load_settings(
+        None, ["emulator.ground.objects.mines=[{reach_m: 1.0, depth_m: 0.06}]"], root=Scenario
+    )
+    assert isinstance(settings, Scenario)
+    (mine,) = settings.emulator.ground.objects.mines
+    assert (mine.reach_m, mine.depth_m) == (1.0, 0.06)
+    message = _error_root("emulator.ground.objects.mines=[{reach_m: -1}]")
+    assert "emulator.ground.objects.mines[0].reach_m must be" in message
+
+
+def _error_root(override: str) -> str:
+    from rakectl.scenario import Scenario
+
+    with pytest.raises(ConfigError) as info:
+        load_settings(None, [override], root=Scenario)
+    return str(info.value)
+
+
 def test_overrides_apply_on_top_of_the_file(tmp_path: Path) -> None:
     path = _write(tmp_path, "estimator:\n  delay_s: 0.02\n")
     settings = load_settings(path, ["estimator.delay_s=0.03", "plant.kind=first_order"])

@@ -1,0 +1,75 @@
+"""The lane planner of paper Fig. 3: phases, depths, contact flags, speed limits."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rakectl.excavation import LanePhase, LanePlanner
+from rakectl.settings import LaneSettings
+
+LANE = LaneSettings(reach_far_m=1.2, reach_near_m=0.9, depth_step_m=0.02, target_depth_m=0.05,
+                    clearance_m=0.03, stroke_speed_m_per_s=0.1, plunge_speed_m_per_s=0.01,
+                    travel_speed_m_per_s=0.3, accel_m_per_s2=1.0)
+
+
+Row = tuple[LanePhase, int, float, float, float]
+
+
+def _run(lane: LaneSettings, dt_s: float = 1e-3, limit: int = 10**6) -> list[Row]:
+    planner = LanePlanner(lane, dt_s, lane.reach_near_m, -lane.clearance_m)
+    trace = []
+    for _ in range(limit):
+        trace.append((planner.phase, planner.cycle, planner.reach_m, planner.depth_m,
+                      planner.cycle_depth_m))
+        if planner.done:
+            return trace
+        planner.step()
+    raise AssertionError("planner never finished")
+
+
+def test_cycles_deepen_by_the_step_until_the_target() -> None:
+    trace = _run(LANE)
+    stroke_depths = sorted({round(depth, 9) for phase, _, _, depth, _ in trace
+                            if phase is LanePhase.STROKE})
+    assert stroke_depths[-3:] == [0.02, 0.04, 0.05]
+    assert max(cycle for _, cycle, *_ in trace) == 3
+    assert trace[-1][0] is LanePhase.DONE
+    assert trace[-1][3] == pytest.approx(-LANE.clearance_m)
+
+
+def test_strokes_drag_toward_the_robot_and_only_plunge_and_stroke_are_contact() -> None:
+    planner = LanePlanner(LANE, 1e-3, LANE.reach_far_m, -LANE.clearance_m)
+    previous_reach = planner.reach_m
+    while not planner.done:
+        if planner.phase is LanePhase.STROKE:
+            assert planner.reach_m <= previous_reach + 1e-12
+            assert planner.contact
+        elif planner.phase in (LanePhase.APPROACH, LanePhase.LOWER, LanePhase.LIFT):
+            assert not planner.contact
+            if planner.phase is not LanePhase.LIFT:
+                # free space stays above the last completed floor
+                assert planner.depth_m <= planner.floor_m
+        previous_reach = planner.reach_m
+        planner.step()
+
+
+@settings(max_examples=25, deadline=None)
+@given(stroke=st.floats(0.01, 0.5), travel=st.floats(0.05, 1.0), accel=st.floats(0.2, 5.0))
+def test_reference_respects_speed_and_acceleration_limits(stroke: float, travel: float,
+                                                          accel: float) -> None:
+    lane = LaneSettings(reach_far_m=1.2, reach_near_m=1.0, depth_step_m=0.03,
+                        target_depth_m=0.03, stroke_speed_m_per_s=stroke,
+                        travel_speed_m_per_s=travel, accel_m_per_s2=accel)
+    dt = 1e-3
+    trace = _run(lane, dt)
+    speeds = [math.hypot(b[2] - a[2], b[3] - a[3]) / dt for a, b in itertools.pairwise(trace)]
+    top = max(travel, stroke, lane.plunge_speed_m_per_s)
+    assert max(speeds) <= top + accel * dt + 1e-9
+    for (a, b), v0, v1 in zip(itertools.pairwise(trace), speeds, speeds[1:], strict=False):
+        if a[0] is b[0]:  # within a phase the speed changes by at most a·dt per tick
+            assert abs(v1 - v0) <= 2 * accel * dt + 1e-9
