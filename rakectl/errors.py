@@ -31,3 +31,12 @@ class DriveFault(RakeError):
 
 class CommsTimeout(RakeError, TimeoutError):
     """Expected traffic did not arrive in time."""
+
+
+class FrameError(RakeError, ValueError):
+    """A CAN frame, or a field for one, is malformed.
+
+    Wrong data length, a value outside its wire type (an int16 beyond ±32767 …),
+    or a bit pattern the protocol does not define. The message names the frame
+    and the field.
+    """
