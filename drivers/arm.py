@@ -58,9 +58,9 @@ from drivers.motor import (
     substeps_in,
 )
 from rakectl import kinematics
+from rakectl.declare import setting
 from rakectl.errors import ConfigError, NonFiniteError
 from rakectl.kinematics import Workspace
-from rakectl.settings import setting
 
 DEFAULT_SUBSTEP_S = 5e-5  # set by the contact; see the module docstring
 MAX_EXPLICIT_DAMPING = 0.1  # largest allowed h·c/M of an explicitly integrated damper

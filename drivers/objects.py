@@ -34,8 +34,8 @@ import math
 from dataclasses import dataclass
 
 from drivers.soil import Soil, SoilParams
+from rakectl.declare import section, setting
 from rakectl.errors import NonFiniteError
-from rakectl.settings import section, setting
 
 
 class Contact(enum.Enum):

@@ -5,9 +5,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from drivers.arm import DEFAULT_SUBSTEP_S, ArmParams
-from drivers.motor import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, MotorParams
 from drivers.objects import GroundParams
-from rakectl.settings import section, setting
+from rakectl.declare import section, setting
+from rakectl.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, MotorParams
 
 
 @dataclass(frozen=True)

@@ -66,8 +66,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rakectl.declare import setting
 from rakectl.errors import ConfigError
-from rakectl.settings import setting
 
 _STANDARD_GRAVITY_M_PER_S2 = 9.80665
 

@@ -9,7 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from drivers.settings import EmulatorSettings
-from rakectl.settings import Settings, section
+from rakectl.declare import section
+from rakectl.settings import Settings
 
 
 @dataclass(frozen=True)

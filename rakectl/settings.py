@@ -1,80 +1,19 @@
-"""Every configuration option, declared once (pure: no file or YAML handling here).
+"""Every option of the controller's configuration, declared once (pure).
 
-An option is a field of a frozen dataclass declared with :func:`setting`: its
-annotation is the type, and the metadata carries the default, the unit, the
-bounds and the documentation. The loader (:mod:`rakectl.config`) validates
-against these declarations and ``rakectl config-docs`` renders them, so nothing
-is written twice. Names carry their units (``_m``, ``_s``, ``_n_per_m`` …).
-
-Sections are dataclasses nested with :func:`section`; ``tuple[X, ...]`` of a
-section dataclass is a list of such sections in YAML.
+See :mod:`rakectl.declare` for how; names carry their units (``_m``, ``_s``,
+``_n_per_m`` …). The emulator's options are in drivers.settings.
 """
 
 from __future__ import annotations
 
 import enum
 import math
-import operator
-from dataclasses import MISSING, dataclass, field
-from typing import Any
+from dataclasses import dataclass
 
+from rakectl.declare import Bounds, has_default, section, setting
+from rakectl.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, MotorParams
 
-@dataclass(frozen=True)
-class Bounds:
-    """Numeric bounds of an option; None means unbounded on that side."""
-
-    gt: float | None = None
-    ge: float | None = None
-    lt: float | None = None
-    le: float | None = None
-
-    def violation(self, value: float) -> str | None:
-        """Why ``value`` is out of bounds, or None if it is inside."""
-        if not math.isfinite(value):
-            return f"must be finite, got {value}"
-        for limit, op, ok in (
-            (self.gt, ">", operator.gt),
-            (self.ge, ">=", operator.ge),
-            (self.lt, "<", operator.lt),
-            (self.le, "<=", operator.le),
-        ):
-            if limit is not None and not ok(value, limit):
-                return f"must be {op} {limit:g}, got {value:g}"
-        return None
-
-    def describe(self) -> str:
-        parts = []
-        for limit, op in ((self.gt, ">"), (self.ge, "≥"), (self.lt, "<"), (self.le, "≤")):
-            if limit is not None:
-                parts.append(f"{op} {limit:g}")
-        return ", ".join(parts)
-
-
-def setting(
-    default: Any,
-    doc: str,
-    *,
-    unit: str = "",
-    gt: float | None = None,
-    ge: float | None = None,
-    lt: float | None = None,
-    le: float | None = None,
-) -> Any:
-    """Declare an option: default, documentation, unit and bounds in one place."""
-    meta = {"doc": doc, "unit": unit, "bounds": Bounds(gt=gt, ge=ge, lt=lt, le=le)}
-    if isinstance(default, tuple):
-        return field(default_factory=lambda: default, metadata=meta)
-    return field(default=default, metadata=meta)
-
-
-def section(cls: type, default: Any = None, doc: str | None = None) -> Any:
-    """Declare a nested section; its default is ``default`` or the section's own defaults."""
-    factory = cls if default is None else (lambda: default)
-    return field(default_factory=factory, metadata={"doc": doc or (cls.__doc__ or "").strip()})
-
-
-def has_default(f: Any) -> bool:
-    return bool(f.default is not MISSING or f.default_factory is not MISSING)
+__all__ = ["Bounds", "has_default", "section", "setting"]  # re-exported declaration helpers
 
 
 # --------------------------------------------------------------------------- kinds
@@ -85,6 +24,14 @@ class PlantKind(enum.StrEnum):
 
     FIRST_ORDER = "first_order"  # the paper's P(s) = 1/(τs + 1) on the vertical axis
     RAKE = "rake"  # motors, arm and soil models of drivers/
+
+
+class BusInterface(enum.StrEnum):
+    """python-can interfaces the controller and the emulator can use."""
+
+    VIRTUAL = "virtual"  # in one process (tests)
+    UDP_MULTICAST = "udp_multicast"  # across processes, only inside a private network namespace
+    SOCKETCAN = "socketcan"  # can0 / vcan0 on Linux
 
 
 class TrajectoryKind(enum.StrEnum):
@@ -215,6 +162,49 @@ class GeometrySettings:
 
 
 @dataclass(frozen=True)
+class MotorsSettings:
+    """The controller's model of its motors and transmissions (counts → joint units, clamp)."""
+
+    r: MotorParams = section(MotorParams, R_MOTOR_DEFAULT,
+                             "Motor, lead screw and drive of the sliding joint r.")
+    theta: MotorParams = section(MotorParams, THETA_MOTOR_DEFAULT,
+                                 "Motor, gearhead and drive of the rotary joint θ.")
+
+
+@dataclass(frozen=True)
+class BusSettings:
+    """The CAN bus to the drives."""
+
+    interface: BusInterface = setting(BusInterface.VIRTUAL, "python-can interface.")
+    channel: str = setting("rakectl", "Channel: vcan0/can0 for socketcan, a group address "
+                           "(239.74.163.2) for udp_multicast, any name for virtual.")
+    bitrate: int = setting(1_000_000, "Nominal bit rate (set on the link for socketcan).",
+                           unit="bit/s", ge=125_000, le=1_000_000)
+    trace_path: str = setting("", "Record every frame to this candump .log file; empty: off.")
+
+
+@dataclass(frozen=True)
+class DrivesSettings:
+    """The two CANopen drives: node-IDs, limits written at bring-up, supervision."""
+
+    r_node_id: int = setting(1, "Node-ID of the r (DC-servo) drive.", ge=1, le=127)
+    theta_node_id: int = setting(2, "Node-ID of the θ (geared-motor) drive.", ge=1, le=127)
+    controller_node_id: int = setting(10, "Node-ID of the controller's heartbeat.", ge=1, le=127)
+    watchdog_timeout_ms: int = setting(
+        20, "Drive command watchdog: no RPDO or SYNC this long → 0 V, quick stop, fault.",
+        unit="ms", ge=2, le=1000)
+    heartbeat_period_ms: int = setting(100, "Heartbeat period of every node.", unit="ms",
+                                       ge=10, le=1000)
+    heartbeat_timeout_ms: int = setting(250, "Heartbeat silence that counts as a lost node.",
+                                        unit="ms", ge=20, le=5000)
+    sdo_timeout_s: float = setting(0.5, "Timeout of one SDO exchange at bring-up.", unit="s",
+                                   gt=0, le=10)
+    feedback_timeout_cycles: int = setting(
+        3, "Cycles in a row without a drive's TPDO before the feedback counts as stale.",
+        ge=1, le=100)
+
+
+@dataclass(frozen=True)
 class Settings:
     """Root of the configuration: a scenario or the daemon's configuration file."""
 
@@ -225,6 +215,9 @@ class Settings:
     lane: LaneSettings = section(LaneSettings)
     geometry: GeometrySettings = section(GeometrySettings)
     joint_control: JointControlSettings = section(JointControlSettings)
+    motors: MotorsSettings = section(MotorsSettings)
+    bus: BusSettings = section(BusSettings)
+    drives: DrivesSettings = section(DrivesSettings)
     desired_force_n: float = setting(0.0, "Desired contact force F_d.", unit="N", ge=-90, le=90)
     duration_s: float = setting(20.0, "Length of a simulation.", unit="s", gt=0, le=3600)
     rate_hz: float = setting(1000.0, "Control loop rate.", unit="Hz", ge=10, le=10000)
@@ -248,6 +241,12 @@ def cross_checks(s: Settings) -> list[tuple[str, str]]:
         errors.append(
             ("lane.reach_far_m", f"must be > lane.reach_near_m ({s.lane.reach_near_m:g})")
         )
+    d = s.drives
+    if len({d.r_node_id, d.theta_node_id, d.controller_node_id}) < 3:
+        errors.append(("drives.theta_node_id", "node-IDs of drives and controller must differ"))
+    if d.heartbeat_timeout_ms <= d.heartbeat_period_ms:
+        errors.append(("drives.heartbeat_timeout_ms",
+                       f"must be > drives.heartbeat_period_ms ({d.heartbeat_period_ms})"))
     delay_ticks = s.estimator.delay_s * s.rate_hz
     if not math.isclose(delay_ticks, round(delay_ticks), abs_tol=1e-6):
         errors.append(

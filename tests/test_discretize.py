@@ -13,12 +13,31 @@ from hypothesis.extra.numpy import arrays
 from rakectl.discretize import expm, zoh
 
 
-@given(arrays(np.float64, (3, 3), elements=st.floats(-1e3, 1e3)))
+# Entries are 0 or of magnitude >= 1e-6: with an entry of 2e-226 next to ones
+# of order 1, hypothesis found scipy returning 0 where the exact exponential
+# of the nilpotent block [[0, 0.01], [0, 0]] has 0.01 (ours gives 0.01).
+ENTRY = st.one_of(st.just(0.0), st.floats(1e-6, 1e3), st.floats(-1e3, -1e-6))
+
+
+@given(arrays(np.float64, (3, 3), elements=ENTRY))
 def test_expm_matches_scipy(m: np.ndarray) -> None:
     m = m * 1e-2
     expected = scipy.linalg.expm(m)
     scale = max(1.0, float(np.abs(expected).max()))
     assert np.allclose(expm(m), expected, rtol=1e-9, atol=1e-11 * scale)
+
+
+@given(arrays(np.float64, (3, 3), elements=st.floats(-5, 5)))
+def test_expm_of_minus_a_is_its_inverse(m: np.ndarray) -> None:
+    """e^A e^−A = I, a check that needs no other implementation."""
+    assert np.allclose(expm(m) @ expm(-m), np.eye(3), atol=1e-9)
+
+
+def test_expm_of_a_nilpotent_block_is_exact() -> None:
+    m = np.array([[2e-226, 0.01, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 4.26]])
+    result = expm(m)
+    assert result[0, 1] == pytest.approx(0.01, rel=1e-12)
+    assert result[2, 2] == pytest.approx(np.exp(4.26), rel=1e-12)
 
 
 def test_zoh_matches_scipy_cont2discrete_on_the_paper_filter() -> None:
