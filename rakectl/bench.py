@@ -7,7 +7,7 @@ import statistics
 import time
 
 from rakectl.config import load_settings
-from rakectl.simulate import build_controller
+from rakectl.control import build_impedance
 
 
 def _percentile(sorted_values: list[float], q: float) -> float:
@@ -16,7 +16,7 @@ def _percentile(sorted_values: list[float], q: float) -> float:
 
 def bench_controller_step(ticks: int) -> str:
     """Cost of one ImpedanceController.step, timed per call over ``ticks`` calls."""
-    controller = build_controller(load_settings())
+    controller = build_impedance(load_settings())
     controller.reset(0.0)
     clock = time.perf_counter_ns
     samples = [0.0] * ticks
@@ -53,7 +53,7 @@ def bench_emulator_step(steps: int) -> str:
     """CPU time of one 1 ms physics step (arm, motors, ground) in soil, and the real-time ratio."""
     from drivers.arm import ArmPlant
     from drivers.objects import Ground
-    from rakectl.rake_plant import workspace_of
+    from rakectl.control import workspace_of
     from rakectl.scenario import Scenario
 
     scenario = load_settings(None, (), root=Scenario)

@@ -1,8 +1,8 @@
-"""Plants that ``rakectl simulate`` closes the loop around (pure).
+"""Closed loops that ``rakectl simulate`` runs in simulated time (pure).
 
-A plant takes the position reference x_ref for one tick and returns the
-measured position at the next tick. ``truth()`` gives extra ground-truth
-columns for the telemetry, named by ``columns``.
+A loop holds a controller and a plant; each tick it takes the reference (tip
+reach, depth x_d, contact flag) and advances one period. Its ``row()`` gives
+the telemetry of the tick: the base columns then ``columns``.
 """
 
 from __future__ import annotations
@@ -10,50 +10,59 @@ from __future__ import annotations
 import math
 from typing import Protocol
 
+from rakectl.control import build_impedance
+from rakectl.settings import Settings
 
-class Plant(Protocol):
-    columns: tuple[str, ...]
+BASE_COLUMNS = ("x_ref_m", "x_m", "x_e_hat_m", "x_c_m", "f_hat_n")
 
-    def reset(self) -> float:
-        """Put the plant in its initial state; return the first measured x in m."""
+
+class ClosedLoop(Protocol):
+    columns: tuple[str, ...]  # ground-truth and detail columns after BASE_COLUMNS
+    fault: str  # non-empty once the controller has faulted
+
+    def reset(self) -> None: ...
+
+    def step(self, reach_ref_m: float, depth_ref_m: float, contact: bool) -> None: ...
+
+    def row(self) -> tuple[float, ...]:
+        """BASE_COLUMNS then ``columns`` for the tick just stepped."""
         ...
 
-    def step(self, reach_ref_m: float, x_ref_m: float) -> float:
-        """Hold the reference for one period; return the measured x at its end."""
-        ...
-
-    def truth(self) -> tuple[float, ...]:
-        """Ground truth at the current tick, one value per name in ``columns``."""
-        ...
-
-    def summary(self) -> dict[str, float | int | bool]:
-        """Ground-truth figures of the whole run."""
-        ...
+    def summary(self) -> dict[str, float | int | bool]: ...
 
 
-class FirstOrderPlant:
-    """The paper's position loop P(s) = 1/(τs + 1), exact under a zero-order hold."""
+class FirstOrderLoop:
+    """The paper's loop: impedance filter and P(s) = 1/(τs + 1), exact under a zero-order hold.
+
+    The reach is ignored: this is the vertical axis alone.
+    """
 
     columns: tuple[str, ...] = ()
 
-    def __init__(self, time_constant_s: float, dt_s: float, x0_m: float = 0.0) -> None:
-        if not (time_constant_s > 0 and dt_s > 0):
-            raise ValueError("first-order plant: time constant and dt must be > 0")
-        self._decay = math.exp(-dt_s / time_constant_s)
+    def __init__(self, settings: Settings, x0_m: float) -> None:
+        dt_s = 1.0 / settings.rate_hz
+        self.controller = build_impedance(settings)
+        self._decay = math.exp(-dt_s / settings.plant.time_constant_s)
         self._x0_m = x0_m
         self.x_m = x0_m
+        self._row: tuple[float, ...] = ()
+        self.fault = ""
 
-    def reset(self) -> float:
+    def reset(self) -> None:
         self.x_m = self._x0_m
-        return self.x_m
+        self.controller.reset(self.x_m)
 
-    def step(self, reach_ref_m: float, x_ref_m: float) -> float:
-        """The reach is ignored: this plant is the vertical axis alone."""
+    def step(self, reach_ref_m: float, depth_ref_m: float, contact: bool) -> None:
+        c = self.controller
+        x_c_m = c.filter.x_c_m
+        x_ref_m = c.step(depth_ref_m, self.x_m)
+        self._row = (x_ref_m, self.x_m, c.estimator.x_e_m, x_c_m, c.f_hat_n)
+        if not (math.isfinite(x_ref_m) and math.isfinite(c.f_hat_n)):
+            self.fault = "non-finite value in the impedance controller"
         self.x_m = self._decay * self.x_m + (1.0 - self._decay) * x_ref_m
-        return self.x_m
 
-    def truth(self) -> tuple[float, ...]:
-        return ()
+    def row(self) -> tuple[float, ...]:
+        return self._row
 
     def summary(self) -> dict[str, float | int | bool]:
         return {}

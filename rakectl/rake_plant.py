@@ -1,12 +1,13 @@
-"""The full rake as a plant for offline simulation.
+"""The full rake in simulated time: the daemon's controller against drivers/ physics.
 
-The chain of the real robot, in simulated time: the vertical reference x_ref
-from the impedance controller and the trajectory's reach go through inverse
-kinematics to joint references; the joint position loops (rakectl) turn them
-into motor voltages; the motors, the arm and the ground (drivers/) respond;
-the encoders' positions, through forward kinematics, give the measured depth
-the estimator sees. The ground truth (true tip forces, mine activation) is
-what the safety claims are checked against.
+The chain of the real robot: the reference goes through the same
+:class:`rakectl.control.TipController` as in the daemon (impedance filter on
+the depth axis, inverse kinematics, joint loops, voltage clamp); the voltages
+reach the motors one tick later, as over the CAN bus (a drive applies the
+RPDO of SYNC k at SYNC k+1); the motors, the arm and the ground (drivers/)
+respond; the encoders' quantized positions are what the controller measures.
+The ground truth (true tip forces, mine activation) is what the safety
+claims are checked against.
 """
 
 from __future__ import annotations
@@ -14,25 +15,16 @@ from __future__ import annotations
 from drivers.arm import ArmPlant
 from drivers.objects import Contact, Ground, GroundTruth
 from rakectl import kinematics
-from rakectl.joint_control import JointPositionLoop, PidGains
+from rakectl.control import TipController
+from rakectl.plants import BASE_COLUMNS
 from rakectl.scenario import Scenario
-from rakectl.settings import JointLoopSettings
 
 # The telemetry's `contact` column: 0 none, 1 soil, 2 stone, 3 root, 4 mine.
 CONTACT_CODE = {kind: float(code) for code, kind in enumerate(Contact)}
-# Before t = 0 the loops hold the start pose this long, as an armed robot would.
+# Before t = 0 the controller holds the start pose this long, as an armed robot would.
 SETTLE_S = 1.0
 
-
-def workspace_of(settings: Scenario) -> kinematics.Workspace:
-    g = settings.geometry
-    return kinematics.Workspace(g.pivot_height_m, g.r_min_m, g.r_max_m, g.theta_min_rad,
-                                g.theta_max_rad)
-
-
-def _gains(loop: JointLoopSettings, voltage_limit_v: float) -> PidGains:
-    return PidGains(loop.kp_v_per_unit, loop.ki_v_per_unit_s, loop.kd_v_s_per_unit,
-                    loop.kff_v_s_per_unit, voltage_limit_v)
+__all__ = ["BASE_COLUMNS", "CONTACT_CODE", "RakeLoop"]
 
 
 class PeakRecorder:
@@ -53,74 +45,73 @@ class PeakRecorder:
         return force
 
 
-class RakePlant:
-    """Joint loops + motors + arm + ground, stepped once per control tick."""
+class RakeLoop:
+    """TipController + one-tick bus delay + motors, arm and ground."""
 
     columns: tuple[str, ...] = (
-        "reach_ref_m", "r_ref_m", "theta_ref_rad", "r_m", "theta_rad", "voltage_r_v",
-        "voltage_theta_v", "current_r_a", "current_theta_a", "tip_reach_m", "tip_depth_m",
-        "interface_depth_m", "f_true_z_n", "f_true_x_n", "contact", "mine_activated",
+        "reach_ref_m", "r_ref_m", "theta_ref_rad", "r_m", "theta_rad", "voltage_r_req_v",
+        "voltage_theta_req_v", "voltage_r_v", "voltage_theta_v", "current_r_a",
+        "current_theta_a", "tip_reach_m", "tip_depth_m", "interface_depth_m", "f_true_z_n",
+        "f_true_x_n", "contact", "mine_activated",
     )
 
     def __init__(self, settings: Scenario, start_reach_m: float, start_depth_m: float) -> None:
-        emu, dt_s = settings.emulator, 1.0 / settings.rate_hz
-        self.dt_s = dt_s
-        self.workspace = workspace_of(settings)
+        emu = settings.emulator
+        self.dt_s = 1.0 / settings.rate_hz
+        self.controller = TipController(settings)
+        self.workspace = self.controller.servo.workspace
         self.arm = ArmPlant(emu.arm, emu.motor_r, emu.motor_theta, self.workspace,
                             emu.substep_s, emu.seed)
         self.ground = Ground(emu.ground, emu.seed)
         self.contact = PeakRecorder(self.ground)
-        jc = settings.joint_control
-        self.loop_r = JointPositionLoop(_gains(jc.r, jc.voltage_limit_v), dt_s)
-        self.loop_theta = JointPositionLoop(_gains(jc.theta, jc.voltage_limit_v), dt_s)
         self.start = (start_reach_m, start_depth_m)
-        self._q_ref = (0.0, 0.0)
+        self._pending_v = (0.0, 0.0)  # sent this tick, applied from the next
         self._reach_ref_m = start_reach_m
+        self._row: tuple[float, ...] = ()
         self.f_true_z_max_n = 0.0
+        self.fault = ""
 
-    def _depth_m(self) -> float:
-        m = self.arm.measure()
-        return -kinematics.forward(self.workspace, m.r_m, m.theta_rad)[1]
-
-    def reset(self) -> float:
+    def reset(self) -> None:
         """Put the arm at rest at the start pose and let the loops take its weight."""
-        self._q_ref = kinematics.inverse(self.workspace, self.start[0], -self.start[1])
-        self.arm.set_pose_at_rest(*self._q_ref)
-        self.loop_r.reset()
-        self.loop_theta.reset()
+        q = kinematics.inverse(self.workspace, self.start[0], -self.start[1])
+        self.arm.set_pose_at_rest(*q)
+        self.controller.reset(*q)
+        self._pending_v = (0.0, 0.0)
         for _ in range(round(SETTLE_S / self.dt_s)):
-            self._drive(self._q_ref, 0.0, 0.0)
+            self._tick(self.start[0], self.start[1])
+        m = self.arm.measure()  # the run starts from a clean estimator and filter
+        self.controller.reset(m.r_m, m.theta_rad, keep_servo=True)
         self.f_true_z_max_n = 0.0
-        self.contact.peak_down_n = 0.0
-        return self._depth_m()
 
-    def _drive(self, q_ref: tuple[float, float], r_vel_ref: float, theta_vel_ref: float) -> None:
+    def _tick(self, reach_ref_m: float, depth_ref_m: float) -> None:
         m = self.arm.measure()
-        voltage_r = self.loop_r.step(q_ref[0], r_vel_ref, m.r_m, m.r_vel_m_per_s)
-        voltage_theta = self.loop_theta.step(q_ref[1], theta_vel_ref, m.theta_rad,
-                                             m.theta_vel_rad_per_s)
-        self.arm.step(voltage_r, voltage_theta, self.contact, self.dt_s)
-
-    def step(self, reach_ref_m: float, x_ref_m: float) -> float:
-        """Hold the tip reference (reach, depth x_ref) for one tick; return the measured depth."""
-        q_ref = kinematics.inverse(self.workspace, reach_ref_m, -x_ref_m)
-        r_vel = (q_ref[0] - self._q_ref[0]) / self.dt_s
-        theta_vel = (q_ref[1] - self._q_ref[1]) / self.dt_s
-        self._q_ref, self._reach_ref_m = q_ref, reach_ref_m
+        voltages = self.controller.step(reach_ref_m, depth_ref_m, m.r_m, m.theta_rad,
+                                        m.r_vel_m_per_s, m.theta_vel_rad_per_s)
         self.contact.peak_down_n = 0.0
-        self._drive(q_ref, r_vel, theta_vel)
-        self.f_true_z_max_n = max(self.f_true_z_max_n, self.contact.peak_down_n)
-        return self._depth_m()
+        self.arm.step(self._pending_v[0], self._pending_v[1], self.contact, self.dt_s)
+        self._pending_v = voltages
 
-    def truth(self) -> tuple[float, ...]:
-        arm, truth = self.arm, self.ground.truth
+    def step(self, reach_ref_m: float, depth_ref_m: float, contact: bool) -> None:
+        c = self.controller
+        c.set_contact(contact)
+        x_c_m = c.impedance.filter.x_c_m
+        self._reach_ref_m = reach_ref_m
+        self._tick(reach_ref_m, depth_ref_m)
+        if c.fault and not self.fault:
+            self.fault = c.fault
+        self.f_true_z_max_n = max(self.f_true_z_max_n, self.contact.peak_down_n)
+        self._row = (c.x_ref_m, c.depth_m, c.impedance.estimator.x_e_m, x_c_m, c.f_hat_n)
+
+    def row(self) -> tuple[float, ...]:
+        arm, truth, c = self.arm, self.ground.truth, self.controller
         reach_m, height_m = arm.tip_m()
         return (
-            self._reach_ref_m, self._q_ref[0], self._q_ref[1], arm.r_m, arm.theta_rad,
-            self.loop_r.voltage_v, self.loop_theta.voltage_v, arm.current_r_a,
-            arm.current_theta_a, reach_m, -height_m, -truth.interface_height_m,
-            self.contact.peak_down_n, truth.force_drag_n, CONTACT_CODE[truth.contact],
-            float(truth.mine_activated),
+            *self._row, self._reach_ref_m, c.servo.q_ref[0], c.servo.q_ref[1], arm.r_m,
+            arm.theta_rad,
+            c.requested_v[0], c.requested_v[1], self._pending_v[0], self._pending_v[1],
+            arm.current_r_a, arm.current_theta_a, reach_m, -height_m,
+            -truth.interface_height_m, self.contact.peak_down_n, truth.force_drag_n,
+            CONTACT_CODE[truth.contact], float(truth.mine_activated),
         )
 
     def summary(self) -> dict[str, float | int | bool]:
@@ -130,5 +121,6 @@ class RakePlant:
             "mine_activated": self.ground.truth.mine_activated,
             "mine_plate_force_max_n": max((m.peak_down_n for m in mines), default=0.0),
             "mine_side_force_max_n": max((m.peak_side_n for m in mines), default=0.0),
+            "clamped_ticks": self.controller.clamp.clamped,
+            "unreachable_ticks": self.controller.servo.unreachable,
         }
-

@@ -140,7 +140,7 @@ class JointControlSettings:
     r: JointLoopSettings = section(JointLoopSettings)
     theta: JointLoopSettings = section(
         JointLoopSettings,
-        JointLoopSettings(kp_v_per_unit=800.0, ki_v_per_unit_s=600.0, kd_v_s_per_unit=40.0,
+        JointLoopSettings(kp_v_per_unit=1200.0, ki_v_per_unit_s=600.0, kd_v_s_per_unit=40.0,
                           kff_v_s_per_unit=7.0),
     )
     voltage_limit_v: float = setting(24.0, "Largest voltage the loops command.", unit="V",
@@ -169,6 +169,28 @@ class MotorsSettings:
                              "Motor, lead screw and drive of the sliding joint r.")
     theta: MotorParams = section(MotorParams, THETA_MOTOR_DEFAULT,
                                  "Motor, gearhead and drive of the rotary joint θ.")
+
+
+@dataclass(frozen=True)
+class ClampSettings:
+    """The voltage clamp: the last stage before a voltage is encoded (see rakectl.clamp)."""
+
+    force_limit_n: float = setting(
+        90.0, "Worst-case static vertical tip force the clamp allows. May be lowered, never "
+        "raised above 90 N (pressure-fused mines).", unit="N", gt=0, le=90)
+    model_margin: float = setting(
+        0.2, "Share of force_limit_n kept back for model error (masses, friction, k_t, η).",
+        ge=0.05, lt=1)
+    velocity_margin_counts: float = setting(
+        3.0, "Uncertainty of a measured joint velocity, in encoder counts per control period.",
+        ge=0, le=1000)
+    velocity_margin_share: float = setting(
+        0.1, "Further velocity uncertainty as a share of the measured velocity.", ge=0, le=1)
+    rake_mass_kg: float = setting(4.0, "The controller's model of the rake and carriage mass.",
+                                  unit="kg", gt=0, le=100)
+    rake_length_m: float = setting(1.6, "The controller's model of the rake's length (its "
+                                   "centre of mass is at r − length/2).", unit="m", gt=0, le=10)
+    gravity_m_per_s2: float = setting(9.81, "Gravity.", unit="m/s²", gt=9, lt=10.5)
 
 
 @dataclass(frozen=True)
@@ -216,6 +238,7 @@ class Settings:
     geometry: GeometrySettings = section(GeometrySettings)
     joint_control: JointControlSettings = section(JointControlSettings)
     motors: MotorsSettings = section(MotorsSettings)
+    clamp: ClampSettings = section(ClampSettings)
     bus: BusSettings = section(BusSettings)
     drives: DrivesSettings = section(DrivesSettings)
     desired_force_n: float = setting(0.0, "Desired contact force F_d.", unit="N", ge=-90, le=90)

@@ -20,12 +20,10 @@ from numpy.typing import NDArray
 
 from rakectl.errors import NonFiniteError
 from rakectl.excavation import LanePlanner
-from rakectl.impedance import DelayForceEstimator, ImpedanceController, ImpedanceFilter
-from rakectl.plants import FirstOrderPlant, Plant
+from rakectl.plants import BASE_COLUMNS, ClosedLoop, FirstOrderLoop
 from rakectl.settings import PlantKind, Settings, TrajectoryKind
 from rakectl.trajectory import TrajectoryReference
 
-BASE_COLUMNS = ("t_s", "x_d_m", "x_ref_m", "x_m", "x_e_hat_m", "x_c_m", "f_hat_n")
 ProgressCallback = Callable[[int, int], None]
 # After a lane is done the run goes on this long, holding, then stops.
 HOLD_AFTER_DONE_S = 0.5
@@ -94,16 +92,6 @@ class SimulationResult:
         }
 
 
-def build_controller(settings: Settings) -> ImpedanceController:
-    dt_s = 1.0 / settings.rate_hz
-    imp, est = settings.impedance, settings.estimator
-    return ImpedanceController(
-        ImpedanceFilter(imp.mass_kg, imp.damping_ns_per_m, imp.stiffness_n_per_m, dt_s),
-        DelayForceEstimator(est.environment_stiffness_n_per_m, est.delay_s, est.max_delay_s, dt_s),
-        desired_force_n=settings.desired_force_n,
-    )
-
-
 def build_reference(settings: Settings) -> Reference:
     dt_s = 1.0 / settings.rate_hz
     if settings.trajectory.kind is TrajectoryKind.LANE:
@@ -112,49 +100,38 @@ def build_reference(settings: Settings) -> Reference:
     return TrajectoryReference(settings.trajectory, dt_s)
 
 
-def build_plant(settings: Settings, reference: Reference) -> Plant:
-    dt_s = 1.0 / settings.rate_hz
+def build_loop(settings: Settings, reference: Reference) -> ClosedLoop:
     if settings.plant.kind is PlantKind.FIRST_ORDER:
-        return FirstOrderPlant(settings.plant.time_constant_s, dt_s, reference.depth_m)
-    from rakectl.rake_plant import RakePlant  # the emulator's physics, for simulation only
+        return FirstOrderLoop(settings, reference.depth_m)
+    from rakectl.rake_plant import RakeLoop  # the emulator's physics, for simulation only
     from rakectl.scenario import Scenario
 
     if not isinstance(settings, Scenario):
         raise TypeError("plant kind rake needs a Scenario (controller + emulator settings)")
-    return RakePlant(settings, reference.reach_m, reference.depth_m)
+    return RakeLoop(settings, reference.reach_m, reference.depth_m)
 
 
 def run(settings: Settings, progress: ProgressCallback | None = None) -> SimulationResult:
     """Simulate at ``settings.rate_hz`` for ``duration_s`` (or until a lane is done)."""
     reference = build_reference(settings)
-    plant = build_plant(settings, reference)
-    controller = build_controller(settings)
+    loop = build_loop(settings, reference)
     dt_s = 1.0 / settings.rate_hz
     max_ticks = round(settings.duration_s * settings.rate_hz)
     hold_ticks = round(HOLD_AFTER_DONE_S * settings.rate_hz)
-    columns = BASE_COLUMNS + plant.columns
+    columns = ("t_s", "x_d_m", *BASE_COLUMNS, *loop.columns)
     data = np.empty((max_ticks, len(columns)))
-    x_m = plant.reset()
-    controller.reset(x_m)
-    contact_delay_s = settings.estimator.delay_s
-    in_contact: bool | None = None
+    loop.reset()
     started = time.perf_counter()
     ticks = max_ticks
     for k in range(max_ticks):
-        if reference.contact is not in_contact:
-            in_contact = reference.contact
-            if in_contact:
-                controller.estimator.enter_contact(contact_delay_s, x_m)
-            else:
-                controller.estimator.set_delay(0.0)
-        x_d_m, x_c_m = reference.depth_m, controller.filter.x_c_m
-        x_ref_m = controller.step(x_d_m, x_m)
-        data[k, :7] = (k * dt_s, x_d_m, x_ref_m, x_m, controller.estimator.x_e_m, x_c_m,
-                       controller.f_hat_n)
-        if not (math.isfinite(x_ref_m) and math.isfinite(controller.f_hat_n)):
-            raise NonFiniteError(f"non-finite value at tick {k} (t = {k * dt_s:.3f} s)")
-        x_m = plant.step(reference.reach_m, x_ref_m)
-        data[k, 7:] = plant.truth()
+        x_d_m = reference.depth_m
+        loop.step(reference.reach_m, x_d_m, reference.contact)
+        if loop.fault:
+            raise NonFiniteError(f"controller fault at tick {k} (t = {k * dt_s:.3f} s): "
+                                 f"{loop.fault}")
+        data[k, 0] = k * dt_s
+        data[k, 1] = x_d_m
+        data[k, 2:] = loop.row()
         reference.step()
         if progress is not None and k % 1000 == 0:
             progress(k, max_ticks)
@@ -166,7 +143,7 @@ def run(settings: Settings, progress: ProgressCallback | None = None) -> Simulat
     if progress is not None:
         progress(max_ticks, max_ticks)
     return SimulationResult(columns, data[:ticks], time.perf_counter() - started,
-                            plant.summary())
+                            loop.summary())
 
 
 def write_results(result: SimulationResult, out_dir: Path) -> None:

@@ -1,0 +1,75 @@
+"""The daemon's operating states and their transitions, as data (pure).
+
+    INIT ──ready──▶ DISARMED ──arm──▶ ARMED ──jog──▶ JOG ──stop/done──▶ HOLD
+                       ▲                 │ └─excavate─▶ EXCAVATE ─stop/done─┘
+                       └────disarm───────┴──── (from ARMED, JOG, EXCAVATE, HOLD)
+    any state ──fault──▶ FAULT ──reset (cause cleared)──▶ DISARMED
+    any state ──estop──▶ ESTOP ──reset──▶ DISARMED
+
+The drives' power stages are enabled only in the armed states. A request
+that the table does not allow is refused with a message naming the state.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Mapping
+from types import MappingProxyType
+
+
+class State(enum.Enum):
+    INIT = 0  # bringing the drives up
+    DISARMED = 1  # drives disabled, 0 V
+    ARMED = 2  # drives enabled, holding the pose where it was armed
+    JOG = 3  # following the operator's velocity commands (dead-man)
+    EXCAVATE = 4  # raking a lane
+    HOLD = 5  # holding after a stop, a finished excavation or a find
+    FAULT = 6  # 0 V, drives disabled, until reset once the cause has cleared
+    ESTOP = 7  # emergency stop: 0 V, drives disabled (quick stop), until reset
+
+
+class Event(enum.Enum):
+    READY = enum.auto()  # bring-up done, first valid feedback
+    ARM = enum.auto()
+    DISARM = enum.auto()
+    JOG = enum.auto()
+    EXCAVATE = enum.auto()
+    STOP = enum.auto()  # operator stop, dead-man expiry
+    DONE = enum.auto()  # excavation finished or object found
+    FAULT = enum.auto()
+    ESTOP = enum.auto()
+    RESET = enum.auto()
+
+
+ARMED_STATES = frozenset({State.ARMED, State.JOG, State.EXCAVATE, State.HOLD})
+
+
+def _table() -> dict[tuple[State, Event], State]:
+    table: dict[tuple[State, Event], State] = {
+        (State.INIT, Event.READY): State.DISARMED,
+        (State.DISARMED, Event.ARM): State.ARMED,
+        (State.FAULT, Event.RESET): State.DISARMED,
+        (State.ESTOP, Event.RESET): State.DISARMED,
+    }
+    for armed in ARMED_STATES:
+        table[(armed, Event.DISARM)] = State.DISARMED
+        table[(armed, Event.JOG)] = State.JOG
+        table[(armed, Event.EXCAVATE)] = State.EXCAVATE
+        table[(armed, Event.STOP)] = State.HOLD
+    table[(State.EXCAVATE, Event.DONE)] = State.HOLD
+    # switching straight between jogging and excavating is refused: stop first
+    del table[(State.JOG, Event.EXCAVATE)]
+    del table[(State.EXCAVATE, Event.JOG)]
+    for state in State:
+        table[(state, Event.ESTOP)] = State.ESTOP
+        if state is not State.ESTOP:
+            table[(state, Event.FAULT)] = State.FAULT
+    return table
+
+
+TRANSITIONS: Mapping[tuple[State, Event], State] = MappingProxyType(_table())
+
+
+def next_state(state: State, event: Event) -> State | None:
+    """The state after ``event``, or None if the table does not allow it."""
+    return TRANSITIONS.get((state, event))
