@@ -16,15 +16,14 @@ import types
 import typing
 from collections.abc import Iterable, Mapping
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 import yaml
 
 from rakectl.errors import ConfigError
-from rakectl.settings import Bounds, Settings, cross_checks, has_default
+from rakectl.settings import Bounds, Settings, has_default
 
 T = TypeVar("T")
-S = TypeVar("S", bound=Settings)
 
 # YAML 1.1 (PyYAML) reads 1.33e4 as a string; accept YAML 1.2 number literals.
 _NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
@@ -115,6 +114,9 @@ def _coerce(tp: Any, raw: _Value, dotted: str, bounds: Bounds | None) -> Any:
     value, where = raw.value, raw.where
     if isinstance(tp, type) and issubclass(tp, enum.Enum):
         choices = ", ".join(m.value for m in tp)
+        if isinstance(value, bool):  # YAML 1.1 reads off/on/yes/no as booleans
+            spellings = ("true", "yes", "on") if value else ("false", "no", "off")
+            value = next((w for w in spellings if w in {m.value for m in tp}), value)
         if value not in {m.value for m in tp}:
             raise ConfigError(f"{where}: {dotted} must be one of {choices}, got {value!r}")
         return tp(value)
@@ -193,11 +195,20 @@ def _list_item(tp: Any, raw: Any, dotted: str, where: str, f: dataclasses.Field[
     return _coerce(tp, raw, dotted, f.metadata.get("bounds"))
 
 
+class Checked(Protocol):
+    """A configuration root: a frozen dataclass with constraints between its options."""
+
+    def cross_checks(self) -> list[tuple[str, str]]: ...
+
+
+C = TypeVar("C", bound=Checked)
+
+
 def load_settings(
     path: str | Path | None = None,
     overrides: Iterable[str] = (),
-    root: type[S] = Settings,  # type: ignore[assignment]
-) -> S:
+    root: type[C] = Settings,  # type: ignore[assignment]
+) -> C:
     """Read ``path`` (or only defaults if None), apply ``--set`` overrides, validate.
 
     Raises ConfigError with a one-line message naming the file, line and key.
@@ -213,7 +224,7 @@ def load_settings(
     for assignment in overrides:
         _apply_override(tree, assignment)
     settings = _build(root, tree, "", source)
-    for dotted, message in cross_checks(settings):
+    for dotted, message in settings.cross_checks():
         raise ConfigError(f"{_locate(tree, dotted, source)}: {dotted} {message}")
     return settings
 

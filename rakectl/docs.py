@@ -19,13 +19,7 @@ def _type_name(tp: Any) -> str:
     return getattr(tp, "__name__", str(tp))
 
 
-def _default(f: dataclasses.Field[Any]) -> str:
-    if f.default is not dataclasses.MISSING:
-        value = f.default
-    elif f.default_factory is not dataclasses.MISSING:
-        value = f.default_factory()
-    else:
-        return "required"
+def _show(value: Any) -> str:
     if isinstance(value, enum.Enum):
         return f"`{value.value}`"
     if isinstance(value, tuple):
@@ -33,17 +27,25 @@ def _default(f: dataclasses.Field[Any]) -> str:
     return f"`{value:g}`" if isinstance(value, float) else f"`{value}`"
 
 
-def rows(cls: type = Settings, prefix: str = "") -> Iterator[tuple[str, ...]]:
-    """(key, type, default, unit, bounds, doc) for every option below ``cls``."""
+def rows(cls: type = Settings, prefix: str = "", instance: Any = None
+         ) -> Iterator[tuple[str, ...]]:
+    """(key, type, default, unit, bounds, doc) for every option below ``cls``.
+
+    Defaults are read from ``instance`` (the section's default as its parent
+    declares it, e.g. the r motor's), else from a default-constructed ``cls``.
+    """
     hints = typing.get_type_hints(cls)
+    if instance is None:
+        instance = cls()
     for f in dataclasses.fields(cls):
         tp = hints[f.name]
+        value = getattr(instance, f.name)
         item = typing.get_args(tp)[0] if typing.get_origin(tp) is tuple else None
         if dataclasses.is_dataclass(tp):
-            yield from rows(tp, f"{prefix}{f.name}.")  # type: ignore[arg-type]
+            yield from rows(tp, f"{prefix}{f.name}.", value)  # type: ignore[arg-type]
             continue
         bounds = f.metadata.get("bounds")
-        yield (f"{prefix}{f.name}", _type_name(tp), _default(f), f.metadata.get("unit", ""),
+        yield (f"{prefix}{f.name}", _type_name(tp), _show(value), f.metadata.get("unit", ""),
                bounds.describe() if bounds else "", f.metadata.get("doc", ""))
         if item is not None and dataclasses.is_dataclass(item):
             yield from rows(item, f"{prefix}{f.name}[].")  # type: ignore[arg-type]

@@ -40,3 +40,18 @@ class FrameError(RakeError, ValueError):
     or a bit pattern the protocol does not define. The message names the frame
     and the field.
     """
+
+
+class ApiError(RakeError):
+    """The command API failed: the socket cannot be set up, or a reply is unusable."""
+
+
+class DaemonUnreachable(ApiError, ConnectionError):
+    """No daemon answers on the command socket (missing, refused, closed or silent)."""
+
+
+class CommandRejected(ApiError):
+    """The daemon answered a request with an error; the message is the daemon's sentence.
+
+    A command handler raises it (or any other RakeError) to refuse a request.
+    """

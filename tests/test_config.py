@@ -121,6 +121,12 @@ def _error_root(override: str) -> str:
     return str(info.value)
 
 
+def test_yaml_1_1_booleans_map_back_to_enum_words(tmp_path: Path) -> None:
+    settings = load_settings(_write(tmp_path, "daemon:\n  rt_mode: off\n"))
+    assert settings.daemon.rt_mode.value == "off"
+    assert load_settings(None, ["daemon.rt_mode=off"]).daemon.rt_mode.value == "off"
+
+
 def test_overrides_apply_on_top_of_the_file(tmp_path: Path) -> None:
     path = _write(tmp_path, "estimator:\n  delay_s: 0.02\n")
     settings = load_settings(path, ["estimator.delay_s=0.03", "plant.kind=first_order"])
