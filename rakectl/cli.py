@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -40,15 +40,31 @@ def _add_simulate(sub: argparse._SubParsersAction[_Parser]) -> None:
     p.add_argument("--json", action="store_true", help="print the summary as one JSON line")
 
 
-def _build_parser() -> _Parser:
+def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], int]]]:
+    from rakectl import cli_ops
+
     parser = _Parser(prog="rakectl", description=__doc__.splitlines()[0] if __doc__ else None)
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     _add_simulate(sub)
-    docs = sub.add_parser("config-docs", help="print the configuration reference (Markdown)")
-    docs.set_defaults()
+    run = sub.add_parser("run", help="the 1 kHz control daemon (the service)")
+    run.add_argument("--config", type=Path, help="YAML configuration (e.g. config/rakectl.yaml)")
+    run.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                     help="override one option (repeatable)")
+    emulator = sub.add_parser("emulator", help="the emulated drives and physics (bench set-ups)",
+                              add_help=False)
+    emulator.add_argument("rest", nargs=argparse.REMAINDER)
+    client = _Parser(add_help=False)
+    client.add_argument("--socket", help="the daemon's command socket")
+    client.add_argument("--json", action="store_true", help="the reply as JSON on stdout")
+    ops = cli_ops.add_parsers(sub, client)
+    sub.add_parser("config-docs", help="print the configuration reference (Markdown)")
+    sub.add_parser("api-docs", help="print the command API reference (Markdown)")
+    demo = sub.add_parser("demo", help="the whole system on an emulated bench: find a mine")
+    demo.add_argument("--out", type=Path, default=Path("out/demo"), help="logs, truth, plot")
+    demo.add_argument("--json", action="store_true", help="the summary as JSON on the last line")
     bench = sub.add_parser("bench", help="micro-benchmarks that print figures")
     bench.add_argument("--ticks", type=int, default=200_000, help="ticks to time")
-    return parser
+    return parser, ops
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -105,11 +121,48 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_api_docs(args: argparse.Namespace) -> int:
+    from rakectl.api import api_reference
+
+    print(api_reference())
+    return 0
+
+
+def _cmd_demo(args: argparse.Namespace) -> int:
+    from rakectl.demo import run_demo
+
+    return run_demo(args.out, args.json)
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from rakectl.service import run
+
+    return run(args.config, args.overrides)
+
+
+def _cmd_emulator(args: argparse.Namespace) -> int:
+    from drivers.__main__ import main as emulator_main
+
+    return emulator_main(args.rest)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    commands = {"simulate": _cmd_simulate, "config-docs": _cmd_config_docs, "bench": _cmd_bench}
+    from rakectl.errors import ApiError
+
+    commands: dict[str, Callable[[argparse.Namespace], int]] = {
+        "simulate": _cmd_simulate, "config-docs": _cmd_config_docs, "bench": _cmd_bench,
+        "api-docs": _cmd_api_docs,
+        "run": _cmd_run, "emulator": _cmd_emulator, "demo": _cmd_demo}
     try:
-        args = _build_parser().parse_args(argv)
-        return commands[args.command](args)
+        parser, ops = _build_parser()
+        args = parser.parse_args(argv)
+        return {**commands, **ops}[args.command](args)
+    except ApiError as exc:
+        print(f"rakectl: error: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
+    except TimeoutError as exc:
+        print(f"rakectl: error: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
     except ConfigError as exc:
         print(f"rakectl: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

@@ -46,6 +46,7 @@ class LanePlanner:
         self.phase = LanePhase.APPROACH
         self.cycle = 1
         self.floor_m = 0.0  # deepest completed stroke so far (ground level at first)
+        self.found_at: tuple[float, float] | None = None  # (reach, depth) of a rigid object
         self.speed_m_per_s = 0.0  # along the path; trapezoidal, zero at every corner
 
     @property
@@ -59,6 +60,24 @@ class LanePlanner:
     @property
     def cycle_depth_m(self) -> float:
         return min(self.cycle * self.lane.depth_step_m, self.lane.target_depth_m)
+
+    def observe(self, reach_m: float, depth_m: float) -> None:
+        """The measured tip, once per tick (see :meth:`check_stall`)."""
+        self.check_stall(reach_m, depth_m)
+
+    def check_stall(self, reach_m: float, depth_m: float) -> bool:
+        """During a contact stroke, a tip lagging its reference by more than the stall error
+        has met something rigid: remember where, lift clear from where the tip IS (so the
+        reference stops pushing), and finish after the lift. Returns True on the find."""
+        if self.phase is not LanePhase.STROKE or self.found_at is not None:
+            return False
+        if math.hypot(self.reach_m - reach_m, self.depth_m - depth_m) <= self.lane.stall_error_m:
+            return False
+        self.found_at = (reach_m, depth_m)
+        self.reach_m, self.depth_m = reach_m, depth_m
+        self.speed_m_per_s = 0.0
+        self.phase = LanePhase.LIFT
+        return True
 
     def _target(self) -> tuple[float, float, float]:
         """(reach, depth, speed) the current phase moves toward."""
@@ -75,7 +94,7 @@ class LanePlanner:
 
     def _next_phase(self) -> LanePhase:
         if self.phase is LanePhase.LIFT:
-            if self.floor_m >= self.lane.target_depth_m - 1e-12:
+            if self.found_at is not None or self.floor_m >= self.lane.target_depth_m - 1e-12:
                 return LanePhase.DONE
             self.cycle += 1
             return LanePhase.APPROACH

@@ -24,6 +24,10 @@ class ClosedLoop(Protocol):
 
     def step(self, reach_ref_m: float, depth_ref_m: float, contact: bool) -> None: ...
 
+    def measured_tip(self) -> tuple[float, float]:
+        """The tip (reach, depth) as the controller measures it."""
+        ...
+
     def row(self) -> tuple[float, ...]:
         """BASE_COLUMNS then ``columns`` for the tick just stepped."""
         ...
@@ -63,6 +67,9 @@ class FirstOrderLoop:
 
     def row(self) -> tuple[float, ...]:
         return self._row
+
+    def measured_tip(self) -> tuple[float, float]:
+        return math.nan, self.x_m
 
     def summary(self) -> dict[str, float | int | bool]:
         return {}

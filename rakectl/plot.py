@@ -102,3 +102,37 @@ def plot_lane(result: SimulationResult, path: Path, mines: list[tuple[float, flo
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def plot_bench_run(truth_csv: Path, path: Path,
+                   mines: list[tuple[float, float, float, float]]) -> None:
+    """A run on the emulated bench from the emulator's ground truth: tip path and forces."""
+    import numpy as np
+
+    plt = pyplot()
+    data = np.genfromtxt(truth_csv, delimiter=",", names=True, usecols=range(14))
+    t, reach, depth = data["t_s"], data["tip_reach_m"], -data["tip_height_m"]
+    fig, (ax_path, ax_f) = plt.subplots(2, 1, figsize=(9, 8))
+    ax_path.plot(reach, 1e3 * depth, lw=0.8, label="tip path (true)")
+    ax_path.axhline(0.0, color="saddlebrown", lw=1, label="ground level")
+    for reach_m, depth_m, width_m, thickness_m in mines:
+        ax_path.add_patch(plt.Rectangle((reach_m - width_m / 2, 1e3 * depth_m), width_m,
+                                        1e3 * thickness_m, color="tab:red", alpha=0.4,
+                                        label="mine"))
+    ax_path.invert_yaxis()
+    ax_path.set_xlabel("reach from the pivot [m]")
+    ax_path.set_ylabel("depth below ground [mm]")
+    ax_path.set_title("(a) the rake's tip (the robot is to the left)")
+    ax_path.legend(loc="lower left")
+    ax_f.plot(t, data["force_drag_n"], color="0.6", lw=0.6, label="true drag")
+    ax_f.plot(t, data["force_down_n"], color="tab:blue", lw=0.6, label="true vertical")
+    ax_f.axhline(90.0, color="tab:red", ls="--", lw=1, label="90 N limit (vertical)")
+    ax_f.set_xlabel("time [s]")
+    ax_f.set_ylabel("force of the tip on the ground [N]")
+    ax_f.set_title("(b) forces, from the emulator's ground truth")
+    ax_f.legend(loc="upper left", fontsize="small")
+    for ax in (ax_path, ax_f):
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -102,6 +102,9 @@ class RakeLoop:
         self.f_true_z_max_n = max(self.f_true_z_max_n, self.contact.peak_down_n)
         self._row = (c.x_ref_m, c.depth_m, c.impedance.estimator.x_e_m, x_c_m, c.f_hat_n)
 
+    def measured_tip(self) -> tuple[float, float]:
+        return self.controller.reach_m, self.controller.depth_m
+
     def row(self) -> tuple[float, ...]:
         arm, truth, c = self.arm, self.ground.truth, self.controller
         reach_m, height_m = arm.tip_m()

@@ -34,6 +34,14 @@ class BusInterface(enum.StrEnum):
     SOCKETCAN = "socketcan"  # can0 / vcan0 on Linux
 
 
+class RtModeSetting(enum.StrEnum):
+    """What the daemon does when a real-time set-up step fails."""
+
+    ENFORCE = "enforce"  # refuse to start, naming what failed
+    IGNORE = "ignore"  # warn and run anyway
+    OFF = "off"  # do not try (tests, development)
+
+
 class TrajectoryKind(enum.StrEnum):
     RAMP = "ramp"  # x_d = start + speed · (t − t0) for t ≥ t0, at a fixed reach
     STEP = "step"  # x_d = start + amplitude for t ≥ t0, at a fixed reach
@@ -115,8 +123,30 @@ class LaneSettings:
                                           gt=0, le=1)
     travel_speed_m_per_s: float = setting(0.15, "Tip speed in free space.", unit="m/s", gt=0,
                                           le=2)
+    stall_error_m: float = setting(
+        0.02, "A contact stroke whose tip lags its reference by more than this has met a rigid "
+        "object (a stone, a mine): stop, lift clear, report where.", unit="m", gt=0.002, le=0.5)
     accel_m_per_s2: float = setting(0.5, "Tip acceleration limit of the reference; it stops "
                                     "at every corner of the path.", unit="m/s²", gt=0, le=20)
+
+
+@dataclass(frozen=True)
+class JogSettings:
+    """Operator jogging: speed and acceleration limits and the dead-man."""
+
+    max_tip_speed_m_per_s: float = setting(0.1, "Largest tip speed in task-space jog.",
+                                           unit="m/s", gt=0, le=1)
+    max_r_speed_m_per_s: float = setting(0.1, "Largest r speed in joint-space jog.",
+                                         unit="m/s", gt=0, le=1)
+    max_theta_speed_rad_per_s: float = setting(0.15, "Largest θ speed in joint-space jog.",
+                                               unit="rad/s", gt=0, le=2)
+    accel_per_s: float = setting(4.0, "Largest change of the jog speed per second, as a share "
+                                 "of the largest speed (4: full speed in 0.25 s).", unit="1/s",
+                                 gt=0, le=100)
+    deadman_s: float = setting(0.3, "Silence from the operator after which jogging stops "
+                               "(clients send every 0.1 s).", unit="s", ge=0.05, le=5)
+    contact_depth_m: float = setting(-0.005, "Jog references deeper than this are treated as "
+                                     "contact (α > 0).", unit="m", ge=-0.5, le=0.5)
 
 
 @dataclass(frozen=True)
@@ -227,6 +257,33 @@ class DrivesSettings:
 
 
 @dataclass(frozen=True)
+class DaemonSettings:
+    """The service: real-time set-up, command socket, flight recorder, supervision."""
+
+    rt_mode: RtModeSetting = setting(RtModeSetting.IGNORE, "Real-time set-up failures: "
+                                     "enforce, ignore or off.")
+    rt_priority: int = setting(80, "SCHED_FIFO priority of the loop.", ge=1, le=99)
+    cpu: int = setting(-1, "CPU to pin the loop to; -1: no pinning.", ge=-1, le=1023)
+    socket_path: str = setting("", "Command socket; empty: /run/rakectl/rakectl.sock under "
+                               "systemd, a per-user path otherwise.")
+    socket_group: str = setting("", "Group that may use the command socket (mode 0660); "
+                                "empty: the daemon's own group.")
+    dump_dir: str = setting("", "Where flight-recorder dumps go; empty: $STATE_DIRECTORY "
+                            "under systemd, else the current directory.")
+    recorder_s: float = setting(4.0, "History kept by the flight recorder.", unit="s", ge=2,
+                                le=60)
+    boot_timeout_s: float = setting(3.0, "How long bring-up waits for each drive's boot-up.",
+                                    unit="s", gt=0, le=60)
+    enable_timeout_s: float = setting(0.5, "How long arming waits for both drives to report "
+                                      "OPERATION ENABLED.", unit="s", gt=0, le=10)
+    overrun_fault_streak: int = setting(
+        50, "Late ticks in a row that count as a fault (the loop cannot keep time).", ge=2,
+        le=100000)
+    stats_interval_s: float = setting(10.0, "How often timing statistics are logged.", unit="s",
+                                      gt=0, le=3600)
+
+
+@dataclass(frozen=True)
 class Settings:
     """Root of the configuration: a scenario or the daemon's configuration file."""
 
@@ -235,15 +292,21 @@ class Settings:
     estimator: EstimatorSettings = section(EstimatorSettings)
     trajectory: TrajectorySettings = section(TrajectorySettings)
     lane: LaneSettings = section(LaneSettings)
+    jog: JogSettings = section(JogSettings)
     geometry: GeometrySettings = section(GeometrySettings)
     joint_control: JointControlSettings = section(JointControlSettings)
     motors: MotorsSettings = section(MotorsSettings)
     clamp: ClampSettings = section(ClampSettings)
     bus: BusSettings = section(BusSettings)
     drives: DrivesSettings = section(DrivesSettings)
+    daemon: DaemonSettings = section(DaemonSettings)
     desired_force_n: float = setting(0.0, "Desired contact force F_d.", unit="N", ge=-90, le=90)
     duration_s: float = setting(20.0, "Length of a simulation.", unit="s", gt=0, le=3600)
     rate_hz: float = setting(1000.0, "Control loop rate.", unit="Hz", ge=10, le=10000)
+
+    def cross_checks(self) -> list[tuple[str, str]]:
+        """Constraints between options: (dotted key, message) for each violation."""
+        return cross_checks(self)
 
 
 def cross_checks(s: Settings) -> list[tuple[str, str]]:

@@ -44,6 +44,10 @@ class Reference(Protocol):
     @property
     def done(self) -> bool: ...
 
+    def observe(self, reach_m: float, depth_m: float) -> None:
+        """The measured tip after the tick (a lane planner detects stalls with it)."""
+        ...
+
     def step(self) -> None: ...
 
 
@@ -132,6 +136,7 @@ def run(settings: Settings, progress: ProgressCallback | None = None) -> Simulat
         data[k, 0] = k * dt_s
         data[k, 1] = x_d_m
         data[k, 2:] = loop.row()
+        reference.observe(*loop.measured_tip())
         reference.step()
         if progress is not None and k % 1000 == 0:
             progress(k, max_ticks)
@@ -142,8 +147,21 @@ def run(settings: Settings, progress: ProgressCallback | None = None) -> Simulat
                 break
     if progress is not None:
         progress(max_ticks, max_ticks)
-    return SimulationResult(columns, data[:ticks], time.perf_counter() - started,
-                            loop.summary())
+    summary = loop.summary()
+    if isinstance(reference, LanePlanner):
+        summary.update(_lane_summary(reference))
+    return SimulationResult(columns, data[:ticks], time.perf_counter() - started, summary)
+
+
+def _lane_summary(planner: LanePlanner) -> dict[str, float | int | bool]:
+    found = planner.found_at
+    return {
+        "cycles": planner.cycle,
+        "depth_reached_m": planner.floor_m,
+        "object_found": found is not None,
+        "object_reach_m": found[0] if found else math.nan,
+        "object_depth_m": found[1] if found else math.nan,
+    }
 
 
 def write_results(result: SimulationResult, out_dir: Path) -> None:

@@ -28,6 +28,9 @@ class TrajectoryReference:
         self.reach_m = traj.reach_m
         self.depth_m = desired_position_m(traj, 0.0)
 
+    def observe(self, reach_m: float, depth_m: float) -> None:
+        """A fixed trajectory does not react to the measured tip."""
+
     def step(self) -> None:
         self.ticks += 1
         self.depth_m = desired_position_m(self.traj, self.ticks * self.dt_s)

@@ -5,18 +5,28 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from rakectl.api import api_reference
 from rakectl.docs import settings_reference
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()
 
 
+def _generated(name: str) -> str:
+    match = re.search(rf"{name}:start.*?-->\n(.*?)\n<!-- {name}:end", README, re.S)
+    assert match, f"README lacks the generated {name}"
+    return match.group(1).strip()
+
+
 def test_configuration_reference_is_generated_from_the_declarations() -> None:
-    match = re.search(r"config-reference:start.*?-->\n(.*?)\n<!-- config-reference:end",
-                      README, re.S)
-    assert match, "README lacks the generated configuration reference"
-    assert match.group(1).strip() == settings_reference().strip(), (
+    assert _generated("config-reference") == settings_reference().strip(), (
         "README configuration table is stale: regenerate with `rakectl config-docs`"
+    )
+
+
+def test_api_reference_is_generated_from_the_command_table() -> None:
+    assert _generated("api-reference") == api_reference().strip(), (
+        "README API reference is stale: regenerate with `rakectl api-docs`"
     )
 
 
