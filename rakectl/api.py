@@ -69,6 +69,7 @@ class Command(enum.StrEnum):
     DUMP = "dump"
     JOG = "jog"
     EXCAVATE = "excavate"
+    TIMING_RESET = "timing_reset"
     SHUTDOWN = "shutdown"
 
 
@@ -159,6 +160,7 @@ _SPECS = (
         _lane_arg("target_depth_m", True), _lane_arg("depth_step_m", False),
         _lane_arg("stroke_speed_m_per_s", False),
     ), _far_beyond_near),
+    CommandSpec(Command.TIMING_RESET, "Start the loop's timing statistics afresh (benchmarks)."),
     CommandSpec(Command.SHUTDOWN, "Stop, disarm and end the daemon (tests and bench set-ups; "
                 "under systemd use `systemctl stop rakectl`). Needs the same credentials as "
                 "every command."),

@@ -28,6 +28,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import structlog
 
 from rakectl import kinematics
@@ -39,12 +40,13 @@ from rakectl.control import TipController
 from rakectl.drive_client import DriveClient, Joint
 from rakectl.errors import CommsTimeout
 from rakectl.excavation import LanePlanner
+from rakectl.histogram import Histogram
 from rakectl.jog import Jog
 from rakectl.recorder import DumpWriter, FlightRecorder
 from rakectl.sdnotify import Notifier
 from rakectl.settings import Settings
 from rakectl.states import ARMED_STATES, Event, State, next_state
-from rakectl.timing import TickTimer, TimingStats
+from rakectl.timing import TickTimer
 
 RECORDER_COLUMNS = (
     "t_s", "state", "reach_ref_m", "depth_ref_m", "reach_m", "depth_m", "x_ref_m", "f_hat_n",
@@ -71,7 +73,13 @@ class Daemon:
         self.dump_dir = dump_dir
         self.dt_s = 1.0 / settings.rate_hz
         self.timer = TickTimer(self.dt_s, clock_ns)
-        self.timing = TimingStats(self.dt_s)
+        self.latency = Histogram()  # wake-up latency: actual wake − deadline
+        self.execution = Histogram()  # the tick's own work
+        self.period = Histogram()  # wake to wake
+        self.oversleep = Histogram()  # the OS's wake-up late of the sleep, before the spin
+        self.longest_gap_ns = 0
+        self._last_wake_ns = 0
+        self._overruns_at_reset = 0
         self.controller = TipController(settings)
         self.workspace = self.controller.servo.workspace
         capacity = round(settings.daemon.recorder_s * settings.rate_hz)
@@ -125,7 +133,7 @@ class Daemon:
                 self.tick(skipped)
                 exec_ns = self._clock_ns() - started_ns
                 self._exec_us = exec_ns * 1e-3
-                self.timing.record(self.timer.wake_ns, self.timer.latency_ns, exec_ns, skipped)
+                self._record_timing(exec_ns)
                 self._overrun_streak = self._overrun_streak + 1 if skipped else 0
                 if self.state is State.INIT and self.ticks > timeout_ticks:
                     raise CommsTimeout("no valid feedback from both drives within "
@@ -134,11 +142,31 @@ class Daemon:
         finally:
             self.finish()
 
+    def _record_timing(self, exec_ns: int) -> None:
+        timer = self.timer
+        self.latency.add(timer.latency_ns)
+        self.oversleep.add(timer.sleep_overshoot_ns)
+        self.execution.add(exec_ns)
+        if self._last_wake_ns:
+            gap_ns = timer.wake_ns - self._last_wake_ns
+            self.period.add(gap_ns)
+            if gap_ns > self.longest_gap_ns:
+                self.longest_gap_ns = gap_ns
+        self._last_wake_ns = timer.wake_ns
+
+    def reset_timing(self) -> None:
+        """Start the timing statistics afresh (benchmark phases)."""
+        for histogram in (self.latency, self.execution, self.period, self.oversleep):
+            histogram.reset()
+        self.longest_gap_ns = 0
+        self._overruns_at_reset = self.timer.overruns
+
     def finish(self) -> None:
         """0 V, drives disabled, the recorder dumped: the end of every run."""
         self.notifier.stopping()
         self.client.stop_all()
         self._dump("shutdown")
+        self.event("bus_latency", **self.bus_latency())
         while self._dumps:
             self._dumps[0].work(1.0)
             if self._dumps[0].done:
@@ -367,10 +395,29 @@ class Daemon:
         if self.state not in ARMED_STATES and self.ticks % 1000 == 0:
             gc.collect(1)  # never while armed: the collector is off then (see cli)
 
+    def bus_latency(self) -> dict[str, Any]:
+        """SYNC → TPDO1 arrival percentiles (µs) and the bus counters (off the hot path)."""
+        samples = self.client.sync_to_tpdo_s()
+        out: dict[str, Any] = {"samples": len(samples), **self.client.stats.as_dict()}
+        if samples:
+            values = np.array(samples) * 1e6
+            for name, q in (("p50", 50), ("p99", 99), ("p99.9", 99.9)):
+                out[f"sync_to_tpdo_{name}_us"] = round(float(np.percentile(values, q)), 1)
+            out["sync_to_tpdo_max_us"] = round(float(values.max()), 1)
+        return out
+
     def timing_summary(self) -> dict[str, Any]:
-        summary = dict(self.timing.summary())
-        summary["overruns"] = self.timer.overruns
-        return summary
+        """Percentiles (ns) since the start or the last reset; cheap enough for the slack."""
+        return {
+            "latency_ns": self.latency.percentiles_ns(),
+            "exec_ns": self.execution.percentiles_ns(),
+            "period_ns": self.period.percentiles_ns(),
+            "oversleep_ns": self.oversleep.percentiles_ns(),
+            "longest_gap_ns": self.longest_gap_ns,
+            "overruns": self.timer.overruns - self._overruns_at_reset,
+            "skipped": self.timer.skipped_total,
+            "gc_collections": [g["collections"] for g in gc.get_stats()],
+        }
 
     # ------------------------------------------------------------------ events and dumps
 

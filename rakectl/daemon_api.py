@@ -148,6 +148,9 @@ def make_handler(daemon: Daemon) -> Callable[[Request], Reply]:
             return _jog(daemon, request)
         if cmd is Command.EXCAVATE:
             return _excavate(daemon, request)
+        if cmd is Command.TIMING_RESET:
+            daemon.reset_timing()
+            return {"state": daemon.state.name.lower()}
         if cmd is Command.SHUTDOWN:
             daemon.request_stop()
             return {"state": daemon.state.name.lower(), "stopping": True}

@@ -137,7 +137,7 @@ BAD = [
     (b'"status"', ErrorKind.INVALID, "a request must be a JSON object, got a string"),
     (b"3", ErrorKind.INVALID, "a request must be a JSON object, got a number"),
     (b"{}", ErrorKind.INVALID, 'a request needs "cmd", one of: status, arm, disarm, stop, '
-     "estop, reset, dump, jog, excavate, shutdown"),
+     "estop, reset, dump, jog, excavate, timing_reset, shutdown"),
     (b'{"cmd": 3}', ErrorKind.INVALID, "unknown command 3; known commands: status, arm"),
     (b'{"cmd": "stauts"}', ErrorKind.INVALID,
      'unknown command "stauts" (did you mean status?); known commands: status, arm'),
