@@ -64,6 +64,10 @@ def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], i
     demo.add_argument("--json", action="store_true", help="the summary as JSON on the last line")
     bench = sub.add_parser("bench", help="micro-benchmarks that print figures")
     bench.add_argument("--ticks", type=int, default=200_000, help="ticks to time")
+    bench.add_argument("--loop", action="store_true",
+                       help="the daemon's loop on the emulated bench against cyclictest")
+    bench.add_argument("--seconds", type=float, default=60.0, help="per phase, with --loop")
+    bench.add_argument("--out", type=Path, default=Path("out/bench-loop"), help="with --loop")
     return parser, ops
 
 
@@ -114,10 +118,20 @@ def _cmd_config_docs(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from rakectl.bench import bench_controller_step, bench_emulator_step
 
+    if args.loop:
+        from rakectl.bench_loop import run_bench
+
+        if not 1.0 <= args.seconds <= 3600.0:
+            raise ConfigError("bench: --seconds must be in [1, 3600]")
+        print(run_bench(args.seconds, args.out))
+        return 0
     if args.ticks < 1000:
         raise ConfigError("bench: --ticks must be >= 1000")
+    from rakectl.bench_can import bench_hot_path
+
     print(bench_controller_step(args.ticks))
     print(bench_emulator_step(max(1000, args.ticks // 50)))
+    print(bench_hot_path(max(1000, args.ticks // 10)))
     return 0
 
 
