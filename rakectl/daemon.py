@@ -36,6 +36,7 @@ from rakectl.canbus import TraceRecorder
 from rakectl.cia402 import Command as DriveCommand
 from rakectl.cia402 import State as DriveState
 from rakectl.cia402 import path_to_enabled
+from rakectl.codec import NmtState
 from rakectl.control import TipController
 from rakectl.drive_client import DriveClient, Joint
 from rakectl.errors import CommsTimeout
@@ -57,6 +58,7 @@ RECORDER_COLUMNS = (
 SLACK_GUARD_S = 250e-6  # slack work stops this long before the next deadline
 SEND_FAILURE_STREAK = 3  # ticks in a row with a failed send: fault
 HEARTBEAT_CHECK_TICKS = 10
+NMT_RETRY_TICKS = 300  # in INIT, NMT start is repeated this often to a drive not OPERATIONAL
 LOG_EVERY_S = 1.0  # a repeated loop event is logged at most this often
 
 log = structlog.get_logger("rakectl")
@@ -203,6 +205,10 @@ class Daemon:
         if fresh and math.isfinite(fb.r_m) and math.isfinite(fb.theta_rad):
             self._transition(Event.READY)
             self.notifier.ready("disarmed: drives configured, feedback valid")
+        elif self.ticks % NMT_RETRY_TICKS == 0:
+            for joint in (Joint.R, Joint.THETA):
+                if fb.nmt_state[joint] is not NmtState.OPERATIONAL:
+                    self.client.start_node(joint)  # the bring-up's NMT start may be lost
 
     def _supervise(self, armed: bool) -> str:
         """Why the loop must fault now, or "" (cheap: strings only when something is wrong).

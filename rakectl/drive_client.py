@@ -784,6 +784,13 @@ class DriveClient:
         """Whether a send of this tick (send() and sync() since the last send()) failed."""
         return self._send_failed
 
+    def start_node(self, joint: Joint) -> None:
+        """NMT start to one drive now (the daemon repeats it while a drive is not yet
+        OPERATIONAL: on a lossy bus the bring-up's NMT start can be lost)."""
+        node = node_ids(self._drives)[joint]
+        self._transmit(can.Message(arbitration_id=NMT_COB_ID, is_extended_id=False,
+                                   data=encode_nmt(NmtCommand.START, node)))
+
     def stop_all(self) -> None:
         """0 V and DISABLE_VOLTAGE to both drives, applied now (RPDO1s, then a SYNC)."""
         self.command(None, Command.DISABLE_VOLTAGE)

@@ -4,7 +4,8 @@
 of a monotonic clock: it sleeps until shortly before the deadline (``time.sleep``
 oversleeps by ~100 µs on a stock kernel) and spins the rest of the way. The
 sleep length is recomputed from the absolute deadline at every tick, so wake-up
-errors never accumulate into drift.
+errors never accumulate into drift (and Python 3.11's ``time.sleep`` itself
+sleeps with ``clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME)``).
 
 Overrun policy: when `TickTimer.wait` is entered after the next deadline has
 already passed (the previous tick's work overran), the overrun is counted and
@@ -16,7 +17,14 @@ future. The skipped deadlines are returned, so the caller integrates over
 execution time in preallocated int64 rings; `TimingStats.record` only writes
 ints into them, and `TimingStats.summary` computes percentiles off the hot path.
 
-The clock and the sleep are injected, so tests run on a fake clock.
+The clock and the sleep are injected, so tests run on a fake clock. A loop::
+
+    timer, stats = TickTimer(1e-3), TimingStats(1e-3)
+    timer.start()
+    while running:
+        skipped = timer.wait()
+        step(dt_s=(1 + skipped) * 1e-3)  # once, over the skipped deadlines too
+        stats.record(timer.wake_ns, timer.latency_ns, time.monotonic_ns() - timer.wake_ns, skipped)
 """
 
 from __future__ import annotations

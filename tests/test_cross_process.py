@@ -12,6 +12,7 @@ import csv
 import json
 import os
 import signal
+import socket
 import time
 from pathlib import Path
 
@@ -97,7 +98,7 @@ def test_sigkill_of_the_controller_leaves_the_drives_at_0_v(tmp_path: Path) -> N
     assert last["r_state"] == "FAULT" and last["theta_state"] == "FAULT"
     first_s = min(_epoch(f["timestamp"]) for f in watchdog)
     print(f"\nSIGKILL → first watchdog EMCY after {1e3 * (first_s - killed_at):.1f} ms "
-          "(configured watchdog 20 ms; includes the kill's own delivery)")
+          "(configured watchdog 100 ms on the emulated bench; includes the kill's delivery)")
 
 
 def _epoch(stamp: str) -> float:
@@ -112,7 +113,8 @@ def test_a_drive_that_goes_silent_faults_the_controller(tmp_path: Path) -> None:
         _armed(bench)
         final = bench.wait_for_state(["fault"], 20.0)
     assert "θ drive (node 2)" in final["fault"]
-    assert "r drive (node 1)" not in final["fault"]
+    bus = final["bus"]
+    assert bus["tpdo_received_r"] > bus["tpdo_received_theta"]  # r kept answering
     print(f"\nsilent drive → {final['fault']}")
 
 
@@ -130,3 +132,48 @@ def test_five_percent_frame_loss_degrades_but_keeps_running(tmp_path: Path) -> N
     assert missed > 0 and received > 0
     print(f"\n5 % loss each way: TPDO1 missed {missed} of {missed + received} "
           f"({100 * missed / (missed + received):.1f} %), state still armed")
+
+
+def test_systemd_notify_sequence_and_sigterm(tmp_path: Path,
+                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """Under a test-owned NOTIFY_SOCKET: READY=1 only after bring-up and valid feedback,
+    WATCHDOG=1 while the loop runs, STOPPING=1 on SIGTERM; then 0 V, drives disabled,
+    the recorder dumped and exit status 0."""
+    notify_path = tmp_path / "notify.sock"
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    listener.bind(str(notify_path))
+    listener.settimeout(0.05)
+    monkeypatch.setenv("NOTIFY_SOCKET", str(notify_path))
+    monkeypatch.setenv("WATCHDOG_USEC", "1000000")
+    messages: list[str] = []
+
+    def drain() -> None:
+        while True:
+            try:
+                messages.append(listener.recv(4096).decode())
+            except TimeoutError:
+                return
+
+    try:
+        with emulated_bench(tmp_path, EMULATOR, DAEMON) as bench:
+            bench.wait_for_state(["disarmed"], 60.0)
+            bench.request("arm")
+            bench.wait_for_state(["armed"], 10.0)
+            time.sleep(1.0)
+            drain()
+            os.kill(bench.request("status")["pid"], signal.SIGTERM)
+            bench.process.wait(20.0)
+            assert bench.process.returncode == 0
+            drain()
+    finally:
+        listener.close()
+    kinds = [m.split("\n")[0].split("=")[0] for m in messages]
+    ready = kinds.index("READY")
+    assert any("bringing up" in m for m in messages[:ready])  # READY only after bring-up
+    assert "WATCHDOG" in kinds[ready:]
+    assert kinds.index("STOPPING") > ready
+    assert any("disarmed" in m for m in messages if m.startswith("READY"))
+    assert list(tmp_path.glob("rakectl-*-shutdown.csv"))
+    last = _truth(tmp_path)[-1]
+    assert float(last["voltage_r_v"]) == 0.0 and float(last["voltage_theta_v"]) == 0.0
+    assert last["r_state"] != "OPERATION_ENABLED" and last["theta_state"] != "OPERATION_ENABLED"

@@ -11,6 +11,7 @@ import errno
 import gc
 import json
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -234,3 +235,19 @@ def test_collect_in_slack_frees_cycles_made_under_no_gc() -> None:
         gc.collect(2)
         assert monitor.collections[2] == 1 and monitor.longest_pause_ns > 0
     assert monitor._callback not in gc.callbacks
+
+
+@needs_root
+@pytest.mark.skipif(shutil.which("setpriv") is None, reason="needs util-linux setpriv")
+def test_unprivileged_enforce_says_how_to_allow_it() -> None:
+    code = (
+        "from rakectl.rt import RtMode, RtSetupError, apply_rt\n"
+        "try:\n    apply_rt(RtMode.ENFORCE)\nexcept RtSetupError as exc:\n    print(exc)\n"
+    )
+    nobody = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", "--inh-caps=-all"]
+    done = subprocess.run(
+        [*nobody, sys.executable, "-c", code], capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("SCHED_FIFO priority 80 refused")
+    assert "CAP_SYS_NICE" in done.stdout and "LimitRTPRIO=80" in done.stdout
