@@ -77,7 +77,10 @@ def test_forward_euler_would_diverge_but_exact_filter_does_not() -> None:
 
 @given(
     mass=st.floats(0.01, 100), damping=st.floats(1.0, 1e5), stiffness=st.floats(1.0, 1e6),
-    force=st.floats(-100, 100, allow_subnormal=False), ticks=st.integers(1, 3000),
+    # 0 or at least 1 µN: forces like 1e-300 give subnormal positions, where
+    # floating point has no relative precision left to compare
+    force=st.one_of(st.just(0.0), st.floats(1e-6, 100), st.floats(-100, -1e-6)),
+    ticks=st.integers(1, 3000),
 )
 def test_filter_samples_the_continuous_step_response_exactly(
     mass: float, damping: float, stiffness: float, force: float, ticks: int
