@@ -58,6 +58,21 @@ def plot_paper_panels(result: SimulationResult, path: Path, title: str = "") -> 
     plt.close(fig)
 
 
+def _tip_path(plt: Any, ax: Any, reach_m: Any, depth_m: Any,
+              mines: list[tuple[float, float, float, float]], label: str, title: str) -> None:
+    """The tip's path in the vertical plane, with the ground level and the mines drawn."""
+    ax.plot(reach_m, 1e3 * depth_m, lw=0.8, label=label)
+    ax.axhline(0.0, color="saddlebrown", lw=1, label="ground level")
+    for reach, depth, width, thickness in mines:
+        ax.add_patch(plt.Rectangle((reach - width / 2, 1e3 * depth), width, 1e3 * thickness,
+                                   color="tab:red", alpha=0.4, label="mine"))
+    ax.invert_yaxis()
+    ax.set_xlabel("reach from the pivot [m]")
+    ax.set_ylabel("depth below ground [mm]")
+    ax.set_title(title)
+    ax.legend(loc="lower left")
+
+
 def plot_lane(result: SimulationResult, path: Path, mines: list[tuple[float, float, float, float]],
               title: str = "") -> None:
     """A raked lane: the tip's path in the vertical plane, depth and forces against time.
@@ -67,18 +82,8 @@ def plot_lane(result: SimulationResult, path: Path, mines: list[tuple[float, flo
     plt = pyplot()
     t = result.column("t_s")
     fig, (ax_path, ax_depth, ax_f) = plt.subplots(3, 1, figsize=(9, 10))
-    ax_path.plot(result.column("tip_reach_m"), 1e3 * result.column("tip_depth_m"), lw=0.8,
-                 label="tip path")
-    ax_path.axhline(0.0, color="saddlebrown", lw=1, label="ground level")
-    for reach_m, depth_m, width_m, thickness_m in mines:
-        ax_path.add_patch(plt.Rectangle((reach_m - width_m / 2, 1e3 * depth_m), width_m,
-                                        1e3 * thickness_m, color="tab:red", alpha=0.4,
-                                        label="mine"))
-    ax_path.invert_yaxis()
-    ax_path.set_xlabel("reach from the pivot [m]")
-    ax_path.set_ylabel("depth below ground [mm]")
-    ax_path.set_title("(a) tip path (the robot is to the left)")
-    ax_path.legend(loc="lower left")
+    _tip_path(plt, ax_path, result.column("tip_reach_m"), result.column("tip_depth_m"), mines,
+              "tip path", "(a) tip path (the robot is to the left)")
     ax_depth.plot(t, 1e3 * result.column("x_d_m"), "--", lw=0.8, label="desired depth $x_d$")
     ax_depth.plot(t, 1e3 * result.column("tip_depth_m"), lw=0.8, label="tip depth")
     ax_depth.invert_yaxis()
@@ -113,17 +118,8 @@ def plot_bench_run(truth_csv: Path, path: Path,
     data = np.genfromtxt(truth_csv, delimiter=",", names=True, usecols=range(14))
     t, reach, depth = data["t_s"], data["tip_reach_m"], -data["tip_height_m"]
     fig, (ax_path, ax_f) = plt.subplots(2, 1, figsize=(9, 8))
-    ax_path.plot(reach, 1e3 * depth, lw=0.8, label="tip path (true)")
-    ax_path.axhline(0.0, color="saddlebrown", lw=1, label="ground level")
-    for reach_m, depth_m, width_m, thickness_m in mines:
-        ax_path.add_patch(plt.Rectangle((reach_m - width_m / 2, 1e3 * depth_m), width_m,
-                                        1e3 * thickness_m, color="tab:red", alpha=0.4,
-                                        label="mine"))
-    ax_path.invert_yaxis()
-    ax_path.set_xlabel("reach from the pivot [m]")
-    ax_path.set_ylabel("depth below ground [mm]")
-    ax_path.set_title("(a) the rake's tip (the robot is to the left)")
-    ax_path.legend(loc="lower left")
+    _tip_path(plt, ax_path, reach, depth, mines, "tip path (true)",
+              "(a) the rake's tip (the robot is to the left)")
     ax_f.plot(t, data["force_drag_n"], color="0.6", lw=0.6, label="true drag")
     ax_f.plot(t, data["force_down_n"], color="tab:blue", lw=0.6, label="true vertical")
     ax_f.axhline(90.0, color="tab:red", ls="--", lw=1, label="90 N limit (vertical)")

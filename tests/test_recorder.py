@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import itertools
-import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +12,7 @@ from hypothesis import strategies as st
 
 from rakectl.errors import ConfigError, RakeError
 from rakectl.recorder import DumpError, DumpWriter, FlightRecorder
+from tests.memory import assert_no_growth
 
 COLUMNS = ("t_s", "state", "x_d_m", "x_m", "f_hat_n")
 
@@ -59,16 +59,7 @@ def test_record_row_keeps_no_memory_per_call() -> None:
         for _ in range(calls):
             recorder.record_row(values)
 
-    run(1000)
-    tracemalloc.start()
-    try:
-        run(1000)
-        short_bytes = tracemalloc.get_traced_memory()[0]
-        run(20_000)
-        long_bytes = tracemalloc.get_traced_memory()[0]
-    finally:
-        tracemalloc.stop()
-    assert long_bytes - short_bytes < 512
+    assert_no_growth(run)
 
 
 class StepClock:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import itertools
 import random
-import tracemalloc
 from collections.abc import Callable
 
 import numpy as np
@@ -22,6 +21,7 @@ from rakectl.bench_rt import (
 from rakectl.errors import ConfigError
 from rakectl.rt import RtMode
 from rakectl.timing import TickTimer, TimingStats, percentiles_ns
+from tests.memory import assert_no_growth
 
 PERIOD_NS = 1_000_000
 SPIN_NS = 200_000
@@ -199,16 +199,7 @@ def test_record_keeps_no_memory_per_call() -> None:
         for k in range(calls):
             stats.record(PERIOD_NS * k + 1_000_000_007, 40_000 + k, 12_000, 0)
 
-    run(1000)
-    tracemalloc.start()
-    try:
-        run(1000)
-        short_bytes = tracemalloc.get_traced_memory()[0]
-        run(20_000)
-        long_bytes = tracemalloc.get_traced_memory()[0]
-    finally:
-        tracemalloc.stop()
-    assert long_bytes - short_bytes < 512  # a per-call leak would be >= 20 000 × 28 B
+    assert_no_growth(run)
 
 
 # --- the benchmark's arithmetic (figures are printed there, never asserted) ----------------
