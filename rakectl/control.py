@@ -82,11 +82,13 @@ class TipController:
     __slots__ = ("_contact", "_contact_delay_s", "clamp", "depth_m", "fault", "impedance",
                  "reach_m", "requested_v", "servo", "x_ref_m")
 
-    def __init__(self, settings: Settings) -> None:
+    def __init__(self, settings: Settings, clamp: VoltageClamp | None = None) -> None:
+        """``clamp`` replaces the configured clamp: for tests only (no setting reaches it)."""
         self.impedance = build_impedance(settings)
         self.servo = JointServo(settings)
         dt_s = 1.0 / settings.rate_hz
-        self.clamp = VoltageClamp(settings.clamp, settings.motors.r, settings.motors.theta, dt_s)
+        self.clamp = clamp if clamp is not None else VoltageClamp(
+            settings.clamp, settings.motors.r, settings.motors.theta, dt_s)
         self._contact_delay_s = settings.estimator.delay_s
         self._contact = False
         self.impedance.estimator.set_delay(0.0)

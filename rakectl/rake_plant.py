@@ -15,6 +15,7 @@ from __future__ import annotations
 from drivers.arm import ArmPlant
 from drivers.objects import Contact, Ground, GroundTruth
 from rakectl import kinematics
+from rakectl.clamp import VoltageClamp
 from rakectl.control import TipController
 from rakectl.plants import BASE_COLUMNS
 from rakectl.scenario import Scenario
@@ -55,10 +56,12 @@ class RakeLoop:
         "f_true_x_n", "contact", "mine_activated",
     )
 
-    def __init__(self, settings: Scenario, start_reach_m: float, start_depth_m: float) -> None:
+    def __init__(self, settings: Scenario, start_reach_m: float, start_depth_m: float,
+                 clamp: VoltageClamp | None = None) -> None:
+        """``clamp`` replaces the configured clamp (tests only; see TipController)."""
         emu = settings.emulator
         self.dt_s = 1.0 / settings.rate_hz
-        self.controller = TipController(settings)
+        self.controller = TipController(settings, clamp)
         self.workspace = self.controller.servo.workspace
         self.arm = ArmPlant(emu.arm, emu.motor_r, emu.motor_theta, self.workspace,
                             emu.substep_s, emu.seed)
