@@ -47,13 +47,14 @@ from rakectl.recorder import DumpWriter, FlightRecorder
 from rakectl.sdnotify import Notifier
 from rakectl.settings import Settings
 from rakectl.states import ARMED_STATES, Event, State, next_state
+from rakectl.supervision import ForceLevel, ForceSupervisor
 from rakectl.timing import TickTimer
 
 RECORDER_COLUMNS = (
     "t_s", "state", "reach_ref_m", "depth_ref_m", "reach_m", "depth_m", "x_ref_m", "f_hat_n",
     "voltage_r_req_v", "voltage_theta_req_v", "voltage_r_v", "voltage_theta_v",
     "clamp_worst_case_n", "r_m", "theta_rad", "current_r_a", "current_theta_a",
-    "latency_us", "exec_us",
+    "f_current_n", "force_level", "latency_us", "exec_us",
 )
 SLACK_GUARD_S = 250e-6  # slack work stops this long before the next deadline
 SEND_FAILURE_STREAK = 3  # ticks in a row with a failed send: fault
@@ -83,6 +84,8 @@ class Daemon:
         self._last_wake_ns = 0
         self._overruns_at_reset = 0
         self.controller = TipController(settings)
+        self.supervisor = ForceSupervisor(settings.supervision, settings.clamp, settings.motors.r,
+                                          settings.motors.theta, self.dt_s)
         self.workspace = self.controller.servo.workspace
         capacity = round(settings.daemon.recorder_s * settings.rate_hz)
         self.recorder = FlightRecorder(RECORDER_COLUMNS, capacity)
@@ -248,15 +251,38 @@ class Daemon:
             return 0.0, 0.0
         if c.f_hat_n > self.f_hat_max_n:
             self.f_hat_max_n = c.f_hat_n
+        previous = self.supervisor.level
+        level = self.supervisor.step(c.f_hat_n, fb.r_m, fb.theta_rad, fb.current_r_a,
+                                     fb.current_theta_a)
+        if level is ForceLevel.HARD and previous is not ForceLevel.HARD:
+            self._back_off()
         planner = self.planner
         if (planner is not None and self.state is State.EXCAVATE
                 and planner.check_stall(c.reach_m, c.depth_m)):
             self.event("object_found", reach_m=c.reach_m, depth_m=c.depth_m)
         return voltages
 
+    def _back_off(self) -> None:
+        """Hard force level: stop where the tip is and back off upward; report it."""
+        c, sup = self.controller, self.supervisor
+        reach, depth = c.reach_m, c.depth_m - self.settings.supervision.back_off_m
+        self.event("force_limit", f_hat_n=c.f_hat_n, f_current_n=sup.f_current_n,
+                   reach_m=c.reach_m, depth_m=c.depth_m)
+        if self.state is State.EXCAVATE and self.planner is not None:
+            self.planner.force_stop(c.reach_m, c.depth_m)
+            return
+        self.hold = (reach, depth)
+        if self.state is State.JOG:
+            self._transition(Event.STOP, "force limit: backing off")
+
     def _reference(self) -> tuple[float, float, bool]:
-        """Tip reference (reach, depth) and contact flag of the current mode, one tick on."""
+        """Tip reference (reach, depth) and contact flag of the current mode, one tick on.
+
+        At the caution level the reference holds still (jog and lane do not advance).
+        """
         state = self.state
+        if self.supervisor.level is ForceLevel.CAUTION and state in (State.JOG, State.EXCAVATE):
+            return self._ref[0], self._ref[1], True
         if state is State.JOG and self.jog is not None:
             self.jog.step()
             if self.jog.expired and not self.jog.moving:
@@ -299,7 +325,8 @@ class Daemon:
             self.ticks * self.dt_s, self.state.value, self._ref[0], self._ref[1], c.reach_m,
             c.depth_m, c.x_ref_m, c.f_hat_n, c.requested_v[0], c.requested_v[1], voltages[0],
             voltages[1], c.clamp.worst_case_n, fb.r_m, fb.theta_rad, fb.current_r_a,
-            fb.current_theta_a, self.timer.latency_ns * 1e-3, self._exec_us,
+            fb.current_theta_a, self.supervisor.f_current_n, float(self.supervisor.level),
+            self.timer.latency_ns * 1e-3, self._exec_us,
         ))
 
     # ------------------------------------------------------------------ states
@@ -334,6 +361,7 @@ class Daemon:
         """Hold the present pose and step the drives to OPERATION ENABLED."""
         fb = self.client.feedback
         self.controller.reset(fb.r_m, fb.theta_rad)
+        self.supervisor.reset()
         self.hold = (self.controller.reach_m, self.controller.depth_m)
         self._ref = self.hold
         self._enabled = False

@@ -55,6 +55,8 @@ def status(daemon: Daemon) -> dict[str, Any]:
                    "current_theta_a": _finite(fb.current_theta_a)},
         "tip": _tip(daemon),
         "force": {"f_hat_n": c.f_hat_n, "f_hat_max_n": daemon.f_hat_max_n,
+                  "f_current_n": daemon.supervisor.f_current_n,
+                  "level": daemon.supervisor.level.name.lower(),
                   "clamp_worst_case_n": c.clamp.worst_case_n,
                   "clamp_limit_n": c.clamp.limit_n, "clamped_ticks": c.clamp.clamped},
         "drives": [{"state": s.name.lower() if s is not None else None,

@@ -47,6 +47,7 @@ class LanePlanner:
         self.cycle = 1
         self.floor_m = 0.0  # deepest completed stroke so far (ground level at first)
         self.found_at: tuple[float, float] | None = None  # (reach, depth) of a rigid object
+        self.stopped_by_force = False
         self.speed_m_per_s = 0.0  # along the path; trapezoidal, zero at every corner
 
     @property
@@ -79,6 +80,15 @@ class LanePlanner:
         self.phase = LanePhase.LIFT
         return True
 
+    def force_stop(self, reach_m: float, depth_m: float) -> None:
+        """The force supervision's hard level: lift clear from where the tip is, then end."""
+        if self.phase in (LanePhase.LIFT, LanePhase.DONE):
+            return
+        self.stopped_by_force = True
+        self.reach_m, self.depth_m = reach_m, depth_m
+        self.speed_m_per_s = 0.0
+        self.phase = LanePhase.LIFT
+
     def _target(self) -> tuple[float, float, float]:
         """(reach, depth, speed) the current phase moves toward."""
         lane, above = self.lane, -self.lane.clearance_m
@@ -94,7 +104,8 @@ class LanePlanner:
 
     def _next_phase(self) -> LanePhase:
         if self.phase is LanePhase.LIFT:
-            if self.found_at is not None or self.floor_m >= self.lane.target_depth_m - 1e-12:
+            if (self.found_at is not None or self.stopped_by_force
+                    or self.floor_m >= self.lane.target_depth_m - 1e-12):
                 return LanePhase.DONE
             self.cycle += 1
             return LanePhase.APPROACH

@@ -19,6 +19,7 @@ from rakectl.clamp import VoltageClamp
 from rakectl.control import TipController
 from rakectl.plants import BASE_COLUMNS
 from rakectl.scenario import Scenario
+from rakectl.supervision import ForceLevel, ForceSupervisor
 
 # The telemetry's `contact` column: 0 none, 1 soil, 2 stone, 3 root, 4 mine.
 CONTACT_CODE = {kind: float(code) for code, kind in enumerate(Contact)}
@@ -53,7 +54,7 @@ class RakeLoop:
         "reach_ref_m", "r_ref_m", "theta_ref_rad", "r_m", "theta_rad", "voltage_r_req_v",
         "voltage_theta_req_v", "voltage_r_v", "voltage_theta_v", "current_r_a",
         "current_theta_a", "tip_reach_m", "tip_depth_m", "interface_depth_m", "f_true_z_n",
-        "f_true_x_n", "contact", "mine_activated",
+        "f_true_x_n", "contact", "mine_activated", "f_current_n", "force_level",
     )
 
     def __init__(self, settings: Scenario, start_reach_m: float, start_depth_m: float,
@@ -62,6 +63,8 @@ class RakeLoop:
         emu = settings.emulator
         self.dt_s = 1.0 / settings.rate_hz
         self.controller = TipController(settings, clamp)
+        self.supervisor = ForceSupervisor(settings.supervision, settings.clamp, settings.motors.r,
+                                          settings.motors.theta, self.dt_s)
         self.workspace = self.controller.servo.workspace
         self.arm = ArmPlant(emu.arm, emu.motor_r, emu.motor_theta, self.workspace,
                             emu.substep_s, emu.seed)
@@ -102,11 +105,17 @@ class RakeLoop:
         self._tick(reach_ref_m, depth_ref_m)
         if c.fault and not self.fault:
             self.fault = c.fault
+        m = self.arm.measure()
+        self.supervisor.step(c.f_hat_n, m.r_m, m.theta_rad, m.current_r_a, m.current_theta_a)
         self.f_true_z_max_n = max(self.f_true_z_max_n, self.contact.peak_down_n)
         self._row = (c.x_ref_m, c.depth_m, c.impedance.estimator.x_e_m, x_c_m, c.f_hat_n)
 
     def measured_tip(self) -> tuple[float, float]:
         return self.controller.reach_m, self.controller.depth_m
+
+    @property
+    def force_level(self) -> ForceLevel:
+        return self.supervisor.level
 
     def row(self) -> tuple[float, ...]:
         arm, truth, c = self.arm, self.ground.truth, self.controller
@@ -118,6 +127,7 @@ class RakeLoop:
             arm.current_r_a, arm.current_theta_a, reach_m, -height_m,
             -truth.interface_height_m, self.contact.peak_down_n, truth.force_drag_n,
             CONTACT_CODE[truth.contact], float(truth.mine_activated),
+            self.supervisor.f_current_n, float(self.supervisor.level),
         )
 
     def summary(self) -> dict[str, float | int | bool]:
@@ -128,5 +138,6 @@ class RakeLoop:
             "mine_plate_force_max_n": max((m.peak_down_n for m in mines), default=0.0),
             "mine_side_force_max_n": max((m.peak_side_n for m in mines), default=0.0),
             "clamped_ticks": self.controller.clamp.clamped,
+            "f_supervised_max_n": self.supervisor.f_max_n,
             "unreachable_ticks": self.controller.servo.unreachable,
         }

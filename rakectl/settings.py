@@ -224,6 +224,23 @@ class ClampSettings:
 
 
 @dataclass(frozen=True)
+class SupervisionSettings:
+    """Force supervision on two estimates: the delayed-position F̂ and the motor currents."""
+
+    caution_force_n: float = setting(
+        55.0, "Above this estimated vertical force the motion holds still (no advance).",
+        unit="N", gt=0, lt=90)
+    hard_force_n: float = setting(
+        75.0, "Above this the motion stops and the tip backs off upward; must stay below 90 N.",
+        unit="N", gt=0, lt=90)
+    back_off_m: float = setting(0.01, "How far the tip backs off upward on the hard level.",
+                                unit="m", gt=0, le=0.1)
+    current_filter_s: float = setting(
+        0.02, "Time constant of the low-pass on the current-based force estimate.", unit="s",
+        gt=0, le=1)
+
+
+@dataclass(frozen=True)
 class BusSettings:
     """The CAN bus to the drives."""
 
@@ -297,6 +314,7 @@ class Settings:
     joint_control: JointControlSettings = section(JointControlSettings)
     motors: MotorsSettings = section(MotorsSettings)
     clamp: ClampSettings = section(ClampSettings)
+    supervision: SupervisionSettings = section(SupervisionSettings)
     bus: BusSettings = section(BusSettings)
     drives: DrivesSettings = section(DrivesSettings)
     daemon: DaemonSettings = section(DaemonSettings)
@@ -327,6 +345,10 @@ def cross_checks(s: Settings) -> list[tuple[str, str]]:
         errors.append(
             ("lane.reach_far_m", f"must be > lane.reach_near_m ({s.lane.reach_near_m:g})")
         )
+    if not s.supervision.hard_force_n > s.supervision.caution_force_n:
+        caution = s.supervision.caution_force_n
+        errors.append(("supervision.hard_force_n",
+                       f"must be > supervision.caution_force_n ({caution:g})"))
     d = s.drives
     if len({d.r_node_id, d.theta_node_id, d.controller_node_id}) < 3:
         errors.append(("drives.theta_node_id", "node-IDs of drives and controller must differ"))

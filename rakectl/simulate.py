@@ -22,6 +22,7 @@ from rakectl.errors import NonFiniteError
 from rakectl.excavation import LanePlanner
 from rakectl.plants import BASE_COLUMNS, ClosedLoop, FirstOrderLoop
 from rakectl.settings import PlantKind, Settings, TrajectoryKind
+from rakectl.supervision import ForceLevel
 from rakectl.trajectory import TrajectoryReference
 
 ProgressCallback = Callable[[int, int], None]
@@ -137,7 +138,11 @@ def run(settings: Settings, progress: ProgressCallback | None = None) -> Simulat
         data[k, 1] = x_d_m
         data[k, 2:] = loop.row()
         reference.observe(*loop.measured_tip())
-        reference.step()
+        level = getattr(loop, "force_level", ForceLevel.OK)
+        if level is ForceLevel.HARD and isinstance(reference, LanePlanner):
+            reference.force_stop(*loop.measured_tip())
+        if level is not ForceLevel.CAUTION:  # caution: the reference holds still
+            reference.step()
         if progress is not None and k % 1000 == 0:
             progress(k, max_ticks)
         if reference.done:
@@ -161,6 +166,7 @@ def _lane_summary(planner: LanePlanner) -> dict[str, float | int | bool]:
         "object_found": found is not None,
         "object_reach_m": found[0] if found else math.nan,
         "object_depth_m": found[1] if found else math.nan,
+        "stopped_by_force": planner.stopped_by_force,
     }
 
 
