@@ -19,6 +19,7 @@ if TYPE_CHECKING:
     from rakectl.scenario import Scenario
     from rakectl.simulate import SimulationResult
 
+PASS_THROUGH = ("emulator", "fuzz")  # sub-commands whose options their own parser reads
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
 
@@ -50,15 +51,16 @@ def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], i
     run.add_argument("--config", type=Path, help="YAML configuration (e.g. config/rakectl.yaml)")
     run.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                      help="override one option (repeatable)")
-    emulator = sub.add_parser("emulator", help="the emulated drives and physics (bench set-ups)",
-                              add_help=False)
-    emulator.add_argument("rest", nargs=argparse.REMAINDER)
+    sub.add_parser("emulator", help="the emulated drives and physics (bench set-ups); "
+                   "its options: rakectl emulator --help", add_help=False)
     client = _Parser(add_help=False)
     client.add_argument("--socket", help="the daemon's command socket")
     client.add_argument("--json", action="store_true", help="the reply as JSON on stdout")
     ops = cli_ops.add_parsers(sub, client)
     sub.add_parser("config-docs", help="print the configuration reference (Markdown)")
     sub.add_parser("api-docs", help="print the command API reference (Markdown)")
+    sub.add_parser("fuzz", help="closed-loop safety campaign over random scenarios; "
+                   "its options: rakectl fuzz --help", add_help=False)
     demo = sub.add_parser("demo", help="the whole system on an emulated bench: find a mine")
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="logs, truth, plot")
     demo.add_argument("--json", action="store_true", help="the summary as JSON on the last line")
@@ -142,6 +144,12 @@ def _cmd_api_docs(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_fuzz(args: argparse.Namespace) -> int:
+    from rakectl.fuzz import main as fuzz_main
+
+    return fuzz_main(args.rest)
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from rakectl.demo import run_demo
 
@@ -166,10 +174,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     commands: dict[str, Callable[[argparse.Namespace], int]] = {
         "simulate": _cmd_simulate, "config-docs": _cmd_config_docs, "bench": _cmd_bench,
         "api-docs": _cmd_api_docs,
-        "run": _cmd_run, "emulator": _cmd_emulator, "demo": _cmd_demo}
+        "run": _cmd_run, "emulator": _cmd_emulator, "demo": _cmd_demo,
+        "fuzz": _cmd_fuzz}
     try:
         parser, ops = _build_parser()
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if args.command in PASS_THROUGH:  # these parse their own options
+            args.rest = extra
+        elif extra:
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
         return {**commands, **ops}[args.command](args)
     except ApiError as exc:
         print(f"rakectl: error: {exc}", file=sys.stderr)

@@ -88,3 +88,17 @@ def test_config_docs_and_bench_print_figures() -> None:
     bench = _rakectl("bench", "--ticks", "20000")
     assert bench.returncode == 0, bench.stderr
     assert "median" in bench.stdout and "µs" in bench.stdout
+
+
+@pytest.mark.parametrize("command", ["emulator", "fuzz"])
+def test_pass_through_commands_read_their_own_options(command: str) -> None:
+    done = _rakectl(command, "--help")
+    assert done.returncode == 0, done.stderr
+    assert "usage" in done.stdout.lower()
+
+
+def test_unknown_options_elsewhere_are_one_line_errors() -> None:
+    done = _rakectl("status", "--bogus")
+    assert done.returncode == 2
+    assert "unrecognized arguments: --bogus" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1

@@ -1,0 +1,121 @@
+"""The closed-loop safety campaign: generation, running, replay, and what the clamp holds."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import pytest
+
+from drivers.objects import BuriedObjects, GroundParams, MineParams, StoneParams
+from drivers.soil import SoilParams
+from rakectl import fuzz
+from rakectl.clamp import VoltageClamp
+from rakectl.fuzz import Command, CommandKind, Faults, FuzzCase
+from rakectl.scenario import Scenario
+
+
+class PassThroughClamp(VoltageClamp):
+    """Keeps the attributes the controller reads but lets every request through."""
+
+    __slots__ = ()
+
+    def apply(self, r_m: float, theta_rad: float, r_vel_m_per_s: float,
+              theta_vel_rad_per_s: float, voltage_r_v: float, voltage_theta_v: float
+              ) -> tuple[float, float]:
+        super().apply(r_m, theta_rad, r_vel_m_per_s, theta_vel_rad_per_s, voltage_r_v,
+                      voltage_theta_v)
+        return voltage_r_v, voltage_theta_v
+
+
+def pass_through_clamp() -> PassThroughClamp:
+    s = Scenario()
+    return PassThroughClamp(s.clamp, s.motors.r, s.motors.theta, 1.0 / s.rate_hz)
+
+
+def plunge_onto(objects: BuriedObjects, speed_m_per_s: float, end_depth_m: float) -> FuzzCase:
+    """Pure position control (no impedance) straight down at reach 1.1 m onto ``objects``."""
+    command = Command(CommandKind.PLUNGE, 1.1, 1.1, end_depth_m, end_depth_m, speed_m_per_s,
+                      0.0, 0.01, False)
+    return FuzzCase(0, 0, GroundParams(SoilParams(), objects), 7, command, Faults(),
+                    (0.01 + end_depth_m) / speed_m_per_s + 1.0)
+
+
+MINE_AT_3_CM = BuriedObjects(mines=(MineParams(1.1, 0.03, 0.08, 0.05,
+                                               activation_force_n=80.0),))
+
+
+def test_generation_is_deterministic_and_serializable() -> None:
+    case = fuzz.generate(5, 3)
+    assert case == fuzz.generate(5, 3)
+    assert case != fuzz.generate(5, 4)
+    assert case != fuzz.generate(6, 3)
+    assert fuzz.case_from_dict(json.loads(json.dumps(case.to_dict()))) == case
+
+
+def test_generation_spans_soils_commands_and_faults() -> None:
+    cases = [fuzz.generate(2, i) for i in range(48)]
+    stiffness = [la.stiffness_n_per_m for c in cases for la in c.ground.soil.layers]
+    assert max(stiffness) / min(stiffness) > 20.0
+    assert {c.command.kind for c in cases} == set(CommandKind)
+    assert {k for c in cases for k in c.faults.kinds()} == {"feedback", "command", "drive"}
+    mines = [m for c in cases for m in c.ground.objects.mines]
+    assert mines and all(80.0 <= m.activation_force_n <= 100.0 for m in mines)
+
+
+def test_small_campaign_runs_and_the_worst_case_replays(tmp_path: Path) -> None:
+    """12 cases: each command kind with no fault and with each fault kind. The lane cases
+    (normal operation) stay below 90 N; the hostile ones are reported, not asserted safe."""
+    report = fuzz.campaign(12, seed=1, workers=2, out_dir=tmp_path)
+    assert report.scenarios == len(report.results) == 12
+    assert {r.kind for r in report.results} == {str(k) for k in CommandKind}
+    assert {k for r in report.results for k in r.faults} == {"feedback", "command", "drive"}
+    assert any(r.drive_fault_ticks > 0 for r in report.results)  # a lane may end first
+    assert report.by_kind()["lane"]["cases_over_limit"] == 0
+    assert report.by_kind()["lane"]["mine_activations"] == 0
+    assert report.f_true_z_max_n == max(r.f_true_z_max_n for r in report.results)
+    now, recorded = fuzz.replay(Path(report.worst_case_path))
+    assert now == recorded == report.worst
+
+
+def test_cli_json_last_line_and_exit_status(capsys: pytest.CaptureFixture[str]) -> None:
+    assert fuzz.main(["--scenarios", "1", "--seed", "1", "--json"]) == 0  # case 0: a lane
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["scenarios"] == 1
+    assert summary["ticks_over_limit"] == 0 and summary["mine_activations"] == 0
+    assert 0.0 < summary["f_true_z_max_n"] < fuzz.FORCE_LIMIT_N
+
+
+def test_the_clamp_is_what_holds() -> None:
+    """A slow position-controlled plunge onto a mine's plate: the joint loops saturate
+    against it. Through the clamp the plate sees less than 90 N; without it, well over."""
+    case = plunge_onto(MINE_AT_3_CM, speed_m_per_s=0.02, end_depth_m=0.06)
+    clamped = fuzz.run_case(case)
+    unclamped = fuzz.run_case(case, pass_through_clamp())
+    assert clamped.f_true_z_max_n < fuzz.FORCE_LIMIT_N
+    assert clamped.ticks_over_limit == 0 and not clamped.mine_activated
+    assert unclamped.f_true_z_max_n > 1.3 * fuzz.FORCE_LIMIT_N
+    assert unclamped.ticks_over_limit > 1000 and unclamped.mine_activated
+
+
+@pytest.mark.xfail(strict=True, reason="KNOWN VIOLATION: impact. A full-speed (0.25 m/s) "
+                   "plunge onto a stone exceeds 90 N with the real clamp, which bounds "
+                   "static force only; needs a descent-speed limit near the ground.")
+def test_full_speed_plunge_onto_a_stone_stays_below_the_limit() -> None:
+    stone = BuriedObjects(stones=(StoneParams(1.1, 0.03, 0.1, 0.08),))
+    result = fuzz.run_case(plunge_onto(stone, speed_m_per_s=0.25, end_depth_m=0.06))
+    assert result.ticks_over_limit == 0
+
+
+def test_faults_are_injected_and_counted() -> None:
+    case = dataclasses.replace(
+        plunge_onto(BuriedObjects(), speed_m_per_s=0.1, end_depth_m=0.05),
+        faults=Faults(seed=3, feedback_loss_probability=0.2, command_loss_probability=0.2,
+                      drive_fault_start_s=0.2, drive_fault_s=0.05))
+    result = fuzz.run_case(case)
+    ticks = round(result.duration_s * 1000)
+    assert 0.1 * ticks < result.feedback_lost_ticks < 0.3 * ticks
+    assert 0.1 * ticks < result.commands_lost_ticks < 0.3 * ticks
+    assert result.drive_fault_ticks == 50
+    assert result.faults == ("feedback", "command", "drive")
