@@ -128,9 +128,9 @@ class VoltageClamp:
               theta_vel_rad_per_s: float, voltage_r_v: float, voltage_theta_v: float
               ) -> tuple[float, float]:
         """The voltages to send: the request, cut where it could press down too hard."""
-        values = (r_m, theta_rad, r_vel_m_per_s, theta_vel_rad_per_s, voltage_r_v,
-                  voltage_theta_v)
-        if not all(math.isfinite(v) for v in values) or r_m <= 0.0:
+        total = (r_m + theta_rad + r_vel_m_per_s + theta_vel_rad_per_s + voltage_r_v
+                 + voltage_theta_v)
+        if not math.isfinite(total) or r_m <= 0.0:  # one check: inf/nan anywhere poisons the sum
             self.non_finite = True
             return 0.0, 0.0
         sin_t, cos_t = math.sin(theta_rad), math.cos(theta_rad)

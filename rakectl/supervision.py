@@ -65,8 +65,8 @@ class ForceSupervisor:
     def step(self, f_hat_n: float, r_m: float, theta_rad: float, current_r_a: float,
              current_theta_a: float) -> ForceLevel:
         """Update the filtered current-based estimate and return this tick's level."""
-        values = (f_hat_n, r_m, theta_rad, current_r_a, current_theta_a)
-        if not all(math.isfinite(v) for v in values) or r_m < kinematics.MIN_REACH_M:
+        total = f_hat_n + r_m + theta_rad + current_r_a + current_theta_a
+        if not math.isfinite(total) or r_m < kinematics.MIN_REACH_M:  # nan/inf poisons the sum
             self.level = ForceLevel.HARD
             return self.level
         raw = self.force_from_currents_n(r_m, theta_rad, current_r_a, current_theta_a)
