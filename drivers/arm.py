@@ -105,13 +105,26 @@ class ArmParams:
     damping_theta_nms_per_rad: float = setting(
         0.5, "Viscous damping of the θ pivot bearings.", unit="N·m·s/rad", ge=0, le=1e5
     )
+    tine_mount_stiffness_n_per_m: float = setting(
+        3.0e4, "Vertical stiffness of the tines' compliant mount (0: rigid). In series with "
+        "whatever the tines press on, it bounds the contact stiffness (rakectl.clamp).",
+        unit="N/m", ge=0, le=1e9,
+    )
+    tine_mount_damping_ns_per_m: float = setting(
+        50.0, "Damping of the tines' compliant mount.", unit="N·s/m", ge=0, le=1e6
+    )
 
     def __post_init__(self) -> None:
         check_declared_bounds(self)
 
 
 class ContactModel(Protocol):
-    """The ground as the tip feels it (implemented by the soil model)."""
+    """The ground as the tip feels it (implemented by the soil model).
+
+    A model that also has ``vertical_laws(reach_m, height_m, face_height_m)`` (Ground)
+    lets the arm solve its compliant tine mount implicitly; one without it (the tests'
+    idealized contacts) meets a rigid mount.
+    """
 
     def step(
         self,
@@ -243,6 +256,9 @@ class ArmPlant:
         self._rng = np.random.default_rng(seed)
         self._bridge_r, self._bridge_theta = Bridge.DRIVEN, Bridge.DRIVEN
         self._time_s, self._last_tip_force_n, self._last_contact_loads = 0.0, (0.0, 0.0), (0.0, 0.0)
+        self._mount_k = arm.tine_mount_stiffness_n_per_m
+        self._mount_c = arm.tine_mount_damping_ns_per_m
+        self.mount_m = 0.0  # compression of the tine mount (> 0: tines pushed up)
         self.set_state(ArmState(workspace.r_min_m, 0.0))
 
     def _check_explicit_damping(self) -> None:
@@ -264,6 +280,7 @@ class ArmPlant:
         self._p_theta = self._inertia_theta(state.r_m) * state.theta_vel_rad_per_s
         self._current_r_a, self._current_theta_a = state.current_r_a, state.current_theta_a
         self._counts_r = self._drive_r.counts(state.r_m)
+        self.mount_m = 0.0
         self._counts_theta = self._drive_theta.counts(state.theta_rad)
         self._measured = Measurement(
             self._counts_r * self._drive_r.resolution,
@@ -321,8 +338,13 @@ class ArmPlant:
         return self._last_contact_loads
 
     def tip_m(self) -> tuple[float, float]:
-        """True tip (reach_m, height_m)."""
+        """True tip (reach_m, height_m) of the arm, before the tine mount's compression."""
         return kinematics.forward(self.workspace, self._r_m, self._theta_rad)
+
+    def tine_m(self) -> tuple[float, float]:
+        """Where the tines are: the tip raised by the mount's compression."""
+        reach_m, height_m = self.tip_m()
+        return reach_m, height_m + self.mount_m
 
     def tip_vel_m_per_s(self) -> tuple[float, float]:
         return kinematics.tip_velocity(self._r_m, self._theta_rad, self.r_vel_m_per_s,
@@ -363,12 +385,59 @@ class ArmPlant:
         r_m, theta_rad = self._r_m, self._theta_rad
         reach_m, height_m = kinematics.forward(self.workspace, r_m, theta_rad)
         reach_vel, height_vel = kinematics.tip_velocity(r_m, theta_rad, vel_r, vel_theta)
+        laws = getattr(contact, "vertical_laws", None)
+        if self._mount_k > 0.0 and laws is not None:
+            # every law the tines could meet down to the mount fully extended (the lowest
+            # they can reach), so a relaxing mount never carries them unseen into the ground
+            compression_m = self._mount(laws(reach_m, height_m, height_m + self.mount_m),
+                                        height_m, height_vel)
+            height_vel += (compression_m - self.mount_m) / self.substep_s
+            height_m += compression_m
+            self.mount_m = compression_m
         force = contact.step(reach_m, height_m, reach_vel, height_vel, self.substep_s)
         if not math.isfinite(force[0] + force[1]):
             raise NonFiniteError(f"contact force must be finite, got {force}")
         self._last_tip_force_n = force
         self._last_contact_loads = kinematics.joint_loads(r_m, theta_rad, force[0], force[1])
         return self._last_contact_loads
+
+    def _mount(self, laws: list[tuple[float, float, float, float]], height_m: float,
+               height_vel_m_per_s: float) -> float:
+        """The mount's compression at the end of this substep (backward Euler).
+
+        The tines are massless: the mount's force k·δ + c·δ̇ equals the ground's, the
+        sum over the laws (ref, K, B, cap) the tines are below of K (ref − z − δ) −
+        B (ż + δ̇), a law's elastic part held at its cap where the ground yields. The
+        set of laws in contact is found by iteration (piecewise linear, active set).
+        Solved implicitly, so a stiff ground (a stone, 10⁷ N/m) is stable at the
+        substep and meets the tines without a force spike.
+        """
+        h, k, c, d0 = self.substep_s, self._mount_k, self._mount_c, self.mount_m
+        relaxed = c * d0 / (c + h * k)  # no ground force: the mount relaxes
+        d = relaxed
+        active = [height_m + d0 < law[0] for law in laws]
+        for _ in range(len(laws) + 1):
+            stiff = damp = force = 0.0
+            for (ref_m, stiffness, damping, cap_n), on in zip(laws, active, strict=True):
+                if on:
+                    damp += damping
+                    if stiffness * (ref_m - height_m - d) > cap_n:  # yielding: at its cap
+                        force += cap_n
+                    else:
+                        stiff += stiffness
+                        force += stiffness * (ref_m - height_m)
+            if any(active):
+                force += (damp + c) * d0 / h - damp * height_vel_m_per_s
+                d = force / (stiff + k + (damp + c) / h)
+                if k * d + c * (d - d0) / h <= 0.0:  # the ground would pull: it lets go
+                    d = relaxed
+            # a law the solution reaches joins the set and stays (contact onset is sticky,
+            # so the set cannot chatter between in and out at a stiff top)
+            reached = [on or height_m + d < law[0] for law, on in zip(laws, active, strict=True)]
+            if reached == active:
+                break
+            active = reached
+        return d
 
     def _substep(self, voltage_r_v: float, voltage_theta_v: float, contact: ContactModel) -> None:
         h, arm, r_m, theta_rad = self.substep_s, self.arm, self._r_m, self._theta_rad

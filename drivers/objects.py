@@ -147,6 +147,19 @@ class Body:
             self._record_side(self.force_reach_n)
         return True
 
+    def vertical_law(self, reach_m: float, height_m: float, face_height_m: float
+                     ) -> tuple[float, float, float, float] | None:
+        """Its top face's law (top, K, B, yield force) if a tip at ``height_m`` is inside
+        and, judged at ``face_height_m`` (where the tines were), presses on the top."""
+        if self.broken or not (self.left_m < reach_m < self.right_m
+                               and self.bottom_m < height_m < self.top_m):
+            return None
+        below_top_m = self.top_m - min(face_height_m, self.top_m)
+        if below_top_m > min(reach_m - self.left_m, self.right_m - reach_m):
+            return None  # nearer a side face: that push is horizontal
+        return (self.top_m, self.stiffness_n_per_m, self.stiffness_n_per_m * self.damping_s,
+                self.yield_force_n)
+
     def _resist(self, depth_m: float, approach_m_per_s: float, dx: float, dz: float) -> float:
         """Penalty force of a face; a root yields, moving along (dx, dz)."""
         elastic_n = self.stiffness_n_per_m * depth_m
@@ -247,6 +260,21 @@ class Ground:
         soil.step(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s, shield_m)
         self._record(truth, contact, f_reach_n + soil.force_reach_n, f_up_n)
         return truth.force_drag_n, truth.force_down_n
+
+    def vertical_laws(self, reach_m: float, height_m: float, face_height_m: float
+                      ) -> list[tuple[float, float, float, float]]:
+        """The vertical laws a tip at reach_m could meet from ``height_m`` up: the soil's
+        (Soil.vertical_law) and any buried object's top (which face, judged where the
+        tines were: ``face_height_m``); used by the arm's compliant tine mount."""
+        laws = []
+        for body in self.bodies:
+            law = body.vertical_law(reach_m, height_m, face_height_m)
+            if law is not None:
+                laws.append(law)
+        law = self.soil.vertical_law(reach_m, height_m)
+        if law is not None:
+            laws.append(law)
+        return laws
 
     def _record(self, truth: GroundTruth, contact: Contact, f_reach_n: float,
                 f_up_objects_n: float) -> None:

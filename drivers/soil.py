@@ -335,6 +335,19 @@ class Soil:
         self._drag(j, layer, height_m, reach_vel_m_per_s)
         self.touching = self.force_up_n > 0.0 or self.cut_depth_m > 0.0
 
+    def vertical_law(self, reach_m: float, height_m: float
+                     ) -> tuple[float, float, float, float] | None:
+        """The vertical law a tip at (reach_m, height_m) would meet in the next step, or None:
+        (interface height, K_e, B, collapse force); F = K_e (ref − z) − B ż below ref."""
+        j = self.cell_index(reach_m)
+        carried_m = self._floor_m if self._floor_m > self._prev_tip_m else self._prev_tip_m
+        floor_m = self._surface[j] if self._surface[j] < carried_m else carried_m
+        if floor_m <= height_m:
+            return None
+        layer = self._layer(self._original[j] - height_m)
+        stiffness = self._stiffness[layer][j]
+        return floor_m, stiffness, stiffness * self._damping_s[layer], self._collapse[layer][j]
+
     def _push(self, j: int, layer: int, floor_m: float, tip_m: float, rate_m_per_s: float
               ) -> float:
         """Vertical force against the interface; returns the interface after collapses."""

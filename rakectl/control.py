@@ -129,11 +129,22 @@ class TipController:
         self.reach_m = r_m * math.cos(theta_rad)
         self.depth_m = r_m * math.sin(theta_rad) - self.servo.workspace.pivot_height_m
         self.x_ref_m = self.impedance.step(depth_ref_m, self.depth_m)
-        requested = self.servo.step(reach_ref_m, self.x_ref_m, r_m, theta_rad, r_vel_m_per_s,
-                                    theta_vel_rad_per_s)
+        servo = self.servo
+        integrals = (servo.loop_r.integral_v, servo.loop_theta.integral_v)
+        requested = servo.step(reach_ref_m, self.x_ref_m, r_m, theta_rad, r_vel_m_per_s,
+                               theta_vel_rad_per_s)
         self.requested_v = requested
         voltages = self.clamp.apply(r_m, theta_rad, r_vel_m_per_s, theta_vel_rad_per_s,
                                     requested[0], requested[1])
+        # anti-windup through the clamp: an integrator does not grow toward a cut voltage
+        loop = servo.loop_r
+        if voltages[0] != requested[0] and (loop.integral_v - integrals[0]) * (
+                requested[0] - voltages[0]) > 0.0:
+            loop.integral_v = integrals[0]
+        loop = servo.loop_theta
+        if voltages[1] != requested[1] and (loop.integral_v - integrals[1]) * (
+                requested[1] - voltages[1]) > 0.0:
+            loop.integral_v = integrals[1]
         if self.clamp.non_finite:
             self.fault = "non-finite value reached the voltage clamp"
         return voltages

@@ -46,6 +46,10 @@ class PeakRecorder:
             self.peak_down_n = self.truth.force_down_n
         return force
 
+    def vertical_laws(self, reach_m: float, height_m: float, face_height_m: float
+                      ) -> list[tuple[float, float, float, float]]:
+        return self.ground.vertical_laws(reach_m, height_m, face_height_m)
+
 
 class RakeLoop:
     """TipController + one-tick bus delay + motors, arm and ground."""
@@ -116,6 +120,15 @@ class RakeLoop:
     @property
     def force_level(self) -> ForceLevel:
         return self.supervisor.level
+
+    @property
+    def force_estimate_n(self) -> float:
+        """The conservative estimate the daemon gives an adaptive lane: max(F̂, current-based)."""
+        return max(self.controller.f_hat_n, self.supervisor.f_current_n)
+
+    @property
+    def caution_n(self) -> float:
+        return self.supervisor.caution_n
 
     def row(self) -> tuple[float, ...]:
         arm, truth, c = self.arm, self.ground.truth, self.controller

@@ -128,6 +128,30 @@ class LaneSettings:
         "object (a stone, a mine): stop, lift clear, report where.", unit="m", gt=0.002, le=0.5)
     accel_m_per_s2: float = setting(0.5, "Tip acceleration limit of the reference; it stops "
                                     "at every corner of the path.", unit="m/s²", gt=0, le=20)
+    adaptive: bool = setting(
+        False, "Force-adaptive stroke speed (rakectl.governor): each contact stroke starts at "
+        "stroke_speed_m_per_s and its speed then follows the larger force estimate (F̂ or the "
+        "current-based one) toward force_target_share × supervision.caution_force_n, within "
+        "min_stroke_speed_m_per_s … max_stroke_speed_m_per_s.")
+    min_stroke_speed_m_per_s: float = setting(
+        0.01, "Adaptive: slowest stroke (supervision's caution level still holds the motion).",
+        unit="m/s", gt=0, le=1)
+    max_stroke_speed_m_per_s: float = setting(0.25, "Adaptive: fastest stroke.", unit="m/s",
+                                              gt=0, le=1)
+    force_target_share: float = setting(
+        0.8, "Adaptive: the stroke's force set point as a share of "
+        "supervision.caution_force_n.", gt=0, lt=1)
+    governor_gain_per_s: float = setting(
+        2.0, "Adaptive: with no force the speed limit rises by this share of "
+        "max_stroke_speed_m_per_s per second; above the set point it falls 8× faster.",
+        unit="1/s", gt=0, le=100)
+
+    def __post_init__(self) -> None:
+        from rakectl.errors import ConfigError
+
+        if self.min_stroke_speed_m_per_s > self.max_stroke_speed_m_per_s:
+            raise ConfigError("min_stroke_speed_m_per_s must be <= max_stroke_speed_m_per_s "
+                              f"({self.max_stroke_speed_m_per_s:g})")
 
 
 @dataclass(frozen=True)
@@ -212,7 +236,8 @@ class ClampSettings:
         0.2, "Share of force_limit_n kept back for model error (masses, friction, k_t, η).",
         ge=0.05, lt=1)
     velocity_margin_counts: float = setting(
-        3.0, "Uncertainty of a measured joint velocity, in encoder counts per control period.",
+        1.0, "Uncertainty of a measured joint velocity, in encoder counts per control period "
+        "(a difference of two positions each quantized within one count is off by < 1).",
         ge=0, le=1000)
     velocity_margin_share: float = setting(
         0.1, "Further velocity uncertainty as a share of the measured velocity.", ge=0, le=1)
@@ -221,6 +246,19 @@ class ClampSettings:
     rake_length_m: float = setting(1.6, "The controller's model of the rake's length (its "
                                    "centre of mass is at r − length/2).", unit="m", gt=0, le=10)
     gravity_m_per_s2: float = setting(9.81, "Gravity.", unit="m/s²", gt=9, lt=10.5)
+    platform_inertia_kgm2: float = setting(
+        0.3, "The controller's model of the rotating platform's inertia about the pivot (for "
+        "the tip's apparent mass).", unit="kg·m²", ge=0, le=1e3)
+    contact_stiffness_n_per_m: float = setting(
+        3.0e4, "Stiffest vertical contact the tines can meet: their compliant mount's stiffness, "
+        "in series with anything they press (a stone, a mine's plate). A rigid tine on a rigid "
+        "plate would make any descent speed an impact above 90 N.", unit="N/m", gt=0, le=1e9)
+    contact_damping_ns_per_m: float = setting(
+        50.0, "Damping in parallel with that stiffness (the mount's).", unit="N·s/m", ge=0,
+        le=1e6)
+    reaction_latency_s: float = setting(
+        0.002, "Time from a velocity measurement until the voltage chosen from it acts (the "
+        "bus's one-tick delay and a tick of sampling).", unit="s", ge=0, le=0.1)
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,8 @@ from drivers.motor import (
     no_load_joint_speed,
     stall_joint_load,
 )
+from drivers.objects import BuriedObjects, Ground, GroundParams, StoneParams
+from drivers.soil import SoilLayer, SoilParams
 from rakectl import kinematics
 from rakectl.errors import ConfigError, NonFiniteError
 from rakectl.kinematics import Workspace
@@ -375,3 +377,38 @@ def test_bad_inputs_are_rejected() -> None:
     with pytest.raises(ConfigError, match="too long"):
         ArmPlant(dataclasses.replace(ARM, damping_theta_nms_per_rad=1e4), R_MOTOR_DEFAULT,
                  THETA_MOTOR_DEFAULT, WS)
+
+
+def _drop_onto_a_stone(arm: ArmParams, speed_m_per_s: float) -> tuple[float, float]:
+    """The tip 2 mm above a stone's top, moving down at ``speed_m_per_s``, motors open:
+    the largest vertical force on the stone and the mount's largest compression."""
+    r_m, theta_rad = 1.2, 0.6
+    reach_m, height_m = kinematics.forward(WS, r_m, theta_rad)
+    stone = StoneParams(reach_m, -(height_m - 0.002), 0.1, 0.05)  # top 2 mm below the tip
+    air = SoilParams(layers=(SoilLayer(stiffness_n_per_m=1.0, collapse_force_n=1e-3),),
+                     surface_slope=0.0)
+    ground = Ground(GroundParams(soil=dataclasses.replace(air, lane_reach_max_m=2.0),
+                                 objects=BuriedObjects(stones=(stone,))), seed=0)
+    plant = ArmPlant(arm, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, WS)
+    plant.set_state(ArmState(r_m, theta_rad, 0.0, speed_m_per_s / (r_m * math.cos(theta_rad))))
+    plant.set_bridges(Bridge.OPEN, Bridge.OPEN)
+    peak_n = compression_m = 0.0
+    for _ in range(100):
+        plant.step(0.0, 0.0, ground, STEP_S)
+        peak_n = max(peak_n, ground.truth.max_force_down_n)
+        compression_m = max(compression_m, plant.mount_m)
+    return peak_n, compression_m
+
+
+def test_the_compliant_tine_mount_takes_the_impact() -> None:
+    """At 0.1 m/s onto a stone (10⁷ N/m), a rigid tine peaks at several hundred N; on the
+    3·10⁴ N/m mount the peak is about v·√(k·m) plus the weight, and the mount compresses."""
+    rigid_n, _ = _drop_onto_a_stone(dataclasses.replace(ARM, tine_mount_stiffness_n_per_m=0.0),
+                                    0.1)
+    mounted_n, compression_m = _drop_onto_a_stone(ARM, 0.1)
+    mass_kg = tip_apparent_masses_kg(ARM, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, 1.2, 0.6)[1]
+    impact_n = 0.1 * math.sqrt(ARM.tine_mount_stiffness_n_per_m * mass_kg)
+    assert rigid_n > 300.0
+    assert mounted_n < 2.0 * impact_n + 60.0  # the arm's weight at the tip is < 40 N
+    assert compression_m == pytest.approx(mounted_n / ARM.tine_mount_stiffness_n_per_m,
+                                          rel=0.3)
