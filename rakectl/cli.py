@@ -64,13 +64,34 @@ def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], i
     demo = sub.add_parser("demo", help="the whole system on an emulated bench: find a mine")
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="logs, truth, plot")
     demo.add_argument("--json", action="store_true", help="the summary as JSON on the last line")
-    bench = sub.add_parser("bench", help="micro-benchmarks that print figures")
-    bench.add_argument("--ticks", type=int, default=200_000, help="ticks to time")
-    bench.add_argument("--loop", action="store_true",
-                       help="the daemon's loop on the emulated bench against cyclictest")
-    bench.add_argument("--seconds", type=float, default=60.0, help="per phase, with --loop")
-    bench.add_argument("--out", type=Path, default=Path("out/bench-loop"), help="with --loop")
+    _add_bench(sub)
     return parser, ops
+
+
+def _add_bench(sub: argparse._SubParsersAction[_Parser]) -> None:
+    bench = sub.add_parser("bench", help="benchmarks that print figures (default: the "
+                           "micro-benchmarks; --all: everything, written to BENCHMARKS.md)")
+    what = bench.add_mutually_exclusive_group()
+    what.add_argument("--all", action="store_true", help="loop latency vs cyclictest, "
+                      "cross-process bus, per-tick stages, excavation; writes "
+                      "REPORT/BENCHMARKS.md and one plot per soil")
+    what.add_argument("--loop", action="store_true",
+                      help="the daemon's loop on the emulated bench against cyclictest")
+    what.add_argument("--tick", action="store_true", help="the daemon's tick, stage by stage")
+    what.add_argument("--excavation", action="store_true", help="time to rake a lane to "
+                      "depth in three soils: adaptive vs position control vs fixed speed")
+    bench.add_argument("--ticks", type=int, default=200_000,
+                       help="ticks to time (the tick stages use a tenth)")
+    bench.add_argument("--seconds", type=float, default=60.0,
+                       help="per phase of the loop benchmark (--loop, --all)")
+    bench.add_argument("--quick", action="store_true", help="short phases and a short lane: "
+                       "a check that it all runs, not figures")
+    bench.add_argument("--workers", type=int, default=2, help="processes for excavation runs")
+    bench.add_argument("--out", type=Path, default=Path("out/bench-loop"),
+                       help="scratch: the loop benchmark's logs")
+    bench.add_argument("--report", type=Path, default=None, help="where --all writes "
+                       "BENCHMARKS.md and --all/--excavation the plots (default: bench for "
+                       "--all, out/bench otherwise and with --quick)")
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -120,6 +141,11 @@ def _cmd_config_docs(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from rakectl.bench import bench_controller_step, bench_emulator_step
 
+    if not 1 <= args.workers <= 64:
+        raise ConfigError("bench: --workers must be in [1, 64]")
+    report = args.report or Path("bench" if args.all and not args.quick else "out/bench")
+    if args.all or args.excavation or args.tick:
+        return _cmd_bench_parts(args, report)
     if args.loop:
         from rakectl.bench_loop import run_bench
 
@@ -135,6 +161,44 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     print(bench_emulator_step(max(1000, args.ticks // 50)))
     print(bench_hot_path(max(1000, args.ticks // 10)))
     return 0
+
+
+def _cmd_bench_parts(args: argparse.Namespace, report: Path) -> int:
+    tick_ticks = 2000 if args.quick else max(1000, args.ticks // 10)
+    if args.tick:
+        from rakectl.bench_tick import bench_tick, format_tick
+
+        print(format_tick(bench_tick(tick_ticks)))
+        return 0
+    if args.excavation:
+        from rakectl.bench_excavation import FULL, QUICK, SOILS, run_excavation
+        from rakectl.bench_report import format_excavation
+        from rakectl.plot import plot_excavation, pyplot
+
+        pyplot()  # fail before the work, not after it
+        result = run_excavation(QUICK if args.quick else FULL, args.workers,
+                                progress=_echo_progress)
+        print(format_excavation(result))
+        report.mkdir(parents=True, exist_ok=True)
+        for soil in SOILS:
+            plot_excavation(result, soil, report / f"excavation-{soil}.png")
+        print(f"plots written to {report}/excavation-{{{','.join(SOILS)}}}.png")
+        return 0
+    from rakectl.bench_report import BenchOptions, run_all
+    from rakectl.plot import pyplot
+
+    pyplot()
+    seconds = 5.0 if args.quick else args.seconds
+    if not 1.0 <= seconds <= 3600.0:
+        raise ConfigError("bench: --seconds must be in [1, 3600]")
+    command = "rakectl " + " ".join(args.argv)
+    run_all(BenchOptions(command, seconds, tick_ticks, args.quick, args.workers, args.out,
+                         report), lambda line: print(line, flush=True))
+    return 0
+
+
+def _echo_progress(line: str) -> None:
+    print(f"  {line}", file=sys.stderr, flush=True)
 
 
 def _cmd_api_docs(args: argparse.Namespace) -> int:
@@ -179,6 +243,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         parser, ops = _build_parser()
         args, extra = parser.parse_known_args(argv)
+        args.argv = list(sys.argv[1:] if argv is None else argv)
         if args.command in PASS_THROUGH:  # these parse their own options
             args.rest = extra
         elif extra:

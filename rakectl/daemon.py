@@ -257,9 +257,11 @@ class Daemon:
         if level is ForceLevel.HARD and previous is not ForceLevel.HARD:
             self._back_off()
         planner = self.planner
-        if (planner is not None and self.state is State.EXCAVATE
-                and planner.check_stall(c.reach_m, c.depth_m)):
-            self.event("object_found", reach_m=c.reach_m, depth_m=c.depth_m)
+        if planner is not None and self.state is State.EXCAVATE:
+            if planner.check_stall(c.reach_m, c.depth_m):
+                self.event("object_found", reach_m=c.reach_m, depth_m=c.depth_m)
+            sup = self.supervisor  # an adaptive stroke follows the larger estimate
+            planner.govern(max(c.f_hat_n, sup.f_current_n), sup.caution_n)
         return voltages
 
     def _back_off(self) -> None:

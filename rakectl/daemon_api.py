@@ -94,7 +94,7 @@ def _jog(daemon: Daemon, request: Request) -> Reply:
 
 def _excavate(daemon: Daemon, request: Request) -> Reply:
     _require(daemon, Event.EXCAVATE, "excavate")
-    given = {k: v for k, v in request.args.items() if isinstance(v, float)}
+    given: dict[str, Any] = {k: v for k, v in request.args.items() if isinstance(v, float)}
     lane = dataclasses.replace(daemon.settings.lane, **given)
     ws = daemon.workspace
     for reach, depth in ((lane.reach_far_m, -lane.clearance_m),

@@ -7,6 +7,11 @@ the target depth. The planner gives the reference tip position every tick
 and says whether the tip is meant to be in contact (impedance control with
 α > 0) or in free space (α = 0, pure position control).
 
+With ``lane.adaptive`` the stroke's speed is not fixed: :meth:`LanePlanner.govern`
+feeds the force estimate to a :class:`~rakectl.governor.StrokeGovernor` every
+tick, whose limit replaces ``stroke_speed_m_per_s`` (soft soil fast, hard soil
+slow, under the caution level).
+
 Depth is positive below ground level 0 (the same axis as the impedance
 controller's x).
 """
@@ -16,11 +21,23 @@ from __future__ import annotations
 import enum
 import math
 
+from rakectl.governor import StrokeGovernor
 from rakectl.settings import LaneSettings
 
 # Free-space descent stops this far above the previous cycle's floor; the rest
 # of the way down is at plunge speed.
 PLUNGE_MARGIN_M = 0.005
+# A plunge starts once the measured tip has arrived above the soil: the delayed-position
+# estimate is re-anchored where contact begins, so a tip still moving down there reads as
+# force (K_e·α = 2000 N per m/s with the paper's values). LOWER ends when the tip moved less
+# than SETTLE_TRAVEL_M over the last SETTLE_TICKS ticks (F̂ ≲ 10 N at the entry; about 3
+# encoder quanta of depth at 1.4 m reach), or after SETTLE_TIMEOUT_S all the same.
+SETTLE_TICKS = 10
+SETTLE_TRAVEL_M = 5e-5
+SETTLE_TIMEOUT_S = 1.0
+# An adaptive stroke also keeps the tip's lag under this share of the stall error, so that
+# raking fast through stiff soil is not taken for a rigid object.
+LAG_TARGET_SHARE = 0.5
 
 
 class LanePhase(enum.Enum):
@@ -49,6 +66,16 @@ class LanePlanner:
         self.found_at: tuple[float, float] | None = None  # (reach, depth) of a rigid object
         self.stopped_by_force = False
         self.speed_m_per_s = 0.0  # along the path; trapezoidal, zero at every corner
+        self.lag_m = 0.0  # how far the tip is from its reference on a stroke (check_stall)
+        self._tip_depths = [math.nan] * SETTLE_TICKS  # measured, the last ticks (a ring)
+        self._tip_index = 0
+        self._settling_ticks = 0
+        self.governor: StrokeGovernor | None = None
+        if lane.adaptive:
+            self.governor = StrokeGovernor(lane.min_stroke_speed_m_per_s,
+                                           lane.max_stroke_speed_m_per_s,
+                                           lane.governor_gain_per_s, dt_s,
+                                           lane.stroke_speed_m_per_s)
 
     @property
     def contact(self) -> bool:
@@ -69,16 +96,39 @@ class LanePlanner:
     def check_stall(self, reach_m: float, depth_m: float) -> bool:
         """During a contact stroke, a tip lagging its reference by more than the stall error
         has met something rigid: remember where, lift clear from where the tip IS (so the
-        reference stops pushing), and finish after the lift. Returns True on the find."""
+        reference stops pushing), and finish after the lift. Returns True on the find.
+        Every tick's measured depth is also kept to see the tip settle before a plunge."""
+        self._tip_index = (self._tip_index + 1) % SETTLE_TICKS
+        self._tip_depths[self._tip_index] = depth_m
         if self.phase is not LanePhase.STROKE or self.found_at is not None:
+            self.lag_m = 0.0
             return False
-        if math.hypot(self.reach_m - reach_m, self.depth_m - depth_m) <= self.lane.stall_error_m:
+        self.lag_m = math.hypot(self.reach_m - reach_m, self.depth_m - depth_m)
+        if self.lag_m <= self.lane.stall_error_m:
             return False
         self.found_at = (reach_m, depth_m)
         self.reach_m, self.depth_m = reach_m, depth_m
         self.speed_m_per_s = 0.0
         self.phase = LanePhase.LIFT
         return True
+
+    def govern(self, force_n: float, caution_n: float) -> None:
+        """The conservative force estimate of this tick (the larger of F̂ and the
+        current-based one) and supervision's caution level: during a contact stroke of an
+        adaptive lane, the stroke's speed limit follows it and the tip's lag (from the last
+        :meth:`check_stall`; rakectl.governor). The limit carries over from one stroke to
+        the next; outside a stroke, or on a fixed-speed lane, this does nothing."""
+        if self.governor is not None and self.phase is LanePhase.STROKE:
+            lane = self.lane
+            self.governor.update(force_n, lane.force_target_share * caution_n, self.lag_m,
+                                 LAG_TARGET_SHARE * lane.stall_error_m, self.speed_m_per_s)
+
+    @property
+    def stroke_speed_m_per_s(self) -> float:
+        """The stroke's speed limit now: the governor's, or the lane's fixed one."""
+        if self.governor is not None:
+            return self.governor.speed_m_per_s
+        return self.lane.stroke_speed_m_per_s
 
     def force_stop(self, reach_m: float, depth_m: float) -> None:
         """The force supervision's hard level: lift clear from where the tip is, then end."""
@@ -99,8 +149,16 @@ class LanePlanner:
         if self.phase is LanePhase.PLUNGE:
             return lane.reach_far_m, self.cycle_depth_m, lane.plunge_speed_m_per_s
         if self.phase is LanePhase.STROKE:
-            return lane.reach_near_m, self.cycle_depth_m, lane.stroke_speed_m_per_s
+            return lane.reach_near_m, self.cycle_depth_m, self.stroke_speed_m_per_s
         return self.reach_m, above, lane.travel_speed_m_per_s  # LIFT, DONE
+
+    def _tip_settled(self) -> bool:
+        """Whether the measured tip has stopped (True when the tip is not observed)."""
+        depths = self._tip_depths
+        unknown = sum(math.isnan(d) for d in depths)
+        if unknown:
+            return unknown == SETTLE_TICKS  # never observed: nothing to wait for
+        return max(depths) - min(depths) <= SETTLE_TRAVEL_M
 
     def _next_phase(self) -> LanePhase:
         if self.phase is LanePhase.LIFT:
@@ -129,6 +187,11 @@ class LanePlanner:
         if distance <= travel:
             self.reach_m, self.depth_m = reach, depth
             self.speed_m_per_s = 0.0
+            if (self.phase is LanePhase.LOWER and not self._tip_settled()
+                    and self._settling_ticks * self.dt_s < SETTLE_TIMEOUT_S):
+                self._settling_ticks += 1  # hold above the soil until the tip has arrived
+                return
+            self._settling_ticks = 0
             self.phase = self._next_phase()
             return
         self.reach_m += d_reach * travel / distance

@@ -129,13 +129,15 @@ class LaneSettings:
     accel_m_per_s2: float = setting(0.5, "Tip acceleration limit of the reference; it stops "
                                     "at every corner of the path.", unit="m/s²", gt=0, le=20)
     adaptive: bool = setting(
-        False, "Force-adaptive stroke speed (rakectl.governor): each contact stroke starts at "
-        "stroke_speed_m_per_s and its speed then follows the larger force estimate (F̂ or the "
-        "current-based one) toward force_target_share × supervision.caution_force_n, within "
-        "min_stroke_speed_m_per_s … max_stroke_speed_m_per_s.")
+        False, "Force-adaptive stroke speed (rakectl.governor): the first contact stroke starts "
+        "at stroke_speed_m_per_s; the speed then follows the larger force estimate (F̂ or the "
+        "current-based one) toward force_target_share × supervision.caution_force_n, keeps the "
+        "tip's lag under half of stall_error_m, and stays within min_stroke_speed_m_per_s … "
+        "max_stroke_speed_m_per_s.")
     min_stroke_speed_m_per_s: float = setting(
-        0.01, "Adaptive: slowest stroke (supervision's caution level still holds the motion).",
-        unit="m/s", gt=0, le=1)
+        0.03, "Adaptive: slowest stroke (supervision's caution level still holds the motion). "
+        "Slower than ~3× the emulated drag's smoothing speed (0.01 m/s), a tine that the "
+        "drag has lifted is let go and drops.", unit="m/s", gt=0, le=1)
     max_stroke_speed_m_per_s: float = setting(0.25, "Adaptive: fastest stroke.", unit="m/s",
                                               gt=0, le=1)
     force_target_share: float = setting(

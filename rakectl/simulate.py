@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -50,6 +50,17 @@ class Reference(Protocol):
         ...
 
     def step(self) -> None: ...
+
+
+@runtime_checkable
+class Supervised(Protocol):
+    """A loop with force supervision (the rake): what an adaptive lane is governed by."""
+
+    @property
+    def force_estimate_n(self) -> float: ...
+
+    @property
+    def caution_n(self) -> float: ...
 
 
 @dataclass
@@ -137,12 +148,7 @@ def run(settings: Settings, progress: ProgressCallback | None = None) -> Simulat
         data[k, 0] = k * dt_s
         data[k, 1] = x_d_m
         data[k, 2:] = loop.row()
-        reference.observe(*loop.measured_tip())
-        level = getattr(loop, "force_level", ForceLevel.OK)
-        if level is ForceLevel.HARD and isinstance(reference, LanePlanner):
-            reference.force_stop(*loop.measured_tip())
-        if level is not ForceLevel.CAUTION:  # caution: the reference holds still
-            reference.step()
+        advance_reference(reference, loop)
         if progress is not None and k % 1000 == 0:
             progress(k, max_ticks)
         if reference.done:
@@ -156,6 +162,20 @@ def run(settings: Settings, progress: ProgressCallback | None = None) -> Simulat
     if isinstance(reference, LanePlanner):
         summary.update(_lane_summary(reference))
     return SimulationResult(columns, data[:ticks], time.perf_counter() - started, summary)
+
+
+def advance_reference(reference: Reference, loop: ClosedLoop) -> None:
+    """After a tick, what the daemon does with its reference: the stall check, the stroke
+    governor (adaptive lanes), the hard force level's stop, and the next reference unless
+    the caution level holds the motion still."""
+    reference.observe(*loop.measured_tip())
+    level = getattr(loop, "force_level", ForceLevel.OK)
+    if isinstance(reference, LanePlanner) and isinstance(loop, Supervised):
+        reference.govern(loop.force_estimate_n, loop.caution_n)
+    if level is ForceLevel.HARD and isinstance(reference, LanePlanner):
+        reference.force_stop(*loop.measured_tip())
+    if level is not ForceLevel.CAUTION:
+        reference.step()
 
 
 def _lane_summary(planner: LanePlanner) -> dict[str, float | int | bool]:

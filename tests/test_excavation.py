@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rakectl.excavation import LanePhase, LanePlanner
+from rakectl.excavation import SETTLE_TIMEOUT_S, LanePhase, LanePlanner
 from rakectl.settings import LaneSettings
 
 LANE = LaneSettings(reach_far_m=1.2, reach_near_m=0.9, depth_step_m=0.02, target_depth_m=0.05,
@@ -73,3 +74,40 @@ def test_reference_respects_speed_and_acceleration_limits(stroke: float, travel:
     for (a, b), v0, v1 in zip(itertools.pairwise(trace), speeds, speeds[1:], strict=False):
         if a[0] is b[0]:  # within a phase the speed changes by at most a·dt per tick
             assert abs(v1 - v0) <= 2 * accel * dt + 1e-9
+
+
+def _ticks_to_plunge(planner: LanePlanner, tip_of: Callable[[int, float], float] | None) -> int:
+    """Ticks until PLUNGE; ``tip_of(tick, reference depth)`` is the measured tip (None: the
+    planner is not told where the tip is)."""
+    for k in range(100_000):
+        if planner.phase is LanePhase.PLUNGE:
+            return k
+        if tip_of is not None:
+            planner.observe(planner.reach_m, tip_of(k, planner.depth_m))
+        planner.step()
+    raise AssertionError("no plunge")
+
+
+def test_a_plunge_waits_until_the_tip_has_arrived_above_the_soil() -> None:
+    """The estimator is re-anchored where contact begins: a tip still moving down there
+    would read as force. LOWER ends once the measured tip has stopped."""
+    blind = _ticks_to_plunge(LanePlanner(LANE, 1e-3, 1.2, -0.03), None)
+    lagging = [-0.03]
+
+    def first_order(k: int, reference_m: float) -> float:  # 30 ms behind its reference
+        lagging[0] += (reference_m - lagging[0]) * 1e-3 / 0.03
+        return lagging[0]
+
+    waited = _ticks_to_plunge(LanePlanner(LANE, 1e-3, 1.2, -0.03), first_order)
+    assert waited > blind + 50  # the tip needs a few time constants to settle
+    assert waited < blind + SETTLE_TIMEOUT_S * 1e3
+
+
+def test_a_tip_that_never_settles_delays_the_plunge_by_the_timeout_only() -> None:
+    blind = _ticks_to_plunge(LanePlanner(LANE, 1e-3, 1.2, -0.03), None)
+
+    def trembling(k: int, reference_m: float) -> float:
+        return reference_m + 1e-3 * (k % 2)
+
+    waited = _ticks_to_plunge(LanePlanner(LANE, 1e-3, 1.2, -0.03), trembling)
+    assert waited == pytest.approx(blind + SETTLE_TIMEOUT_S * 1e3, abs=2)
