@@ -1,0 +1,171 @@
+#!/usr/bin/env bash
+# The vcan tests (`pytest -m vcan`, tests/vcan/) on real SocketCAN.
+#
+#   tests/vcan/run-in-vm.sh            from anywhere; needs the project's .venv
+#
+# Where this kernel has SocketCAN and vcan0 exists (or can be created: root),
+# the tests run directly. Otherwise (these development and CI machines: no
+# CONFIG_CAN) the script boots Debian's kernel under QEMU's software emulation
+# with virtme-ng, sharing this machine's file system read-only, creates vcan0
+# inside and runs the tests there. It installs what it needs: the Debian
+# packages qemu-system-x86, linux-image-amd64 and busybox-static (apt-get, as
+# root) and virtme-ng (pip, into the project's .venv); both steps are skipped
+# when already done.
+#
+# Results, in .vcan-results/ (VCAN_RESULTS overrides): run.log (everything
+# printed here, the VM's output included), junit.xml, exit-code, and from the
+# VM the tests' own files (daemon and emulator logs, ground truth, traces) in
+# pytest-of-*/. The exit status is the tests' (pytest's; 5, nothing collected,
+# counts as a failure); 1 if the VM reports none (crash, time limit).
+#
+# Environment: VCAN_RESULTS (results directory), VCAN_VM_TIMEOUT_S (the VM's
+# time limit, default 900), VCAN_VM_MEMORY (default 3G), VCAN_FORCE_VM=1 (boot
+# the VM even where SocketCAN works here), VCAN_PYTEST_ARGS (more pytest
+# arguments, as shell words: "-k 'filters or sigkill'").
+set -uo pipefail
+
+ROOT=$(cd "$(dirname "$0")/../.." && pwd)
+VENV=$ROOT/.venv
+PY=$VENV/bin/python
+RESULTS=${VCAN_RESULTS:-$ROOT/.vcan-results}
+TIMEOUT_S=${VCAN_VM_TIMEOUT_S:-900}
+MEMORY=${VCAN_VM_MEMORY:-3G}
+PACKAGES=(qemu-system-x86 linux-image-amd64 busybox-static)
+VIRTME_NG=virtme-ng==1.42
+CHANNEL=vcan0
+
+say() { echo "vcan: $*"; }
+die() { echo "vcan: error: $*" >&2; exit 1; }
+now() { date +%s; }
+
+pytest_args() {  # one per line; the same selection on the host and in the VM
+    local extra=()
+    eval "extra=(${VCAN_PYTEST_ARGS:-})" || die "VCAN_PYTEST_ARGS: not shell words"
+    printf "%s\n" -m vcan -v -rA -p no:cacheprovider -p no:hypothesispytest --durations=0 \
+        "--junitxml=$RESULTS/junit.xml" \
+        ${extra[@]+"${extra[@]}"} tests/vcan
+}
+
+socketcan_here() {
+    "$PY" - <<'EOF' 2>/dev/null
+import socket
+socket.socket(socket.AF_CAN, socket.SOCK_RAW, socket.CAN_RAW).close()
+EOF
+}
+
+vcan_here() {  # vcan0 exists, or root creates it (and deletes it again at exit)
+    ip link show "$CHANNEL" >/dev/null 2>&1 && return 0
+    [ "$(id -u)" -eq 0 ] || return 1
+    modprobe vcan 2>/dev/null
+    ip link add dev "$CHANNEL" type vcan 2>/dev/null || return 1
+    trap 'ip link del "$CHANNEL" 2>/dev/null' EXIT
+    ip link set up "$CHANNEL"
+}
+
+run_here() {
+    say "SocketCAN works on this kernel: running the tests here, on $CHANNEL"
+    ip -details link show "$CHANNEL"
+    cd "$ROOT" || return 1
+    local args
+    mapfile -t args < <(pytest_args)
+    PYTHONUNBUFFERED=1 "$PY" -m pytest "${args[@]}"
+}
+
+install_packages() {
+    local missing=() p started
+    for p in "${PACKAGES[@]}"; do
+        dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" \
+            || missing+=("$p")
+    done
+    if [ "${#missing[@]}" -eq 0 ]; then
+        say "Debian packages present: ${PACKAGES[*]}"
+        return 0
+    fi
+    [ "$(id -u)" -eq 0 ] || die "missing Debian packages: ${missing[*]}; install them as root" \
+        "(apt-get install --no-install-recommends ${missing[*]}) or run this script as root"
+    say "installing ${missing[*]} (apt-get)"
+    started=$(now)
+    # INITRD=No: virtme-ng brings its own initramfs, so the kernel package's is not built.
+    export DEBIAN_FRONTEND=noninteractive INITRD=No
+    if ! apt-get install -y -q --no-install-recommends "${missing[@]}" >"$RESULTS/apt.log" 2>&1
+    then
+        apt-get update -q >>"$RESULTS/apt.log" 2>&1
+        apt-get install -y -q --no-install-recommends "${missing[@]}" >>"$RESULTS/apt.log" 2>&1 \
+            || { tail -20 "$RESULTS/apt.log"; die "apt-get install failed; see $RESULTS/apt.log"; }
+    fi
+    say "installed in $(($(now) - started)) s"
+}
+
+install_virtme_ng() {
+    if [ -x "$VENV/bin/vng" ]; then
+        say "virtme-ng present: $("$VENV/bin/vng" --version 2>&1 | head -1)"
+        return 0
+    fi
+    say "installing $VIRTME_NG into $VENV (pip)"
+    "$VENV/bin/pip" install -q "$VIRTME_NG" || die "pip install $VIRTME_NG failed"
+}
+
+guest_kernel() {  # the newest installed kernel whose modules include vcan
+    local image version
+    for image in $(ls -1 /boot/vmlinuz-* 2>/dev/null | sort -rV); do
+        version=${image#/boot/vmlinuz-}
+        if find "/lib/modules/$version/kernel/drivers/net/can" -name 'vcan.ko*' 2>/dev/null \
+                | grep -q .; then
+            echo "$image"
+            return 0
+        fi
+    done
+    return 1
+}
+
+run_in_vm() {
+    local kernel started vng_status status
+    install_packages
+    install_virtme_ng
+    kernel=$(guest_kernel) || die "no kernel in /boot with the vcan module (linux-image-amd64)"
+    say "booting $kernel under software emulation (no KVM), $(nproc) CPUs, $MEMORY," \
+        "time limit ${TIMEOUT_S} s"
+    pytest_args >"$RESULTS/pytest-args"
+    started=$(now)
+    # A second, read-only 9p export of / that the guest mounts with caching (in-vm.sh):
+    # virtme-ng's own root is uncached, ~4 ms per stat under emulation.
+    PATH=$VENV/bin:$PATH timeout -k 30 "$TIMEOUT_S" vng --run "$kernel" --disable-kvm \
+        --user root --cpus "$(nproc)" --memory "$MEMORY" --rwdir "$RESULTS" \
+        "--qemu-opts=-fsdev local,id=rakehost,path=/,security_model=none,readonly=on,multidevs=remap -device virtio-9p-pci,fsdev=rakehost,mount_tag=rakehost" \
+        --exec "$(printf '%q %q' "$ROOT/tests/vcan/in-vm.sh" "$RESULTS")" </dev/null
+    vng_status=$?
+    say "the VM ran for $(($(now) - started)) s (vng exit status $vng_status)"
+    if [ ! -s "$RESULTS/exit-code" ]; then
+        [ "$vng_status" -eq 124 ] && say "the VM hit its time limit of ${TIMEOUT_S} s"
+        say "the VM did not report the tests' exit status: failing"
+        return 1
+    fi
+    status=$(cat "$RESULTS/exit-code")
+    return "$status"
+}
+
+main() {
+    local status
+    [ -x "$PY" ] || die "no $PY: create the project's venv first (see the README)"
+    say "results in $RESULTS"
+    if [ "${VCAN_FORCE_VM:-0}" != 1 ] && socketcan_here && vcan_here; then
+        run_here
+        status=$?
+    else
+        say "no SocketCAN with $CHANNEL on this machine: running the tests in a VM"
+        run_in_vm
+        status=$?
+    fi
+    if [ "$status" -eq 5 ]; then
+        say "pytest collected no vcan tests: failing"
+        status=1
+    fi
+    say "exit status $status; log $RESULTS/run.log, JUnit XML $RESULTS/junit.xml"
+    echo "$status" >"$RESULTS/exit-code"
+    return "$status"
+}
+
+rm -rf "$RESULTS"
+mkdir -p "$RESULTS" || die "cannot create $RESULTS"
+main 2>&1 | tee "$RESULTS/run.log"
+exit "${PIPESTATUS[0]}"

@@ -1,0 +1,272 @@
+"""Hardware-in-the-loop on real SocketCAN: the emulator and the daemon as processes on vcan0.
+
+Run with ``pytest -m vcan`` where vcan0 exists (a robot computer, a Linux
+machine with root: see the README), or ``tests/vcan/run-in-vm.sh``, which
+boots a kernel with SocketCAN in a VM when this one has none. Elsewhere they
+skip, saying why.
+
+Under software emulation Python runs ~50x slower, so the bench runs at 50 Hz
+(config/rakectl-vcan.yaml) with the emulator lock-stepped to the SYNCs
+(config/emulator-vcan.yaml): behaviour is asserted, never timing. Each bench
+start costs two Python processes, so one bench covers bring-up, jog,
+excavation, e-stop and the traces; SIGKILL and a silent drive need their own.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import os
+import select
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+import can
+import pytest
+
+from drivers.__main__ import load_config
+from drivers.emulator import Emulator
+from rakectl.canbus import open_bus
+from rakectl.cia402 import Command, State, decode_statusword
+from rakectl.config import load_settings
+from rakectl.settings import BusInterface, BusSettings, Settings
+from tests.vcan.vcan_bench import (
+    CHANNEL,
+    START_TIMEOUT_S,
+    VcanBench,
+    WireRecorder,
+    load_dbc,
+    read_trace,
+    sdo_exchanges,
+    vcan_bench,
+    vcan_unavailable,
+)
+
+CONFIG = Path(__file__).resolve().parents[2] / "config"
+EMULATOR = CONFIG / "emulator-vcan.yaml"
+DAEMON = CONFIG / "rakectl-vcan.yaml"
+SETTINGS = load_settings(DAEMON, [], root=Settings)
+NODES = (SETTINGS.drives.r_node_id, SETTINGS.drives.theta_node_id)
+LIMIT_OBJECTS = (0x2001, 0x2002, 0x2003, 0x2004)  # voltage, current, watchdog, encoder
+
+_reason = vcan_unavailable()
+pytestmark = [pytest.mark.vcan,
+              pytest.mark.skipif(_reason is not None, reason=f"no SocketCAN: {_reason}")]
+
+
+def _truth(out: Path) -> list[dict[str, str]]:
+    with open(out / "truth.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _events(out: Path, name: str, event: str) -> list[dict[str, object]]:
+    return [json.loads(line) for line in (out / name).read_text().splitlines()
+            if line.startswith("{") and f'"event": "{event}"' in line]
+
+
+def _armed(bench: VcanBench) -> None:
+    bench.wait_for_state(["disarmed"], START_TIMEOUT_S)
+    bench.request("arm")
+    bench.wait_for_state(["armed"], 30.0)
+    deadline = time.monotonic() + 30.0
+    while any(d["state"] != "operation_enabled" for d in _drives(bench)):
+        assert time.monotonic() < deadline, f"drives not enabled: {_drives(bench)}"
+        time.sleep(0.1)
+
+
+def _drives(bench: VcanBench) -> list[dict[str, object]]:
+    drives = bench.request("status")["drives"]
+    assert isinstance(drives, list)
+    return drives
+
+
+def _readable(bus: can.BusABC, timeout_s: float = 5.0) -> None:
+    """Block until the bus's socket has a frame queued (the kernel's queue, not python-can's)."""
+    fileno = bus.fileno()
+    ready, _, _ = select.select([fileno], [], [], timeout_s)
+    assert ready, "no frame arrived"
+
+
+def _received_id(bus: can.BusABC, timeout_s: float) -> int | None:
+    msg = bus.recv(timeout_s)
+    return None if msg is None else msg.arbitration_id
+
+
+def test_kernel_receive_filters_on_socketcan() -> None:
+    """The controller's bus and the emulator's pass only their IDs, filtered in the kernel.
+
+    python-can filters in software otherwise, where ``recv(0)`` returns None
+    when the frame at the head of the queue does not match: here the frame
+    sent first (an ID nobody listens to) never reaches the socket, so
+    ``recv(0)`` returns the matching frame behind it.
+    """
+    sender = can.Bus(interface="socketcan", channel=CHANNEL)
+    controller = open_bus(BusSettings(interface=BusInterface.SOCKETCAN, channel=CHANNEL),
+                          receive_ids=[0x181, 0x701])
+    config = load_config(EMULATOR)
+    drives = can.Bus(interface="socketcan", channel=CHANNEL)
+    try:
+        emulator = Emulator(config, drives)
+        emulator.bus.set_filters(emulator.bus_filters())  # what Emulator.start does
+        for can_id in (0x123, 0x181, 0x080, 0x7FF):
+            sender.send(can.Message(arbitration_id=can_id, data=b"\x01", is_extended_id=False))
+        _readable(controller)
+        assert _received_id(controller, 0.0) == 0x181
+        assert _received_id(controller, 0.2) is None  # neither 0x080, 0x123 nor 0x7FF
+        _readable(drives)
+        assert _received_id(drives, 0.0) == 0x080  # SYNC, behind 0x123 and 0x181
+        assert _received_id(drives, 0.2) is None
+    finally:
+        for bus in (sender, controller, drives):
+            bus.shutdown()
+
+
+def test_bring_up_jog_excavate_and_estop_on_the_wire(tmp_path: Path) -> None:
+    wire, trace = tmp_path / "wire.log", tmp_path / "trace.log"
+    with WireRecorder(wire) as recorder, vcan_bench(
+            tmp_path, EMULATOR, DAEMON, daemon_args=["--set", f"bus.trace_path={trace}"]
+    ) as bench:
+        _armed(bench)
+        recorder.close()  # bring-up and enabling are on record; it costs CPU in a VM
+        before = bench.request("status")["tip"]
+        assert isinstance(before, dict)
+        for _ in range(10):  # 1 s of jog down at 3 cm/s, commands every 0.1 s
+            bench.request("jog", space="task", height_m_per_s=-0.03)
+            time.sleep(0.1)
+        after = bench.wait_for_state(["hold"], 30.0)  # silence: the dead-man stops the jog
+        tip = after["tip"]
+        assert isinstance(tip, dict) and tip["depth_m"] > before["depth_m"] + 0.01
+        bench.request("excavate", reach_far_m=1.25, reach_near_m=1.15, target_depth_m=0.01,
+                      depth_step_m=0.01, stroke_speed_m_per_s=0.05)
+        final = bench.wait_for_state(["hold", "fault"], 600.0)
+        assert final["state"] == "hold", final.get("fault")
+        excavation = final["excavation"]
+        assert isinstance(excavation, dict)
+        # the bus counters tell whether the emulator fell behind (late TPDOs) if not
+        assert excavation["done"] and excavation["object_found"] is None, final["bus"]
+        force = final["force"]
+        hard_n = SETTINGS.supervision.hard_force_n  # never backed off
+        assert isinstance(force, dict) and force["f_hat_max_n"] < hard_n, final["bus"]
+        bench.request("estop")
+        bench.wait_for_state(["estop"], 30.0)
+        bench.request("reset")
+        bench.wait_for_state(["disarmed"], 30.0)
+    assert bench.process.returncode == 0
+
+    states = [e["new"] for e in _events(tmp_path, "daemon.log", "state")]
+    assert states == ["DISARMED", "ARMED", "JOG", "HOLD", "EXCAVATE", "HOLD", "ESTOP",
+                      "DISARMED"]
+    truth = _truth(tmp_path)
+    _check_truth(truth)
+    _check_bring_up_on_the_wire(read_trace(wire))
+    _check_daemon_trace(read_trace(trace))
+    bus = final["bus"]
+    assert isinstance(bus, dict)
+    print(f"\nlane: deepest {-min(float(r['tip_height_m']) for r in truth) * 1e3:.1f} mm, "
+          f"true force {max(float(r['force_down_n']) for r in truth):.1f} N, "
+          f"F_hat {force['f_hat_max_n']:.1f} N; TPDO1 a cycle late "
+          f"{bus['tpdo_late_r'] + bus['tpdo_late_theta']}, missing "
+          f"{bus['tpdo_missed_r'] + bus['tpdo_missed_theta']} (2 per SYNC, {bus['syncs']} SYNCs)")
+
+
+def _check_truth(truth: list[dict[str, str]]) -> None:
+    """The emulator's ground truth: the lane's depth reached, under 90 N, e-stop at 0 V."""
+    enabled = [row for row in truth if row["r_state"] == "OPERATION_ENABLED"]
+    heights = [float(row["tip_height_m"]) for row in enabled]
+    assert min(heights) == pytest.approx(-0.01, abs=0.004)  # the lane's depth, really reached
+    assert max(float(row["force_down_n"]) for row in truth) < 90.0
+    last_enabled = truth.index(enabled[-1])
+    after = truth[last_enabled + 1:]
+    assert any(row["r_state"] == "QUICK_STOP_ACTIVE" for row in after)  # the e-stop
+    assert all(float(row["voltage_r_v"]) == 0.0 and float(row["voltage_theta_v"]) == 0.0
+               for row in after)
+
+
+def _decode(dbc: Any, frame: can.Message) -> dict[str, Any]:
+    """A frame's signals by the DBC, as numbers (choices not applied)."""
+    signals = dbc.decode_message(frame.arbitration_id, bytes(frame.data), decode_choices=False)
+    assert isinstance(signals, dict)
+    return signals
+
+
+def _check_bring_up_on_the_wire(frames: list[can.Message]) -> None:
+    """NMT, SDO configuration read back, CiA 402 enabling: as every node on vcan0 saw it."""
+    assert frames and all(f.channel == CHANNEL for f in frames)
+    dbc = load_dbc()
+    nmt = [_decode(dbc, f) for f in frames if f.arbitration_id == 0]
+    for node in NODES:
+        assert {"command": 0x82, "node_id": node} in nmt  # reset communication
+        assert {"command": 0x01, "node_id": node} in nmt  # start
+    exchanges = sdo_exchanges(frames)
+    assert exchanges and all(e.abort_code is None for e in exchanges), exchanges
+    for node in NODES:
+        written = {(e.index, e.subindex): e.value for e in exchanges
+                   if e.node_id == node and e.write}
+        read = {(e.index, e.subindex): e.value for e in exchanges
+                if e.node_id == node and not e.write}
+        assert {index for index, _ in written} >= set(LIMIT_OBJECTS)
+        assert written[0x2003, 0] == SETTINGS.drives.watchdog_timeout_ms  # as configured
+        assert written.items() <= read.items(), (written, read)  # each value read back
+        assert (0x1018, 2) in read  # the identity checked
+        controlwords = [_decode(dbc, f)["controlword"]
+                        for f in frames if f.arbitration_id == 0x200 + node]
+        sequence = [Command.SHUTDOWN.value, Command.SWITCH_ON.value,
+                    Command.ENABLE_OPERATION.value]
+        firsts = [controlwords.index(word) for word in sequence]
+        assert firsts == sorted(firsts), controlwords[:20]  # 0x06, 0x07, 0x0F in that order
+        statuswords = [_decode(dbc, f)["statusword"]
+                       for f in frames if f.arbitration_id == 0x280 + node]
+        assert decode_statusword(statuswords[-1]) is State.OPERATION_ENABLED
+
+
+def _check_daemon_trace(frames: list[can.Message]) -> None:
+    """The daemon's own trace (bus.trace_path): every cyclic frame decodes with the DBC.
+
+    Sent frames are marked T, received ones R (python-can's candump format).
+    """
+    dbc = load_dbc()
+    known = {m.frame_id for m in dbc.messages}
+    assert frames and all(f.arbitration_id in known for f in frames)  # the loop's frames only
+    sent = [(f.arbitration_id, _decode(dbc, f)) for f in frames if not f.is_rx]
+    received = [(f.arbitration_id, _decode(dbc, f)) for f in frames if f.is_rx]
+    syncs = [d["sync_counter"] for can_id, d in sent if can_id == 0x080]
+    assert len(syncs) > 250  # 5 s at 50 Hz
+    assert all(b == a % 240 + 1 for a, b in itertools.pairwise(syncs))  # none lost from the trace
+    for node in NODES:
+        tpdo1 = [d for can_id, d in received if can_id == 0x180 + node]
+        rpdo1 = [d for can_id, d in sent if can_id == 0x200 + node]
+        assert len(tpdo1) > 0.9 * len(syncs) and len(rpdo1) >= len(syncs)
+        assert all(abs(d["voltage_v"]) <= 24.0 for d in rpdo1)
+        assert any(d["voltage_v"] != 0 for d in rpdo1)
+
+
+def test_sigkill_of_the_controller_leaves_the_drives_at_0_v(tmp_path: Path) -> None:
+    with vcan_bench(tmp_path, EMULATOR, DAEMON) as bench:
+        _armed(bench)
+        pid = bench.request("status")["pid"]
+        assert isinstance(pid, int)
+        os.kill(pid, signal.SIGKILL)
+        bench.process.wait(30.0)
+        bench.wait_for_log("emulator.log", "COMMAND_WATCHDOG_TIMEOUT", 2, 60.0)
+    watchdog = [f for f in _events(tmp_path, "emulator.log", "drive_fault")
+                if f.get("detail") == "COMMAND_WATCHDOG_TIMEOUT"]
+    assert {f["node_id"] for f in watchdog} == set(NODES)
+    last = _truth(tmp_path)[-1]
+    assert float(last["voltage_r_v"]) == 0.0 and float(last["voltage_theta_v"]) == 0.0
+    assert last["r_state"] == "FAULT" and last["theta_state"] == "FAULT"
+
+
+def test_a_drive_that_goes_silent_faults_the_controller(tmp_path: Path) -> None:
+    """θ falls silent 15 s after the emulator started, which is when the bring-up started."""
+    emulator_args = ["--set", "faults.silence_node_id=2", "--set", "faults.silence_after_s=15"]
+    with vcan_bench(tmp_path, EMULATOR, DAEMON, emulator_args=emulator_args,
+                    emulator_at_bring_up=True) as bench:
+        _armed(bench)
+        final = bench.wait_for_state(["fault"], 120.0)
+    assert "θ drive (node 2)" in str(final["fault"])
+    bus = final["bus"]
+    assert isinstance(bus, dict)
+    assert bus["tpdo_received_r"] > bus["tpdo_received_theta"]  # r kept answering
