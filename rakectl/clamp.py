@@ -179,12 +179,19 @@ class VoltageClamp:
     def dynamic_budget_n(self, r_m: float, theta_rad: float, r_vel_m_per_s: float,
                          theta_vel_rad_per_s: float) -> float:
         """B(v): the worst-case downward force allowed at this measured motion."""
-        sin_t, r_cos_t = math.sin(theta_rad), r_m * math.cos(theta_rad)
+        return self._budget_n(r_m, math.sin(theta_rad), math.cos(theta_rad), r_vel_m_per_s,
+                              theta_vel_rad_per_s)
+
+    def _budget_n(self, r_m: float, sin_t: float, cos_t: float, r_vel_m_per_s: float,
+                  theta_vel_rad_per_s: float) -> float:
+        r_cos_t = r_m * cos_t
         share = self._velocity_share
         uncertainty = (abs(sin_t) * (self._r.velocity_margin + share * abs(r_vel_m_per_s))
                        + abs(r_cos_t) * (self._theta.velocity_margin
                                          + share * abs(theta_vel_rad_per_s)))
-        mass_kg = self.tip_mass_kg(r_m, theta_rad)
+        com_m = r_m - self._half_length_m
+        inertia = self._inertia_0 + self._rake_mass_kg * com_m * com_m
+        mass_kg = 1.0 / (sin_t * sin_t / self._mass_r + r_cos_t * r_cos_t / inertia)
         self._v_measured_m_per_s = sin_t * r_vel_m_per_s + r_cos_t * theta_vel_rad_per_s
         v_m_per_s = (self._v_measured_m_per_s + uncertainty
                      + 0.5 * self._limit_n / mass_kg * self._latency_s)
@@ -214,8 +221,7 @@ class VoltageClamp:
         voltage_theta_v = max(-self._theta.supply_v, min(self._theta.supply_v, voltage_theta_v))
         share_r = self._r.share_n(c_r, voltage_r_v, emf_r)
         share_theta = self._theta.share_n(c_theta, voltage_theta_v, emf_theta)
-        self.budget_n = self.dynamic_budget_n(r_m, theta_rad, r_vel_m_per_s,
-                                              theta_vel_rad_per_s)
+        self.budget_n = self._budget_n(r_m, sin_t, cos_t, r_vel_m_per_s, theta_vel_rad_per_s)
         target_n = self.budget_n - self.gravity_down_n  # what the motors may add
         if share_r + share_theta <= target_n:
             self.worst_case_n = self.gravity_down_n + share_r + share_theta

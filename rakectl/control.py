@@ -43,6 +43,13 @@ def _gains(loop: JointLoopSettings, voltage_limit_v: float) -> PidGains:
                     loop.kff_v_s_per_unit, voltage_limit_v)
 
 
+def _unwind(loop: JointPositionLoop, integral_before_v: float, requested_v: float,
+            applied_v: float) -> None:
+    """Undo this tick's integration if it grew toward a voltage the clamp cut."""
+    if (loop.integral_v - integral_before_v) * (requested_v - applied_v) > 0.0:
+        loop.integral_v = integral_before_v
+
+
 class JointServo:
     """Tip reference (reach, depth) → joint references → PID voltages (before the clamp)."""
 
@@ -137,14 +144,8 @@ class TipController:
         voltages = self.clamp.apply(r_m, theta_rad, r_vel_m_per_s, theta_vel_rad_per_s,
                                     requested[0], requested[1])
         # anti-windup through the clamp: an integrator does not grow toward a cut voltage
-        loop = servo.loop_r
-        if voltages[0] != requested[0] and (loop.integral_v - integrals[0]) * (
-                requested[0] - voltages[0]) > 0.0:
-            loop.integral_v = integrals[0]
-        loop = servo.loop_theta
-        if voltages[1] != requested[1] and (loop.integral_v - integrals[1]) * (
-                requested[1] - voltages[1]) > 0.0:
-            loop.integral_v = integrals[1]
+        _unwind(servo.loop_r, integrals[0], requested[0], voltages[0])
+        _unwind(servo.loop_theta, integrals[1], requested[1], voltages[1])
         if self.clamp.non_finite:
             self.fault = "non-finite value reached the voltage clamp"
         return voltages
