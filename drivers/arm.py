@@ -57,6 +57,7 @@ from drivers.motor import (
     stick_slip_velocity,
     substeps_in,
 )
+from drivers.soil import VerticalLaw
 from rakectl import kinematics
 from rakectl.declare import setting
 from rakectl.errors import ConfigError, NonFiniteError
@@ -118,12 +119,15 @@ class ArmParams:
         check_declared_bounds(self)
 
 
+# Rounds of the tine mount's active-set iteration (contacts, yields, soil collapses).
+_MOUNT_ITERATIONS = 16
+
 class ContactModel(Protocol):
     """The ground as the tip feels it (implemented by the soil model).
 
-    A model that also has ``vertical_laws(reach_m, height_m, face_height_m)`` (Ground)
-    lets the arm solve its compliant tine mount implicitly; one without it (the tests'
-    idealized contacts) meets a rigid mount.
+    A model that also has ``vertical_laws(reach_m, height_m, face_height_m)`` and
+    ``transmitted(force_down_n)`` (Ground) lets the arm solve its compliant tine mount
+    implicitly; one without them (the tests' idealized contacts) meets a rigid mount.
     """
 
     def step(
@@ -386,57 +390,87 @@ class ArmPlant:
         reach_m, height_m = kinematics.forward(self.workspace, r_m, theta_rad)
         reach_vel, height_vel = kinematics.tip_velocity(r_m, theta_rad, vel_r, vel_theta)
         laws = getattr(contact, "vertical_laws", None)
-        if self._mount_k > 0.0 and laws is not None:
+        transmitted = getattr(contact, "transmitted", None)
+        mount_n = -1.0  # < 0: rigid tines
+        if self._mount_k > 0.0 and laws is not None and transmitted is not None:
             # every law the tines could meet down to the mount fully extended (the lowest
             # they can reach), so a relaxing mount never carries them unseen into the ground
             compression_m = self._mount(laws(reach_m, height_m, height_m + self.mount_m),
                                         height_m, height_vel)
-            height_vel += (compression_m - self.mount_m) / self.substep_s
+            rate_m_per_s = (compression_m - self.mount_m) / self.substep_s
+            mount_n = max(0.0, self._mount_k * compression_m + self._mount_c * rate_m_per_s)
+            height_vel += rate_m_per_s
             height_m += compression_m
             self.mount_m = compression_m
         force = contact.step(reach_m, height_m, reach_vel, height_vel, self.substep_s)
         if not math.isfinite(force[0] + force[1]):
             raise NonFiniteError(f"contact force must be finite, got {force}")
+        if mount_n >= 0.0:
+            # massless tines: the arm feels what the mount carries, and the ground gets it
+            # too (where the tines rest on a surface the soil's own law reads 0 there)
+            transmitted(mount_n)
+            force = (force[0], mount_n)
         self._last_tip_force_n = force
         self._last_contact_loads = kinematics.joint_loads(r_m, theta_rad, force[0], force[1])
         return self._last_contact_loads
 
-    def _mount(self, laws: list[tuple[float, float, float, float]], height_m: float,
-               height_vel_m_per_s: float) -> float:
+    def _mount(self, laws: list[VerticalLaw], height_m: float, height_vel_m_per_s: float
+               ) -> float:
         """The mount's compression at the end of this substep (backward Euler).
 
         The tines are massless: the mount's force k·δ + c·δ̇ equals the ground's, the
-        sum over the laws (ref, K, B, cap) the tines are below of K (ref − z − δ) −
-        B (ż + δ̇), a law's elastic part held at its cap where the ground yields. The
-        set of laws in contact is found by iteration (piecewise linear, active set).
+        sum over the laws the tines are below of K (ref − z − δ) − B (ż + δ̇), each as the
+        ground itself computes it: an object's elastic part held at its cap where it
+        yields, the soil's interface lowered by whole steps of cap/K where it collapses
+        (:class:`drivers.soil.VerticalLaw`). The laws in contact, yielding, and the
+        collapsed interfaces are found by iteration (piecewise linear, active set); each
+        only changes one way within a substep, so a stiff top cannot make it chatter.
         Solved implicitly, so a stiff ground (a stone, 10⁷ N/m) is stable at the
         substep and meets the tines without a force spike.
         """
         h, k, c, d0 = self.substep_s, self._mount_k, self._mount_c, self.mount_m
         relaxed = c * d0 / (c + h * k)  # no ground force: the mount relaxes
         d = relaxed
-        active = [height_m + d0 < law[0] for law in laws]
-        for _ in range(len(laws) + 1):
+        refs = [law.ref_m for law in laws]
+        active = [height_m + d0 < ref_m for ref_m in refs]
+        yielding = [False] * len(laws)
+        for _ in range(_MOUNT_ITERATIONS):
             stiff = damp = force = 0.0
-            for (ref_m, stiffness, damping, cap_n), on in zip(laws, active, strict=True):
+            for law, ref_m, on, cap in zip(laws, refs, active, yielding, strict=True):
                 if on:
-                    damp += damping
-                    if stiffness * (ref_m - height_m - d) > cap_n:  # yielding: at its cap
-                        force += cap_n
+                    damp += law.damping_ns_per_m
+                    if cap:
+                        force += law.cap_n
                     else:
-                        stiff += stiffness
-                        force += stiffness * (ref_m - height_m)
+                        stiff += law.stiffness_n_per_m
+                        force += law.stiffness_n_per_m * (ref_m - height_m)
             if any(active):
                 force += (damp + c) * d0 / h - damp * height_vel_m_per_s
                 d = force / (stiff + k + (damp + c) / h)
                 if k * d + c * (d - d0) / h <= 0.0:  # the ground would pull: it lets go
                     d = relaxed
-            # a law the solution reaches joins the set and stays (contact onset is sticky,
-            # so the set cannot chatter between in and out at a stiff top)
-            reached = [on or height_m + d < law[0] for law, on in zip(laws, active, strict=True)]
-            if reached == active:
+            changed = False
+            for i, law in enumerate(laws):
+                if not active[i]:
+                    if height_m + d < refs[i]:
+                        active[i] = changed = True  # the solution reaches it: it joins
+                    continue
+                elastic_n = law.stiffness_n_per_m * (refs[i] - height_m - d)
+                if elastic_n < 0.0 and not changed:
+                    # in contact, yet the solution is above it: the contact force jumps at
+                    # the surface (damping), so the tines rest on it this substep
+                    return refs[i] - height_m
+                if yielding[i]:
+                    continue
+                if elastic_n > law.cap_n:
+                    changed = True
+                    if law.collapses:  # the soil gives way as Soil._push does
+                        steps = math.floor(elastic_n / law.cap_n)
+                        refs[i] -= steps * law.cap_n / law.stiffness_n_per_m
+                    else:
+                        yielding[i] = True
+            if not changed:
                 break
-            active = reached
         return d
 
     def _substep(self, voltage_r_v: float, voltage_theta_v: float, contact: ContactModel) -> None:

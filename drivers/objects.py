@@ -33,7 +33,7 @@ import enum
 import math
 from dataclasses import dataclass
 
-from drivers.soil import Soil, SoilParams
+from drivers.soil import Soil, SoilParams, VerticalLaw
 from rakectl.declare import section, setting
 from rakectl.errors import NonFiniteError
 
@@ -148,7 +148,7 @@ class Body:
         return True
 
     def vertical_law(self, reach_m: float, height_m: float, face_height_m: float
-                     ) -> tuple[float, float, float, float] | None:
+                     ) -> VerticalLaw | None:
         """Its top face's law (top, K, B, yield force) if a tip at ``height_m`` is inside
         and, judged at ``face_height_m`` (where the tines were), presses on the top."""
         if self.broken or not (self.left_m < reach_m < self.right_m
@@ -157,8 +157,8 @@ class Body:
         below_top_m = self.top_m - min(face_height_m, self.top_m)
         if below_top_m > min(reach_m - self.left_m, self.right_m - reach_m):
             return None  # nearer a side face: that push is horizontal
-        return (self.top_m, self.stiffness_n_per_m, self.stiffness_n_per_m * self.damping_s,
-                self.yield_force_n)
+        return VerticalLaw(self.top_m, self.stiffness_n_per_m,
+                           self.stiffness_n_per_m * self.damping_s, self.yield_force_n, False)
 
     def _resist(self, depth_m: float, approach_m_per_s: float, dx: float, dz: float) -> float:
         """Penalty force of a face; a root yields, moving along (dx, dz)."""
@@ -262,7 +262,7 @@ class Ground:
         return truth.force_drag_n, truth.force_down_n
 
     def vertical_laws(self, reach_m: float, height_m: float, face_height_m: float
-                      ) -> list[tuple[float, float, float, float]]:
+                      ) -> list[VerticalLaw]:
         """The vertical laws a tip at reach_m could meet from ``height_m`` up: the soil's
         (Soil.vertical_law) and any buried object's top (which face, judged where the
         tines were: ``face_height_m``); used by the arm's compliant tine mount."""
@@ -275,6 +275,16 @@ class Ground:
         if law is not None:
             laws.append(law)
         return laws
+
+    def transmitted(self, force_down_n: float) -> None:
+        """What a compliant tine mount carried into the ground this substep: the truth's
+        vertical force is at least that (the arm's implicit solve can rest the tines on a
+        surface, where the soil's own law reads nothing)."""
+        truth = self.truth
+        if force_down_n > truth.force_down_n:
+            truth.force_down_n = force_down_n
+            if force_down_n > truth.max_force_down_n:
+                truth.max_force_down_n = force_down_n
 
     def _record(self, truth: GroundTruth, contact: Contact, f_reach_n: float,
                 f_up_objects_n: float) -> None:

@@ -63,6 +63,7 @@ import functools
 import itertools
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -234,6 +235,19 @@ class CellProperties:
     strength_factor: float
 
 
+class VerticalLaw(NamedTuple):
+    """What the tines meet below ``ref_m``: F = K (ref − z) − B ż, its elastic part at most
+    ``cap_n``. Past the cap the soil ``collapses`` (its interface gives way by whole
+    steps of cap/K and the elastic part starts again from the remainder: the saw-tooth
+    of :meth:`Soil._push`); a buried object instead holds at its cap (it yields)."""
+
+    ref_m: float
+    stiffness_n_per_m: float
+    damping_ns_per_m: float
+    cap_n: float
+    collapses: bool
+
+
 class Soil:
     """State of the lane: surface map, the interface the tip carries, the last forces.
 
@@ -245,7 +259,8 @@ class Soil:
     """
 
     __slots__ = ("_a_cq", "_a_gamma", "_collapse", "_damping_s", "_floor_m", "_from_depth",
-                 "_inv_cell", "_inv_max_damping", "_last", "_original", "_prev_tip_m",
+                 "_inv_cell", "_inv_max_damping", "_last", "_original", "_prev_height_m",
+                 "_prev_tip_m",
                  "_reach_min_m", "_smooth_m_per_s", "_stiffness", "_strength", "_surface", "cell_m",
                  "cut_depth_m", "force_reach_n", "force_up_n", "interface_height_m",
                  "peak_up_n", "surface_height_m", "touching")
@@ -265,6 +280,7 @@ class Soil:
         self._smooth_m_per_s = params.drag_smoothing_speed_m_per_s
         self._inv_max_damping = 1.0 / params.drag_max_damping_ns_per_m
         self._floor_m = self._prev_tip_m = -math.inf
+        self._prev_height_m = math.inf  # where the tip was: its layer is this substep's
         self.force_up_n = self.force_reach_n = self.peak_up_n = self.cut_depth_m = 0.0
         self.interface_height_m = self.surface_height_m = 0.0
         self.touching = False
@@ -322,7 +338,10 @@ class Soil:
         surface = self._surface
         carried_m = self._floor_m if self._floor_m > self._prev_tip_m else self._prev_tip_m
         floor_m = surface[j] if surface[j] < carried_m else carried_m
-        layer = self._layer(self._original[j] - tip_m)
+        # the layer where the tip was at the previous substep (explicit in the layer, so the
+        # arm's implicit tine mount, which cannot know the new height first, sees the same)
+        layer = self._layer(self._original[j] - self._prev_height_m)
+        self._prev_height_m = height_m
         self.force_up_n = self.peak_up_n = 0.0
         if floor_m > tip_m:
             rate = 0.0 if shielded else -height_vel_m_per_s
@@ -335,18 +354,19 @@ class Soil:
         self._drag(j, layer, height_m, reach_vel_m_per_s)
         self.touching = self.force_up_n > 0.0 or self.cut_depth_m > 0.0
 
-    def vertical_law(self, reach_m: float, height_m: float
-                     ) -> tuple[float, float, float, float] | None:
+    def vertical_law(self, reach_m: float, height_m: float) -> VerticalLaw | None:
         """The vertical law a tip at (reach_m, height_m) would meet in the next step, or None:
-        (interface height, K_e, B, collapse force); F = K_e (ref − z) − B ż below ref."""
+        (interface height, K_e, B, collapse force); F = K_e (ref − z) − B ż below ref, in
+        the layer :meth:`step` will use (where the tip was at the previous substep)."""
         j = self.cell_index(reach_m)
         carried_m = self._floor_m if self._floor_m > self._prev_tip_m else self._prev_tip_m
         floor_m = self._surface[j] if self._surface[j] < carried_m else carried_m
         if floor_m <= height_m:
             return None
-        layer = self._layer(self._original[j] - height_m)
+        layer = self._layer(self._original[j] - self._prev_height_m)
         stiffness = self._stiffness[layer][j]
-        return floor_m, stiffness, stiffness * self._damping_s[layer], self._collapse[layer][j]
+        return VerticalLaw(floor_m, stiffness, stiffness * self._damping_s[layer],
+                           self._collapse[layer][j], True)
 
     def _push(self, j: int, layer: int, floor_m: float, tip_m: float, rate_m_per_s: float
               ) -> float:

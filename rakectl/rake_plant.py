@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from drivers.arm import ArmPlant
 from drivers.objects import Contact, Ground, GroundTruth
+from drivers.soil import VerticalLaw
 from rakectl import kinematics
 from rakectl.clamp import VoltageClamp
 from rakectl.control import TipController
@@ -47,8 +48,13 @@ class PeakRecorder:
         return force
 
     def vertical_laws(self, reach_m: float, height_m: float, face_height_m: float
-                      ) -> list[tuple[float, float, float, float]]:
+                      ) -> list[VerticalLaw]:
         return self.ground.vertical_laws(reach_m, height_m, face_height_m)
+
+    def transmitted(self, force_down_n: float) -> None:
+        self.ground.transmitted(force_down_n)
+        if force_down_n > self.peak_down_n:
+            self.peak_down_n = force_down_n
 
 
 class RakeLoop:

@@ -29,7 +29,7 @@ from drivers.motor import (
     stall_joint_load,
 )
 from drivers.objects import BuriedObjects, Ground, GroundParams, StoneParams
-from drivers.soil import SoilLayer, SoilParams
+from drivers.soil import SoilLayer, SoilParams, VerticalLaw
 from rakectl import kinematics
 from rakectl.errors import ConfigError, NonFiniteError
 from rakectl.kinematics import Workspace
@@ -412,3 +412,57 @@ def test_the_compliant_tine_mount_takes_the_impact() -> None:
     assert mounted_n < 2.0 * impact_n + 60.0  # the arm's weight at the tip is < 40 N
     assert compression_m == pytest.approx(mounted_n / ARM.tine_mount_stiffness_n_per_m,
                                           rel=0.3)
+
+
+class _Reading:
+    """Ground pass-through that keeps, per substep, the ground's own vertical reading and
+    what the tine mount said it carried."""
+
+    def __init__(self, ground: Ground) -> None:
+        self.ground = ground
+        self.pairs: list[tuple[float, float]] = []
+        self._own_n = 0.0
+
+    def step(self, reach_m: float, height_m: float, reach_vel_m_per_s: float,
+             height_vel_m_per_s: float, dt_s: float) -> tuple[float, float]:
+        force = self.ground.step(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s, dt_s)
+        self._own_n = self.ground.truth.force_down_n
+        return force
+
+    def vertical_laws(self, reach_m: float, height_m: float, face_height_m: float
+                      ) -> list[VerticalLaw]:
+        return self.ground.vertical_laws(reach_m, height_m, face_height_m)
+
+    def transmitted(self, force_down_n: float) -> None:
+        self.ground.transmitted(force_down_n)
+        self.pairs.append((self._own_n, force_down_n))
+
+
+@pytest.mark.parametrize("speed_m_per_s", [0.02, 0.1, 0.2])
+def test_the_mount_carries_what_the_ground_reads(speed_m_per_s: float) -> None:
+    """Falling through a weak layer onto a strong one (which collapses in a saw-tooth)
+    and onto a stone: on every substep the ground's own law never reads more than the
+    mount carries (the arm feels all of it), and where it reads anything the two agree.
+    The mount's solve once used the wrong layer and a stale yield state: it carried
+    97 N while the soil read 15 N, and 27 N while the soil read 54 N."""
+    reach_m = 1.2
+    r_m, theta_rad = kinematics.inverse(WS, reach_m, 0.002)  # 2 mm above the surface
+    soil = SoilParams(layers=(SoilLayer(stiffness_n_per_m=2.4e5, collapse_force_n=3.4),
+                              SoilLayer(from_depth_m=0.003, stiffness_n_per_m=1.4e6,
+                                        collapse_force_n=38.0)),
+                      surface_slope=0.0, surface_waves=(), lane_reach_max_m=2.0)
+    stone = StoneParams(reach_m, 0.010, 0.1, 0.05)
+    ground = Ground(GroundParams(soil=soil, objects=BuriedObjects(stones=(stone,))), seed=0)
+    reading = _Reading(ground)
+    plant = ArmPlant(ARM, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, WS)
+    plant.set_state(ArmState(r_m, theta_rad, 0.0, speed_m_per_s / (r_m * math.cos(theta_rad))))
+    plant.set_bridges(Bridge.OPEN, Bridge.OPEN)
+    for _ in range(300):
+        plant.step(0.0, 0.0, reading, STEP_S)
+    touching = [(own, mount) for own, mount in reading.pairs if own > 0.0]
+    assert len(touching) > 1000  # it did press on the ground
+    assert max(mount for _, mount in touching) > 20.0
+    for own_n, mount_n in reading.pairs:
+        assert own_n <= mount_n + 1e-6
+    for own_n, mount_n in touching:
+        assert mount_n == pytest.approx(own_n, rel=0.01, abs=0.5)

@@ -173,10 +173,13 @@ def test_layers_switch_stiffness_and_collapse_force_at_their_depth() -> None:
     soil = Soil(SoilParams(layers=(top, deep), stiffness_rel_std=0.0, strength_rel_std=0.0),
                 seed=0)
     soil.step(REACH_M, 0.01, 0.0, 0.0)
+    previous_m = 0.0
     for depth_m in np.arange(0.001, 0.05, 0.001):
         soil.step(REACH_M, -depth_m, 0.0, -0.01)
-        k = 1e5 if depth_m < 0.03 else 5e5
+        # the layer is where the tip was at the step before (see Soil.step)
+        k = 1e5 if previous_m < 0.03 - 1e-9 else 5e5
         assert soil.force_up_n == pytest.approx(k * depth_m)
+        previous_m = depth_m
     weak, strong = replace(top, collapse_force_n=5.0), replace(deep, collapse_force_n=20.0)
     soil = Soil(SoilParams(layers=(weak, strong), stiffness_rel_std=0.0, strength_rel_std=0.0),
                 seed=0)
