@@ -458,8 +458,14 @@ class ArmPlant:
                 elastic_n = law.stiffness_n_per_m * (refs[i] - height_m - d)
                 if elastic_n < 0.0 and not changed:
                     # in contact, yet the solution is above it: the contact force jumps at
-                    # the surface (damping), so the tines rest on it this substep
-                    return refs[i] - height_m
+                    # the surface (damping), so the tines rest on it this substep, not below
+                    # it by a rounding (the ground would read its damping at the speed the
+                    # tines fell in this substep); never extending faster than the mount
+                    # relaxes (its force stays ≥ 0)
+                    d = max(refs[i] - height_m, relaxed)
+                    while height_m + d < refs[i]:
+                        d = math.nextafter(d, math.inf)
+                    return d
                 if yielding[i]:
                     continue
                 if elastic_n > law.cap_n:

@@ -29,10 +29,11 @@ from drivers.motor import (
     stall_joint_load,
 )
 from drivers.objects import BuriedObjects, Ground, GroundParams, StoneParams
-from drivers.soil import SoilLayer, SoilParams, VerticalLaw
+from drivers.soil import SoilLayer, SoilParams
 from rakectl import kinematics
 from rakectl.errors import ConfigError, NonFiniteError
 from rakectl.kinematics import Workspace
+from rakectl.rake_plant import PeakRecorder
 
 WS = Workspace(pivot_height_m=0.6, r_min_m=0.35, r_max_m=1.6, theta_min_rad=-0.2,
                theta_max_rad=1.3)
@@ -414,27 +415,23 @@ def test_the_compliant_tine_mount_takes_the_impact() -> None:
                                           rel=0.3)
 
 
-class _Reading:
-    """Ground pass-through that keeps, per substep, the ground's own vertical reading and
-    what the tine mount said it carried."""
+class _Reading(PeakRecorder):
+    """The ground as the rake loop passes it, keeping per substep the ground's own vertical
+    reading and what the tine mount said it carried."""
 
     def __init__(self, ground: Ground) -> None:
-        self.ground = ground
+        super().__init__(ground)
         self.pairs: list[tuple[float, float]] = []
         self._own_n = 0.0
 
     def step(self, reach_m: float, height_m: float, reach_vel_m_per_s: float,
              height_vel_m_per_s: float, dt_s: float) -> tuple[float, float]:
-        force = self.ground.step(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s, dt_s)
-        self._own_n = self.ground.truth.force_down_n
+        force = super().step(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s, dt_s)
+        self._own_n = self.truth.force_down_n
         return force
 
-    def vertical_laws(self, reach_m: float, height_m: float, face_height_m: float
-                      ) -> list[VerticalLaw]:
-        return self.ground.vertical_laws(reach_m, height_m, face_height_m)
-
     def transmitted(self, force_down_n: float) -> None:
-        self.ground.transmitted(force_down_n)
+        super().transmitted(force_down_n)
         self.pairs.append((self._own_n, force_down_n))
 
 

@@ -118,3 +118,19 @@ def test_faults_are_injected_and_counted() -> None:
     assert 0.1 * ticks < result.commands_lost_ticks < 0.3 * ticks
     assert result.drive_fault_ticks == 50
     assert result.faults == ("feedback", "command", "drive")
+
+
+@pytest.mark.parametrize("index", [61, 152, 253, 281, 630])
+def test_cases_once_over_the_limit_now_hold(index: int) -> None:
+    """Cases of `rakectl fuzz --seed 7` that went over 90 N (up to 357 N) before the
+    emulator's tine mount was made to agree with the ground it meets: 61, a 0.1 m/s
+    position-controlled plunge with 770 lost commands; 152, a 0.68 m/s stroke with 1861;
+    253, a plunge through a weak layer onto a strong one, no faults; 281, a 0.6 m/s stroke
+    with 1740 lost feedbacks. Their
+    mount had carried more than the soil's own law, then let it go into the ground. And
+    630 (274 N for one tick, in the 1000-case run that followed): a lane whose tines,
+    falling onto a lower cell's floor, were put on it by a rounding below it, where the
+    soil read its damping at the speed of the fall."""
+    result = fuzz.run_case(fuzz.generate(7, index))
+    assert result.ticks_over_limit == 0 and not result.mine_activated
+    assert result.f_true_z_max_n < 0.6 * fuzz.FORCE_LIMIT_N
