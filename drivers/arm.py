@@ -405,7 +405,7 @@ class ArmPlant:
         force = contact.step(reach_m, height_m, reach_vel, height_vel, self.substep_s)
         if not math.isfinite(force[0] + force[1]):
             raise NonFiniteError(f"contact force must be finite, got {force}")
-        if mount_n >= 0.0:
+        if transmitted is not None and mount_n >= 0.0:
             # massless tines: the arm feels what the mount carries, and the ground gets it
             # too (where the tines rest on a surface the soil's own law reads 0 there)
             transmitted(mount_n)
