@@ -10,7 +10,10 @@ and says whether the tip is meant to be in contact (impedance control with
 With ``lane.adaptive`` the stroke's speed is not fixed: :meth:`LanePlanner.govern`
 feeds the force estimate to a :class:`~rakectl.governor.StrokeGovernor` every
 tick, whose limit replaces ``stroke_speed_m_per_s`` (soft soil fast, hard soil
-slow, under the caution level).
+slow, under the caution level). Nor is the depth of cut: each cycle's step is
+the last one's scaled by the last stroke's margin
+(:func:`~rakectl.governor.next_depth_step_m`), from ``depth_step_m`` up to
+``max_depth_step_m``: soft soil in few deep cuts, hard soil in many shallow ones.
 
 Depth is positive below ground level 0 (the same axis as the impedance
 controller's x).
@@ -21,7 +24,7 @@ from __future__ import annotations
 import enum
 import math
 
-from rakectl.governor import StrokeGovernor
+from rakectl.governor import StrokeGovernor, next_depth_step_m
 from rakectl.settings import LaneSettings
 
 # Free-space descent stops this far above the previous cycle's floor; the rest
@@ -70,6 +73,10 @@ class LanePlanner:
         self._tip_depths = [math.nan] * SETTLE_TICKS  # measured, the last ticks (a ring)
         self._tip_index = 0
         self._settling_ticks = 0
+        self.step_m = lane.depth_step_m  # this cycle's depth step (adaptive: it varies)
+        self.cycle_depth_m = min(self.step_m, lane.target_depth_m)
+        self._stroke_peak_n = self._stroke_peak_lag_m = 0.0
+        self._caution_n = math.inf  # supervision's caution level, from govern()
         self.governor: StrokeGovernor | None = None
         if lane.adaptive:
             self.governor = StrokeGovernor(lane.min_stroke_speed_m_per_s,
@@ -84,10 +91,6 @@ class LanePlanner:
     @property
     def done(self) -> bool:
         return self.phase is LanePhase.DONE
-
-    @property
-    def cycle_depth_m(self) -> float:
-        return min(self.cycle * self.lane.depth_step_m, self.lane.target_depth_m)
 
     def observe(self, reach_m: float, depth_m: float) -> None:
         """The measured tip, once per tick (see :meth:`check_stall`)."""
@@ -122,6 +125,10 @@ class LanePlanner:
             lane = self.lane
             self.governor.update(force_n, lane.force_target_share * caution_n, self.lag_m,
                                  LAG_TARGET_SHARE * lane.stall_error_m, self.speed_m_per_s)
+            self._stroke_peak_n = max(self._stroke_peak_n, force_n) if math.isfinite(
+                force_n) else math.nan
+            self._stroke_peak_lag_m = max(self._stroke_peak_lag_m, self.lag_m)
+            self._caution_n = caution_n
 
     @property
     def stroke_speed_m_per_s(self) -> float:
@@ -166,12 +173,25 @@ class LanePlanner:
                     or self.floor_m >= self.lane.target_depth_m - 1e-12):
                 return LanePhase.DONE
             self.cycle += 1
+            self.cycle_depth_m = min(self.floor_m + self.step_m, self.lane.target_depth_m)
             return LanePhase.APPROACH
         if self.phase is LanePhase.STROKE:
             self.floor_m = self.cycle_depth_m
+            self._next_step()
         order = (LanePhase.APPROACH, LanePhase.LOWER, LanePhase.PLUNGE, LanePhase.STROKE,
                  LanePhase.LIFT)
         return order[order.index(self.phase) + 1]
+
+    def _next_step(self) -> None:
+        """At a stroke's end: the next cycle's depth step (adaptive lanes only)."""
+        lane = self.lane
+        if self.governor is not None and math.isfinite(self._caution_n):  # it was governed
+            self.step_m = next_depth_step_m(
+                self.step_m, self._stroke_peak_n, lane.force_target_share * self._caution_n,
+                self._stroke_peak_lag_m, LAG_TARGET_SHARE * lane.stall_error_m,
+                lane.depth_step_m, lane.max_depth_step_m)
+        self._stroke_peak_n = self._stroke_peak_lag_m = 0.0
+        self._caution_n = math.inf
 
     def step(self) -> None:
         """Advance the reference by one tick."""

@@ -35,10 +35,13 @@ trade linearly where the path goes into the soil, and the inertial and
 frictional loads the current-based estimate sees grow with speed too. Where
 the force does not fall with speed (a drag that does not depend on it), the
 governor settles at v_min and supervision's caution level still holds the
-motion if the force keeps rising: it errs toward slow. What the benchmark
-(`rakectl bench --excavation`) found in the emulated soils: up to 0.25 m/s
-their stroke loads stay under the set point but for brief F̂ spikes in clay,
-so the governor rides at its top speed in all three.
+motion if the force keeps rising: it errs toward slow.
+
+The depth of cut adapts too, once per cycle (:func:`next_depth_step_m`): a
+stroke that stayed well under its set points is followed by a deeper cut. On
+the benchmark's lane the strokes are a third of the time and the free-space
+return the largest part, so fewer, deeper cuts are what halves the time in soft
+soil; stroke speed alone cannot (see the README's "Benchmarks").
 """
 
 from __future__ import annotations
@@ -47,6 +50,8 @@ import math
 
 # Above the force set point the limit falls this many times faster than it rises below it.
 SLOWDOWN_RATIO = 8.0
+# The next cut is at most this many times deeper than the last.
+DEPTH_GROWTH_MAX = 2.0
 
 
 class StrokeGovernor:
@@ -90,3 +95,23 @@ def _margin(value: float, target: float) -> float:
     if math.isfinite(value) and target > 0.0:
         return (target - value) / target
     return -1.0
+
+
+def next_depth_step_m(step_m: float, peak_force_n: float, target_n: float, peak_lag_m: float,
+                      lag_target_m: float, min_step_m: float, max_step_m: float) -> float:
+    """Depth step of the next cut from how the last stroke went (the adaptive lane).
+
+    The cut's loads grow with its depth (the drag on the rake's face, and with it the
+    current-based estimate and the tip's lag), so the step scales with the smaller
+    ratio of set point to the stroke's peak, target/peak, for the force and the lag:
+    at most ×DEPTH_GROWTH_MAX per cycle, within [min_step_m, max_step_m]. A stroke
+    above either set point makes the next cut shallower, down to ``min_step_m`` (the
+    lane's own depth step). A non-finite peak gives ``min_step_m``.
+    """
+    ratios = [DEPTH_GROWTH_MAX]
+    for peak, target in ((peak_force_n, target_n), (peak_lag_m, lag_target_m)):
+        if not math.isfinite(peak):
+            return min_step_m
+        if peak > 0.0:
+            ratios.append(target / peak)
+    return min(max_step_m, max(min_step_m, step_m * min(ratios)))

@@ -143,6 +143,10 @@ class LaneSettings:
     force_target_share: float = setting(
         0.8, "Adaptive: the stroke's force set point as a share of "
         "supervision.caution_force_n.", gt=0, lt=1)
+    max_depth_step_m: float = setting(
+        0.04, "Adaptive: deepest cut. Each cut's depth step is the last one's times the last "
+        "stroke's margin (force set point / its peak estimate, and the same for the lag), at "
+        "most doubled, never below depth_step_m.", unit="m", gt=0, le=0.1)
     governor_gain_per_s: float = setting(
         2.0, "Adaptive: with no force the speed limit rises by this share of "
         "max_stroke_speed_m_per_s per second; above the set point it falls 8× faster.",
@@ -154,6 +158,9 @@ class LaneSettings:
         if self.min_stroke_speed_m_per_s > self.max_stroke_speed_m_per_s:
             raise ConfigError("min_stroke_speed_m_per_s must be <= max_stroke_speed_m_per_s "
                               f"({self.max_stroke_speed_m_per_s:g})")
+        if self.adaptive and self.max_depth_step_m < self.depth_step_m:
+            raise ConfigError(f"max_depth_step_m ({self.max_depth_step_m:g}) must be >= "
+                              f"depth_step_m ({self.depth_step_m:g}) on an adaptive lane")
 
 
 @dataclass(frozen=True)

@@ -10,8 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from rakectl.errors import ConfigError
 from rakectl.excavation import LanePhase, LanePlanner
-from rakectl.governor import SLOWDOWN_RATIO, StrokeGovernor
+from rakectl.governor import DEPTH_GROWTH_MAX, SLOWDOWN_RATIO, StrokeGovernor, next_depth_step_m
 from rakectl.settings import LaneSettings
 
 DT_S = 1e-3
@@ -211,3 +212,53 @@ def test_in_the_full_chain_an_adaptive_stroke_is_faster_in_sand_than_in_clay() -
         assert planner.found_at is None and not planner.stopped_by_force
     assert clay_speed < 0.93 * sand_speed  # measured: 0.162 against 0.189 m/s
     assert max(sand_peak_n, clay_peak_n) < 90.0
+
+
+# --------------------------------------------------------------------------- depth of cut
+
+
+def test_the_next_cut_scales_with_the_last_strokes_margin() -> None:
+    def step(force_n: float, lag_m: float = 0.0, step_m: float = 0.01) -> float:
+        return next_depth_step_m(step_m, force_n, 40.0, lag_m, 0.01, 0.01, 0.04)
+
+    assert step(0.0) == pytest.approx(0.01 * DEPTH_GROWTH_MAX)  # no load: at most doubled
+    assert step(32.0, step_m=0.02) == pytest.approx(0.025)  # 40/32 × 20 mm
+    assert step(40.0, step_m=0.02) == pytest.approx(0.02)  # at the set point: the same
+    assert step(80.0, step_m=0.03) == pytest.approx(0.015)  # twice over: half as deep
+    assert step(500.0, step_m=0.03) == 0.01  # never below the lane's own step
+    assert step(1.0, step_m=0.03) == 0.04  # nor beyond the deepest cut
+    assert step(10.0, lag_m=0.02, step_m=0.02) == pytest.approx(0.01)  # the lag counts too
+    assert step(math.nan, step_m=0.03) == 0.01
+    assert step(10.0, lag_m=math.inf, step_m=0.03) == 0.01
+
+
+def _cycle_depths(lane: LaneSettings, force_n: float) -> list[float]:
+    """Each cycle's depth on a lane raked with a constant force estimate."""
+    planner = LanePlanner(lane, DT_S, lane.reach_far_m, -lane.clearance_m)
+    depths: list[float] = []
+    while not planner.done:
+        planner.observe(planner.reach_m, planner.depth_m)
+        planner.govern(force_n, caution_n=55.0)
+        if planner.phase is LanePhase.STROKE and depths[-1:] != [planner.cycle_depth_m]:
+            depths.append(planner.cycle_depth_m)
+        planner.step()
+    return depths
+
+
+def test_an_adaptive_lane_cuts_deep_in_soft_soil_and_shallow_in_hard() -> None:
+    lane = LaneSettings(reach_far_m=1.1, reach_near_m=1.0, depth_step_m=0.01,
+                        target_depth_m=0.1, max_depth_step_m=0.04, stroke_speed_m_per_s=0.2,
+                        plunge_speed_m_per_s=0.05, travel_speed_m_per_s=0.5, accel_m_per_s2=5.0)
+    fixed = _cycle_depths(lane, 0.0)
+    soft = _cycle_depths(dataclasses.replace(lane, adaptive=True), 0.0)
+    hard = _cycle_depths(dataclasses.replace(lane, adaptive=True), 50.0)  # over 0.8 × 55 N
+    assert fixed == pytest.approx([0.01 * k for k in range(1, 11)])
+    assert soft == pytest.approx([0.01, 0.03, 0.07, 0.1])  # steps 10, 20, 40 (the cap), 30
+    assert hard == pytest.approx(fixed)
+
+
+def test_a_max_depth_step_below_the_depth_step_is_refused_on_an_adaptive_lane() -> None:
+    LaneSettings(depth_step_m=0.02, max_depth_step_m=0.01)  # not adaptive: unused
+    with pytest.raises(ConfigError, match="max_depth_step_m"):
+        LaneSettings(adaptive=True, depth_step_m=0.02, max_depth_step_m=0.01)
+

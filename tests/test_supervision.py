@@ -51,6 +51,24 @@ def test_levels_follow_the_larger_estimate_after_the_filter() -> None:
     assert sup.f_max_n == pytest.approx(SUP.hard_force_n + 5, rel=0.01)
 
 
+def test_a_brief_f_hat_spike_holds_the_motion_a_sustained_one_stops_it() -> None:
+    """F̂ is a differentiated position: a tine dropping 0.6 mm into collapsed clay read
+    78 N for ~10 ms while the ground felt 20 N. Its raw value sets CAUTION at once; the
+    hard level takes it low-passed like the currents (supervision.current_filter_s)."""
+    sup = ForceSupervisor(SUP, CLAMP, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, 1e-3)
+    i_r, i_theta = _currents_for(1.0, 0.6, 10.0)
+    for _ in range(100):
+        sup.step(0.0, 1.0, 0.6, i_r, i_theta)
+    spike = [sup.step(100.0, 1.0, 0.6, i_r, i_theta) for _ in range(10)]
+    assert set(spike) == {ForceLevel.CAUTION}
+    for _ in range(200):
+        sup.step(0.0, 1.0, 0.6, i_r, i_theta)
+    sustained = [sup.step(100.0, 1.0, 0.6, i_r, i_theta) for _ in range(60)]
+    assert sustained[0] is ForceLevel.CAUTION and sustained[-1] is ForceLevel.HARD
+    # 100 N low-passed at 20 ms passes 75 N after 20 ms · ln 4 ≈ 28 ms
+    assert sustained.index(ForceLevel.HARD) == pytest.approx(28, abs=2)
+
+
 def test_non_finite_input_is_the_hard_level() -> None:
     sup = ForceSupervisor(SUP, CLAMP, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, 1e-3)
     assert sup.step(math.nan, 1.0, 0.6, 0.0, 0.0) is ForceLevel.HARD
