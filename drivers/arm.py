@@ -434,6 +434,7 @@ class ArmPlant:
         refs = [law.ref_m for law in laws]
         active = [height_m + d0 < ref_m for ref_m in refs]
         yielding = [False] * len(laws)
+        above = [False] * len(laws)  # the tines stay above it this substep
         for _ in range(_MOUNT_ITERATIONS):
             stiff = damp = force = 0.0
             for law, ref_m, on, cap in zip(laws, refs, active, yielding, strict=True):
@@ -452,20 +453,21 @@ class ArmPlant:
             changed = False
             for i, law in enumerate(laws):
                 if not active[i]:
-                    if height_m + d < refs[i]:
+                    if height_m + d < refs[i] and not above[i]:
                         active[i] = changed = True  # the solution reaches it: it joins
                     continue
                 elastic_n = law.stiffness_n_per_m * (refs[i] - height_m - d)
                 if elastic_n < 0.0 and not changed:
                     # in contact, yet the solution is above it: the contact force jumps at
-                    # the surface (damping), so the tines rest on it this substep, not below
-                    # it by a rounding (the ground would read its damping at the speed the
-                    # tines fell in this substep); never extending faster than the mount
-                    # relaxes (its force stays ≥ 0)
-                    d = max(refs[i] - height_m, relaxed)
-                    while height_m + d < refs[i]:
-                        d = math.nextafter(d, math.inf)
-                    return d
+                    # the surface (damping). Either the tines rest on it this substep, or
+                    # the other laws already hold the mount above it there.
+                    rest = self._rest_on(refs[i], height_m, relaxed)
+                    if self._others_n(laws, refs, active, yielding, i, height_m,
+                                      height_vel_m_per_s, rest) < (
+                            k * rest + c * (rest - d0) / h):
+                        return rest
+                    active[i], above[i], changed = False, True, True
+                    break
                 if yielding[i]:
                     continue
                 if elastic_n > law.cap_n:
@@ -478,6 +480,31 @@ class ArmPlant:
             if not changed:
                 break
         return d
+
+    @staticmethod
+    def _rest_on(ref_m: float, height_m: float, relaxed_m: float) -> float:
+        """The compression that puts the tines on ``ref_m``, not below it by a rounding (the
+        ground would read its damping at the speed they fell in this substep), and never
+        extending faster than the mount relaxes (its force stays ≥ 0)."""
+        d = max(ref_m - height_m, relaxed_m)
+        while height_m + d < ref_m:
+            d = math.nextafter(d, math.inf)
+        return d
+
+    def _others_n(self, laws: list[VerticalLaw], refs: list[float], active: list[bool],
+                  yielding: list[bool], skip: int, height_m: float, height_vel_m_per_s: float,
+                  d_m: float) -> float:
+        """The force of the active laws but ``skip`` on tines at compression ``d_m``."""
+        tine_m = height_m + d_m
+        rate_m_per_s = height_vel_m_per_s + (d_m - self.mount_m) / self.substep_s
+        total_n = 0.0
+        for j, law in enumerate(laws):
+            if j == skip or not active[j] or tine_m >= refs[j]:
+                continue
+            elastic_n = (law.cap_n if yielding[j]
+                         else law.stiffness_n_per_m * (refs[j] - tine_m))
+            total_n += max(0.0, elastic_n - law.damping_ns_per_m * rate_m_per_s)
+        return total_n
 
     def _substep(self, voltage_r_v: float, voltage_theta_v: float, contact: ContactModel) -> None:
         h, arm, r_m, theta_rad = self.substep_s, self.arm, self._r_m, self._theta_rad

@@ -64,16 +64,17 @@ def test_generation_spans_soils_commands_and_faults() -> None:
     assert mines and all(80.0 <= m.activation_force_n <= 100.0 for m in mines)
 
 
-def test_small_campaign_runs_and_the_worst_case_replays(tmp_path: Path) -> None:
-    """12 cases: each command kind with no fault and with each fault kind. The lane cases
-    (normal operation) stay below 90 N; the hostile ones are reported, not asserted safe."""
-    report = fuzz.campaign(12, seed=1, workers=2, out_dir=tmp_path)
-    assert report.scenarios == len(report.results) == 12
+def test_small_campaign_is_safe_and_the_worst_case_replays(tmp_path: Path) -> None:
+    """The campaign's CI sample: 24 cases, each command kind (the hostile ones included)
+    twice with no fault and with each fault kind. None may press harder than 90 N on any
+    tick or fire a mine (`rakectl fuzz --scenarios 1000` is the full campaign)."""
+    report = fuzz.campaign(24, seed=1, workers=2, out_dir=tmp_path)
+    assert report.scenarios == len(report.results) == 24
     assert {r.kind for r in report.results} == {str(k) for k in CommandKind}
     assert {k for r in report.results for k in r.faults} == {"feedback", "command", "drive"}
     assert any(r.drive_fault_ticks > 0 for r in report.results)  # a lane may end first
-    assert report.by_kind()["lane"]["cases_over_limit"] == 0
-    assert report.by_kind()["lane"]["mine_activations"] == 0
+    assert report.safe, report.summary()["by_kind"]
+    assert report.ticks_over_limit == report.mine_activations == 0
     assert report.f_true_z_max_n == max(r.f_true_z_max_n for r in report.results)
     now, recorded = fuzz.replay(Path(report.worst_case_path))
     assert now == recorded == report.worst
@@ -120,17 +121,18 @@ def test_faults_are_injected_and_counted() -> None:
     assert result.faults == ("feedback", "command", "drive")
 
 
-@pytest.mark.parametrize("index", [61, 152, 253, 281, 630])
-def test_cases_once_over_the_limit_now_hold(index: int) -> None:
-    """Cases of `rakectl fuzz --seed 7` that went over 90 N (up to 357 N) before the
-    emulator's tine mount was made to agree with the ground it meets: 61, a 0.1 m/s
-    position-controlled plunge with 770 lost commands; 152, a 0.68 m/s stroke with 1861;
-    253, a plunge through a weak layer onto a strong one, no faults; 281, a 0.6 m/s stroke
-    with 1740 lost feedbacks. Their
-    mount had carried more than the soil's own law, then let it go into the ground. And
-    630 (274 N for one tick, in the 1000-case run that followed): a lane whose tines,
-    falling onto a lower cell's floor, were put on it by a rounding below it, where the
-    soil read its damping at the speed of the fall."""
-    result = fuzz.run_case(fuzz.generate(7, index))
+@pytest.mark.parametrize(("seed", "index"), [(7, 61), (7, 152), (7, 253), (7, 281), (7, 630),
+                                           (8, 289)])
+def test_cases_once_over_the_limit_now_hold(seed: int, index: int) -> None:
+    """Cases of `rakectl fuzz` that went over 90 N, each time because the emulator's tine
+    mount disagreed with the ground it met. Before the fix (up to 357 N): 7/61, a 0.1 m/s
+    position-controlled plunge with 770 lost commands; 7/152, a 0.68 m/s stroke with 1861;
+    7/253, a plunge through a weak layer onto a strong one, no faults; 7/281, a 0.6 m/s
+    stroke with 1740 lost feedbacks: the mount had carried more than the soil's own law,
+    then let it go into the ground. 7/630 (274 N for one tick): tines falling onto a lower
+    cell's floor were put on it by a rounding below it, where the soil read its damping at
+    the speed of the fall. 8/289 (642 N for one tick): tines resting on a stone's top were
+    inside a film of soil over it, whose damping at the fall's speed the rest ignored."""
+    result = fuzz.run_case(fuzz.generate(seed, index))
     assert result.ticks_over_limit == 0 and not result.mine_activated
-    assert result.f_true_z_max_n < 0.6 * fuzz.FORCE_LIMIT_N
+    assert result.f_true_z_max_n < fuzz.FORCE_LIMIT_N
