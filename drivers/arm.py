@@ -479,6 +479,9 @@ class ArmPlant:
                         yielding[i] = True
             if not changed:
                 break
+        for i, ref_m in enumerate(refs):
+            if above[i] and height_m + d < ref_m:  # left out, yet reached: rest on it
+                return self._rest_on(ref_m, height_m, relaxed)
         return d
 
     @staticmethod

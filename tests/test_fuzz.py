@@ -122,7 +122,7 @@ def test_faults_are_injected_and_counted() -> None:
 
 
 @pytest.mark.parametrize(("seed", "index"), [(7, 61), (7, 152), (7, 253), (7, 281), (7, 630),
-                                           (8, 289)])
+                                           (8, 289), (8, 904)])
 def test_cases_once_over_the_limit_now_hold(seed: int, index: int) -> None:
     """Cases of `rakectl fuzz` that went over 90 N, each time because the emulator's tine
     mount disagreed with the ground it met. Before the fix (up to 357 N): 7/61, a 0.1 m/s
@@ -132,7 +132,9 @@ def test_cases_once_over_the_limit_now_hold(seed: int, index: int) -> None:
     then let it go into the ground. 7/630 (274 N for one tick): tines falling onto a lower
     cell's floor were put on it by a rounding below it, where the soil read its damping at
     the speed of the fall. 8/289 (642 N for one tick): tines resting on a stone's top were
-    inside a film of soil over it, whose damping at the fall's speed the rest ignored."""
+    inside a film of soil over it, whose damping at the fall's speed the rest ignored.
+    8/904 (700 N, a mine fired), from the first fix of 8/289: the solve left the mine's
+    top out of contact, yet its solution ended below it."""
     result = fuzz.run_case(fuzz.generate(seed, index))
     assert result.ticks_over_limit == 0 and not result.mine_activated
     assert result.f_true_z_max_n < fuzz.FORCE_LIMIT_N
