@@ -27,18 +27,22 @@ BUS_BITS_PER_CYCLE = 55 + 2 * 111 + 2 * 79  # SYNC + 2 TPDO1 + 2 RPDO1, with fra
 
 
 def _phase(bench_socket: Path, seconds: float, status_hz: float) -> dict[str, Any]:
+    # one connection per part: a client silent for api.IDLE_TIMEOUT_S (60 s, a phase's
+    # default length) is closed by the daemon, so the idle phase keeps none open
     with Client(bench_socket) as client:
         client.request({"cmd": "timing_reset"})
         start = client.request({"cmd": "status"})
-        end_at = time.monotonic() + seconds
-        calls = 0
-        while time.monotonic() < end_at:
-            if status_hz > 0:
+    end_at = time.monotonic() + seconds
+    calls = 0
+    if status_hz > 0:
+        with Client(bench_socket) as client:
+            while time.monotonic() < end_at:
                 client.request({"cmd": "status"})
                 calls += 1
                 time.sleep(1.0 / status_hz)
-            else:
-                time.sleep(0.1)
+    else:
+        time.sleep(max(0.0, end_at - time.monotonic()))
+    with Client(bench_socket) as client:
         final = client.request({"cmd": "status"})
     gen2 = final["timing"]["gc_collections"][2] - start["timing"]["gc_collections"][2]
     return {"status": final, "status_calls": calls, "gc_gen2": gen2}

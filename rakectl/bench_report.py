@@ -309,7 +309,10 @@ def _excavation_section(report: ExcavationReport, quick: bool) -> list[str]:
               f"the larger force estimate toward {lane.force_target_share:g} × the "
               f"{supervision.caution_force_n:g} N caution level, and the tip's lag under half "
               f"the stall error, within {lane.min_stroke_speed_m_per_s:g}–"
-              f"{report.top_speed_m_per_s:g} m/s.",
+              f"{report.top_speed_m_per_s:g} m/s; each cut's depth step is the last one's "
+              "times the stroke's margin under those set points (at most doubled), from "
+              f"{lane.depth_step_m * 1e3:g} to {lane.max_depth_step_m * 1e3:g} mm "
+              "(`rakectl.governor.next_depth_step_m`).",
               "- **position**: pure position control, α = 0 everywhere (F̂ ≡ 0: the impedance "
               f"does nothing), strokes at the adaptive top speed ({report.top_speed_m_per_s:g} "
               "m/s). The clamp and the current-based supervision stay on: they are not the "
@@ -317,10 +320,10 @@ def _excavation_section(report: ExcavationReport, quick: bool) -> list[str]:
               f"- **fixed-safe**: one stroke speed for every soil, {chosen}",
               *(f"  - {line.strip()}" for line in tried), "",
               *_table(HEADER, table_rows(report)), "", f"**{goal_line(report)}**", "",
-              time_budget_line(report) + ". The free-space return and the plunges are the "
-              "same for every controller (`lane.travel_speed_m_per_s`, "
+              time_budget_line(report) + ". The free-space return and the plunges run at the "
+              "same speeds for every controller (`lane.travel_speed_m_per_s`, "
               "`lane.plunge_speed_m_per_s`): the stroke's speed can only win back the strokes' "
-              "share.", ""]
+              "share, and fewer, deeper cuts (adaptive) the per-cycle rest.", ""]
     if over:
         lines += [f"Pure position control exceeded the bound in "
                   f"{', '.join(r.job.soil for r in over)}: largest true force {worst:.0f} N.",
