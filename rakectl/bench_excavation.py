@@ -26,9 +26,8 @@ from __future__ import annotations
 
 import enum
 import math
-import multiprocessing
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -38,6 +37,7 @@ from numpy.typing import NDArray
 from drivers.objects import Contact
 from rakectl.config import load_settings
 from rakectl.excavation import LanePhase, LanePlanner
+from rakectl.parallel import fork_map
 from rakectl.rake_plant import RakeLoop
 from rakectl.scenario import Scenario
 from rakectl.simulate import advance_reference, build_reference
@@ -260,20 +260,6 @@ class ExcavationReport:
 Echo = Callable[[str], None]  # one line of progress
 
 
-def _pool_map(jobs: Sequence[Job], workers: int) -> Iterator[RunResult]:
-    """Results in the order of ``jobs``."""
-    if workers <= 1 or len(jobs) <= 1:
-        yield from map(run_job, jobs)
-        return
-    pool = multiprocessing.get_context("fork").Pool(min(workers, len(jobs)))
-    try:
-        yield from pool.imap(run_job, jobs)
-        pool.close()
-    finally:
-        pool.terminate()
-        pool.join()
-
-
 def find_fixed_safe_speed(shape: LaneShape, speeds: Iterable[float], workers: int,
                           progress: Echo | None = None) -> Sweep:
     """Try ``speeds`` fastest first in clay, ``workers`` at a time; stop at the first safe."""
@@ -288,7 +274,7 @@ def find_fixed_safe_speed(shape: LaneShape, speeds: Iterable[float], workers: in
                      (*base, *controller_overrides(Controller.FIXED_SAFE, v, math.nan)),
                      keep_series=False)
                  for v in ordered[i:i + max(1, workers)]]
-        for job, result in zip(batch, _pool_map(batch, workers), strict=True):
+        for job, result in zip(batch, fork_map(run_job, batch, workers), strict=True):
             tried.append(result)
             if progress is not None:
                 progress(f"sweep in {HARDEST_SOIL}: {speed_of(job):g} m/s "
@@ -336,7 +322,7 @@ def run_excavation(shape: LaneShape = FULL, workers: int = 2,
                                    *controller_overrides(controller, fixed, top)))
             for soil in SOILS for controller in Controller]
     results: list[RunResult] = []
-    for job, result in zip(jobs, _pool_map(jobs, workers), strict=True):
+    for job, result in zip(jobs, fork_map(run_job, jobs, workers), strict=True):
         results.append(result)
         if progress is not None:
             progress(f"{job.soil}, {job.controller}: "

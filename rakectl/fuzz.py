@@ -32,11 +32,10 @@ import dataclasses
 import enum
 import json
 import math
-import multiprocessing
 import sys
 import time
 import typing
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -47,6 +46,7 @@ from drivers.objects import BuriedObjects, GroundParams, MineParams, RootParams,
 from drivers.soil import SoilLayer, SoilParams, SurfaceWave, original_surface_height_m
 from rakectl.clamp import VoltageClamp
 from rakectl.excavation import LanePlanner
+from rakectl.parallel import fork_map
 from rakectl.progress import Progress
 from rakectl.rake_plant import RakeLoop
 from rakectl.scenario import Scenario
@@ -439,19 +439,6 @@ def _run_index(job: tuple[int, int]) -> CaseResult:
     return run_case(generate(*job))
 
 
-def _results(jobs: list[tuple[int, int]], workers: int) -> Iterator[CaseResult]:
-    if workers <= 1:
-        yield from map(_run_index, jobs)
-        return
-    pool = multiprocessing.get_context("fork").Pool(workers)
-    try:
-        yield from pool.imap_unordered(_run_index, jobs)
-        pool.close()
-    finally:
-        pool.terminate()
-        pool.join()
-
-
 def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None = None,
              progress: Callable[[int, int], None] | None = None) -> Report:
     """Run cases 0 … scenarios−1 of ``seed``; write the worst one to ``out_dir``."""
@@ -459,7 +446,8 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
         raise ValueError("scenarios must be >= 1")
     started = time.perf_counter()
     results: list[CaseResult] = []
-    for result in _results([(seed, i) for i in range(scenarios)], workers):
+    jobs = [(seed, i) for i in range(scenarios)]
+    for result in fork_map(_run_index, jobs, workers, ordered=False):
         results.append(result)
         if progress is not None:
             progress(len(results), scenarios)
