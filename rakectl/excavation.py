@@ -10,8 +10,9 @@ and says whether the tip is meant to be in contact (impedance control with
 With ``lane.adaptive`` the stroke's speed is not fixed: :meth:`LanePlanner.govern`
 feeds the force estimate to a :class:`~rakectl.governor.StrokeGovernor` every
 tick, whose limit replaces ``stroke_speed_m_per_s`` (soft soil fast, hard soil
-slow, under the caution level). Nor is the depth of cut: each cycle's step is
-the last one's scaled by the last stroke's margin
+slow, under the caution level); the plunge's speed follows the same set point
+between ``plunge_speed_m_per_s`` and ``max_plunge_speed_m_per_s``. Nor is the
+depth of cut: each cycle's step is the last one's scaled by the last stroke's margin
 (:func:`~rakectl.governor.next_depth_step_m`), from ``depth_step_m`` up to
 ``max_depth_step_m``: soft soil in few deep cuts, hard soil in many shallow ones.
 
@@ -30,6 +31,11 @@ from rakectl.settings import LaneSettings
 # Free-space descent stops this far above the previous cycle's floor; the rest
 # of the way down is at plunge speed.
 PLUNGE_MARGIN_M = 0.005
+# The floor the next descent lands on is where the tip really was at the start of the
+# last stroke, within this reach of the lane's far end: a tip that rode up there (clay
+# drags it up as it starts) left soil above the stroke's depth, which a descent at travel
+# speed would hit in free space (33 N true at 0.1 m/s in clay).
+LANDING_BAND_M = 0.02
 # A plunge starts once the measured tip has arrived above the soil: the delayed-position
 # estimate is re-anchored where contact begins, so a tip still moving down there reads as
 # force (K_e·α = 2000 N per m/s with the paper's values). LOWER ends when the tip moved less
@@ -41,6 +47,10 @@ SETTLE_TIMEOUT_S = 1.0
 # An adaptive stroke also keeps the tip's lag under this share of the stall error, so that
 # raking fast through stiff soil is not taken for a rigid object.
 LAG_TARGET_SHARE = 0.5
+# The first ticks of a stroke still read the plunge: the tip settles onto the cut's depth
+# and F̂ reads its descent (K_e·α·v, 40 N after a 20 mm/s plunge, gone in about 60 ms).
+# The depth of the next cut is judged on the stroke's force after this.
+PLUNGE_TAIL_S = 0.1
 
 
 class LanePhase(enum.Enum):
@@ -66,6 +76,7 @@ class LanePlanner:
         self.phase = LanePhase.APPROACH
         self.cycle = 1
         self.floor_m = 0.0  # deepest completed stroke so far (ground level at first)
+        self.landing_m = math.inf  # shallowest measured tip at the last stroke's start
         self.found_at: tuple[float, float] | None = None  # (reach, depth) of a rigid object
         self.stopped_by_force = False
         self.speed_m_per_s = 0.0  # along the path; trapezoidal, zero at every corner
@@ -76,13 +87,19 @@ class LanePlanner:
         self.step_m = lane.depth_step_m  # this cycle's depth step (adaptive: it varies)
         self.cycle_depth_m = min(self.step_m, lane.target_depth_m)
         self._stroke_peak_n = self._stroke_peak_lag_m = 0.0
+        self._stroke_ticks = 0
         self._caution_n = math.inf  # supervision's caution level, from govern()
         self.governor: StrokeGovernor | None = None
+        self.plunge_governor: StrokeGovernor | None = None
         if lane.adaptive:
             self.governor = StrokeGovernor(lane.min_stroke_speed_m_per_s,
                                            lane.max_stroke_speed_m_per_s,
                                            lane.governor_gain_per_s, dt_s,
                                            lane.stroke_speed_m_per_s)
+            self.plunge_governor = StrokeGovernor(lane.plunge_speed_m_per_s,
+                                                  lane.max_plunge_speed_m_per_s,
+                                                  lane.governor_gain_per_s, dt_s,
+                                                  lane.plunge_speed_m_per_s)
 
     @property
     def contact(self) -> bool:
@@ -106,6 +123,8 @@ class LanePlanner:
         if self.phase is not LanePhase.STROKE or self.found_at is not None:
             self.lag_m = 0.0
             return False
+        if reach_m >= self.lane.reach_far_m - LANDING_BAND_M:
+            self.landing_m = min(self.landing_m, depth_m)
         self.lag_m = math.hypot(self.reach_m - reach_m, self.depth_m - depth_m)
         if self.lag_m <= self.lane.stall_error_m:
             return False
@@ -119,16 +138,31 @@ class LanePlanner:
         """The conservative force estimate of this tick (the larger of F̂ and the
         current-based one) and supervision's caution level: during a contact stroke of an
         adaptive lane, the stroke's speed limit follows it and the tip's lag (from the last
-        :meth:`check_stall`; rakectl.governor). The limit carries over from one stroke to
-        the next; outside a stroke, or on a fixed-speed lane, this does nothing."""
+        :meth:`check_stall`; rakectl.governor). During a plunge, the plunge's limit follows
+        the same force set point (no lag: the stall detector does not watch plunges). The
+        stroke's limit carries over from one stroke to the next; each plunge starts at
+        ``plunge_speed_m_per_s``. Outside them, or on a fixed-speed lane, this does nothing."""
+        if self.plunge_governor is not None and self.phase is LanePhase.PLUNGE:
+            self.plunge_governor.update(force_n, self.lane.force_target_share * caution_n,
+                                        0.0, self.lane.stall_error_m, self.speed_m_per_s)
         if self.governor is not None and self.phase is LanePhase.STROKE:
             lane = self.lane
             self.governor.update(force_n, lane.force_target_share * caution_n, self.lag_m,
                                  LAG_TARGET_SHARE * lane.stall_error_m, self.speed_m_per_s)
-            self._stroke_peak_n = max(self._stroke_peak_n, force_n) if math.isfinite(
-                force_n) else math.nan
+            self._stroke_ticks += 1
+            if not math.isfinite(force_n):
+                self._stroke_peak_n = math.nan
+            elif self._stroke_ticks * self.dt_s > PLUNGE_TAIL_S:
+                self._stroke_peak_n = max(self._stroke_peak_n, force_n)
             self._stroke_peak_lag_m = max(self._stroke_peak_lag_m, self.lag_m)
             self._caution_n = caution_n
+
+    @property
+    def plunge_speed_m_per_s(self) -> float:
+        """The plunge's speed limit now: the governor's, or the lane's fixed one."""
+        if self.plunge_governor is not None:
+            return self.plunge_governor.speed_m_per_s
+        return self.lane.plunge_speed_m_per_s
 
     @property
     def stroke_speed_m_per_s(self) -> float:
@@ -152,9 +186,10 @@ class LanePlanner:
         if self.phase is LanePhase.APPROACH:
             return lane.reach_far_m, above, lane.travel_speed_m_per_s
         if self.phase is LanePhase.LOWER:
-            return lane.reach_far_m, self.floor_m - PLUNGE_MARGIN_M, lane.travel_speed_m_per_s
+            landing_m = min(self.floor_m, self.landing_m)
+            return lane.reach_far_m, landing_m - PLUNGE_MARGIN_M, lane.travel_speed_m_per_s
         if self.phase is LanePhase.PLUNGE:
-            return lane.reach_far_m, self.cycle_depth_m, lane.plunge_speed_m_per_s
+            return lane.reach_far_m, self.cycle_depth_m, self.plunge_speed_m_per_s
         if self.phase is LanePhase.STROKE:
             return lane.reach_near_m, self.cycle_depth_m, self.stroke_speed_m_per_s
         return self.reach_m, above, lane.travel_speed_m_per_s  # LIFT, DONE
@@ -178,6 +213,11 @@ class LanePlanner:
         if self.phase is LanePhase.STROKE:
             self.floor_m = self.cycle_depth_m
             self._next_step()
+        if self.phase is LanePhase.PLUNGE:
+            self.landing_m = math.inf  # measured afresh at this stroke's start
+        if self.phase is LanePhase.LOWER and self.plunge_governor is not None:
+            # each plunge starts at the lane's own speed: the tip meets the soil there
+            self.plunge_governor.speed_m_per_s = self.lane.plunge_speed_m_per_s
         order = (LanePhase.APPROACH, LanePhase.LOWER, LanePhase.PLUNGE, LanePhase.STROKE,
                  LanePhase.LIFT)
         return order[order.index(self.phase) + 1]
@@ -191,6 +231,7 @@ class LanePlanner:
                 self._stroke_peak_lag_m, LAG_TARGET_SHARE * lane.stall_error_m,
                 lane.depth_step_m, lane.max_depth_step_m)
         self._stroke_peak_n = self._stroke_peak_lag_m = 0.0
+        self._stroke_ticks = 0
         self._caution_n = math.inf
 
     def step(self) -> None:

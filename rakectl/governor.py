@@ -37,6 +37,12 @@ the force does not fall with speed (a drag that does not depend on it), the
 governor settles at v_min and supervision's caution level still holds the
 motion if the force keeps rising: it errs toward slow.
 
+The plunge is governed the same way (the same force set point, no lag term),
+from the lane's ``plunge_speed_m_per_s`` up to ``max_plunge_speed_m_per_s``:
+F̂ = K_e · v · α is the plunge's own estimate, so the plunge runs as fast as
+that leaves the force under its set point, and never slower than the lane's
+fixed plunge.
+
 The depth of cut adapts too, once per cycle (:func:`next_depth_step_m`): a
 stroke that stayed well under its set points is followed by a deeper cut. On
 the benchmark's lane the strokes are a third of the time and the free-space

@@ -140,6 +140,11 @@ class LaneSettings:
         "drag has lifted is let go and drops.", unit="m/s", gt=0, le=1)
     max_stroke_speed_m_per_s: float = setting(0.25, "Adaptive: fastest stroke.", unit="m/s",
                                               gt=0, le=1)
+    max_plunge_speed_m_per_s: float = setting(
+        0.02, "Adaptive: fastest plunge. Each plunge starts at plunge_speed_m_per_s and "
+        "follows the stroke's force set point up to this, never slower than "
+        "plunge_speed_m_per_s (in steady state F̂ = K_e·v·α: 2000 N per m/s with the "
+        "paper's values).", unit="m/s", gt=0, le=1)
     force_target_share: float = setting(
         0.8, "Adaptive: the stroke's force set point as a share of "
         "supervision.caution_force_n.", gt=0, lt=1)
@@ -158,6 +163,10 @@ class LaneSettings:
         if self.min_stroke_speed_m_per_s > self.max_stroke_speed_m_per_s:
             raise ConfigError("min_stroke_speed_m_per_s must be <= max_stroke_speed_m_per_s "
                               f"({self.max_stroke_speed_m_per_s:g})")
+        if self.adaptive and self.max_plunge_speed_m_per_s < self.plunge_speed_m_per_s:
+            raise ConfigError(f"max_plunge_speed_m_per_s ({self.max_plunge_speed_m_per_s:g}) "
+                              f"must be >= plunge_speed_m_per_s ({self.plunge_speed_m_per_s:g}) "
+                              "on an adaptive lane")
         if self.adaptive and self.max_depth_step_m < self.depth_step_m:
             raise ConfigError(f"max_depth_step_m ({self.max_depth_step_m:g}) must be >= "
                               f"depth_step_m ({self.depth_step_m:g}) on an adaptive lane")

@@ -10,7 +10,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rakectl.excavation import SETTLE_TIMEOUT_S, LanePhase, LanePlanner
+from rakectl.excavation import (
+    LANDING_BAND_M,
+    PLUNGE_MARGIN_M,
+    SETTLE_TIMEOUT_S,
+    LanePhase,
+    LanePlanner,
+)
 from rakectl.settings import LaneSettings
 
 LANE = LaneSettings(reach_far_m=1.2, reach_near_m=0.9, depth_step_m=0.02, target_depth_m=0.05,
@@ -111,3 +117,28 @@ def test_a_tip_that_never_settles_delays_the_plunge_by_the_timeout_only() -> Non
 
     waited = _ticks_to_plunge(LanePlanner(LANE, 1e-3, 1.2, -0.03), trembling)
     assert waited == pytest.approx(blind + SETTLE_TIMEOUT_S * 1e3, abs=2)
+
+
+def _second_descent_end(ride_up_m: float, riding: Callable[[float], bool]) -> float:
+    """Where the second cycle's free-space descent ends, after a first stroke whose tip rode
+    ``ride_up_m`` above its reference wherever ``riding(reference reach)``."""
+    planner = LanePlanner(LANE, 1e-3, LANE.reach_far_m, -LANE.clearance_m)
+    depth_before = planner.depth_m
+    while not (planner.cycle == 2 and planner.phase is LanePhase.PLUNGE):
+        lift = ride_up_m if planner.phase is LanePhase.STROKE and riding(planner.reach_m) else 0
+        planner.observe(planner.reach_m, planner.depth_m - lift)
+        depth_before = planner.depth_m
+        planner.step()
+    return depth_before
+
+
+def test_the_next_descent_stops_above_the_soil_the_last_stroke_left_at_its_start() -> None:
+    floor, far = LANE.depth_step_m, LANE.reach_far_m
+    # a tip on its reference: the descent ends just above the last stroke's depth
+    assert _second_descent_end(0.0, lambda _: False) == pytest.approx(floor - PLUNGE_MARGIN_M)
+    # a tip dragged up 8 mm as the stroke began left soil there: stop above that
+    assert _second_descent_end(0.008, lambda reach: reach > far - 0.01) == pytest.approx(
+        floor - 0.008 - PLUNGE_MARGIN_M)
+    # a tip that rode up only further along is not where the next descent lands
+    assert _second_descent_end(0.008, lambda reach: reach < far - 2 * LANDING_BAND_M) == (
+        pytest.approx(floor - PLUNGE_MARGIN_M))

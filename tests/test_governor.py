@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rakectl.errors import ConfigError
-from rakectl.excavation import LanePhase, LanePlanner
+from rakectl.excavation import PLUNGE_TAIL_S, LanePhase, LanePlanner
 from rakectl.governor import DEPTH_GROWTH_MAX, SLOWDOWN_RATIO, StrokeGovernor, next_depth_step_m
 from rakectl.settings import LaneSettings
 
@@ -248,7 +248,8 @@ def _cycle_depths(lane: LaneSettings, force_n: float) -> list[float]:
 def test_an_adaptive_lane_cuts_deep_in_soft_soil_and_shallow_in_hard() -> None:
     lane = LaneSettings(reach_far_m=1.1, reach_near_m=1.0, depth_step_m=0.01,
                         target_depth_m=0.1, max_depth_step_m=0.04, stroke_speed_m_per_s=0.2,
-                        plunge_speed_m_per_s=0.05, travel_speed_m_per_s=0.5, accel_m_per_s2=5.0)
+                        plunge_speed_m_per_s=0.05, max_plunge_speed_m_per_s=0.1,
+                        travel_speed_m_per_s=0.5, accel_m_per_s2=5.0)
     fixed = _cycle_depths(lane, 0.0)
     soft = _cycle_depths(dataclasses.replace(lane, adaptive=True), 0.0)
     hard = _cycle_depths(dataclasses.replace(lane, adaptive=True), 50.0)  # over 0.8 × 55 N
@@ -262,3 +263,59 @@ def test_a_max_depth_step_below_the_depth_step_is_refused_on_an_adaptive_lane() 
     with pytest.raises(ConfigError, match="max_depth_step_m"):
         LaneSettings(adaptive=True, depth_step_m=0.02, max_depth_step_m=0.01)
 
+
+
+def test_a_max_plunge_speed_below_the_plunge_speed_is_refused_on_an_adaptive_lane() -> None:
+    LaneSettings(plunge_speed_m_per_s=0.05, max_plunge_speed_m_per_s=0.02)  # not adaptive
+    with pytest.raises(ConfigError, match="max_plunge_speed_m_per_s"):
+        LaneSettings(adaptive=True, plunge_speed_m_per_s=0.05, max_plunge_speed_m_per_s=0.02)
+
+
+def _plunge_speeds(lane: LaneSettings, force_n: float) -> list[float]:
+    """Reference speeds along the lane's plunges, with a constant force estimate."""
+    planner = LanePlanner(lane, DT_S, lane.reach_far_m, -lane.clearance_m)
+    speeds = []
+    while not planner.done:
+        planner.observe(planner.reach_m, planner.depth_m)
+        planner.govern(force_n, caution_n=55.0)
+        if planner.phase is LanePhase.PLUNGE:
+            speeds.append(planner.speed_m_per_s)
+        planner.step()
+    return speeds
+
+
+def test_an_adaptive_plunge_speeds_up_without_force_and_keeps_its_floor_with_it() -> None:
+    lane = dataclasses.replace(LANE, plunge_speed_m_per_s=0.007, max_plunge_speed_m_per_s=0.02,
+                               depth_step_m=0.04, target_depth_m=0.04, max_depth_step_m=0.04)
+    free = _plunge_speeds(lane, 0.0)
+    loaded = _plunge_speeds(lane, 60.0)  # over the set point 0.8 × 55 N from the start
+    fixed = _plunge_speeds(dataclasses.replace(lane, adaptive=False), 0.0)
+    assert max(free) == pytest.approx(0.02)
+    assert max(loaded) == pytest.approx(0.007)  # never slower than the lane's plunge speed,
+    assert max(fixed) == pytest.approx(0.007)  # nor faster when loaded or not adaptive
+    assert len(free) < 0.5 * len(loaded)
+    rises = [b - a for a, b in itertools.pairwise(free)]
+    assert max(rises) <= lane.accel_m_per_s2 * DT_S + 1e-12
+
+
+def _next_cut_after_a_spike(spike_at_s: float) -> float:
+    """The second cycle's depth after a first stroke whose force estimate is 80 N (far over
+    the 44 N set point) for 10 ms starting ``spike_at_s`` into the stroke, 0 otherwise."""
+    lane = dataclasses.replace(LANE, target_depth_m=0.1, depth_step_m=0.01,
+                               max_depth_step_m=0.04, max_plunge_speed_m_per_s=0.05)
+    planner = LanePlanner(lane, DT_S, lane.reach_far_m, -lane.clearance_m)
+    stroke_ticks = 0
+    while planner.cycle == 1:
+        planner.observe(planner.reach_m, planner.depth_m)
+        in_spike = 0.0 <= stroke_ticks * DT_S - spike_at_s < 0.01
+        planner.govern(80.0 if planner.phase is LanePhase.STROKE and in_spike else 0.0, 55.0)
+        stroke_ticks += planner.phase is LanePhase.STROKE
+        planner.step()
+    return planner.cycle_depth_m
+
+
+def test_the_next_cut_is_judged_after_the_plunges_tail() -> None:
+    # At a stroke's start F̂ still reads the plunge's descent: that does not make the next
+    # cut shallower; the same spike later in the stroke does.
+    assert _next_cut_after_a_spike(0.0) == pytest.approx(0.01 + 0.02)
+    assert _next_cut_after_a_spike(PLUNGE_TAIL_S + 0.05) == pytest.approx(0.01 + 0.01)
