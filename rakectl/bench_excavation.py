@@ -122,6 +122,7 @@ class RunResult:
     phase_s: dict[str, float]  # time spent in each lane phase
     fault: str = ""
     series: Series | None = field(default=None, repr=False)
+    cycles: int = 0  # lane cycles begun
 
     @property
     def safe(self) -> bool:
@@ -200,7 +201,7 @@ def run_job(job: Job) -> RunResult:
         record.stroke_speed_sum / record.stroke_ticks if record.stroke_ticks else math.nan,
         ticks * dt_s, time.perf_counter() - started,
         {name: n * dt_s for name, n in record.phase_ticks.items()}, loop.fault,
-        record.series(ticks))
+        record.series(ticks), planner.cycle)
 
 
 # --------------------------------------------------------------------------- the campaign

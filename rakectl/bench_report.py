@@ -180,6 +180,17 @@ def time_budget_line(report: ExcavationReport) -> str:
     return "fixed-safe time by phase: " + " | ".join(parts)
 
 
+def adaptive_phases_line(report: ExcavationReport) -> str:
+    """Where the adaptive runs spent their time, in seconds, and in how many cycles."""
+    parts = []
+    for soil in SOILS:
+        r = report.result(soil, Controller.ADAPTIVE)
+        seconds = ", ".join(f"{name} {t:.1f} s" for name, t in r.phase_s.items()
+                            if name != "done" and t > 0)
+        parts.append(f"{soil} ({r.cycles} cycle{'' if r.cycles == 1 else 's'}): {seconds}")
+    return "adaptive time by phase: " + " | ".join(parts)
+
+
 def goal_line(report: ExcavationReport) -> str:
     speedups = ", ".join(f"{soil} {report.speedup(soil):.2f}×" for soil in SOILS)
     over = sum(report.result(soil, Controller.ADAPTIVE).ticks_over_limit for soil in SOILS)
@@ -196,7 +207,7 @@ def format_excavation(report: ExcavationReport) -> str:
              "  ".join(h.ljust(w) for h, w in zip(HEADER, widths, strict=True))]
     lines += ["  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True))
               for row in table_rows(report)]
-    lines += [time_budget_line(report), goal_line(report)]
+    lines += [time_budget_line(report), adaptive_phases_line(report), goal_line(report)]
     return "\n".join(lines)
 
 
@@ -312,7 +323,9 @@ def _excavation_section(report: ExcavationReport, quick: bool) -> list[str]:
               f"{report.top_speed_m_per_s:g} m/s; each cut's depth step is the last one's "
               "times the stroke's margin under those set points (at most doubled), from "
               f"{lane.depth_step_m * 1e3:g} to {lane.max_depth_step_m * 1e3:g} mm "
-              "(`rakectl.governor.next_depth_step_m`).",
+              "(`rakectl.governor.next_depth_step_m`); the plunge's speed follows the same "
+              f"force set point from {lane.plunge_speed_m_per_s * 1e3:g} up to "
+              f"{lane.max_plunge_speed_m_per_s * 1e3:g} mm/s.",
               "- **position**: pure position control, α = 0 everywhere (F̂ ≡ 0: the impedance "
               f"does nothing), strokes at the adaptive top speed ({report.top_speed_m_per_s:g} "
               "m/s). The clamp and the current-based supervision stay on: they are not the "
@@ -320,10 +333,11 @@ def _excavation_section(report: ExcavationReport, quick: bool) -> list[str]:
               f"- **fixed-safe**: one stroke speed for every soil, {chosen}",
               *(f"  - {line.strip()}" for line in tried), "",
               *_table(HEADER, table_rows(report)), "", f"**{goal_line(report)}**", "",
-              time_budget_line(report) + ". The free-space return and the plunges run at the "
-              "same speeds for every controller (`lane.travel_speed_m_per_s`, "
-              "`lane.plunge_speed_m_per_s`): the stroke's speed can only win back the strokes' "
-              "share, and fewer, deeper cuts (adaptive) the per-cycle rest.", ""]
+              time_budget_line(report) + ". The free-space return runs at the same speed "
+              "for every controller (`lane.travel_speed_m_per_s`), and so do the baselines' "
+              "plunges (`lane.plunge_speed_m_per_s`): the stroke's and the plunge's speeds can "
+              "only win back their shares, and fewer, deeper cuts (adaptive) the per-cycle "
+              "rest.", "", adaptive_phases_line(report) + ".", ""]
     if over:
         lines += [f"Pure position control exceeded the bound in "
                   f"{', '.join(r.job.soil for r in over)}: largest true force {worst:.0f} N.",

@@ -69,10 +69,12 @@ def test_excavation_report_has_every_soil_and_controller_with_finite_figures(
                       r.stroke_speed_mean_m_per_s, *r.phase_s.values()):
             assert math.isfinite(value) and value >= 0.0
         assert r.series is not None and len(r.series.t_s) == len(r.series.f_true_z_n) > 10
+        assert r.cycles == 1  # the tiny lane is one 10 mm cut
     for soil in SOILS:
         assert math.isfinite(excavation.speedup(soil)) and excavation.stroke_bound(soil) >= 1.0
     text = format_excavation(excavation)
     assert "fixed-safe stroke speed" in text and "Goal" in text
+    assert "adaptive time by phase: sand (1 cycle): approach" in text
     assert len(text.splitlines()) >= 9 + 4
 
 
