@@ -12,6 +12,11 @@ Command kinds:
 * ``lane``: rake a lane with the :class:`~rakectl.excavation.LanePlanner`
   (random reach range, depth step, target depth, stroke speed from 1 cm/s up
   to the configuration's 1 m/s bound, plunge speed), stall detection included.
+  Half of them are force-adaptive (``lane.adaptive``: the governed stroke and
+  plunge and the adaptive depth of cut, with the case's speeds as the top
+  ones where they are above the defaults), fed the same conservative estimate
+  the daemon gives them; supervision's holds and stops stay off, as for every
+  case.
 * ``plunge`` (hostile): a straight reference down from above the ground to
   0.15 m deep at up to 0.25 m/s, half the time right above a mine, with the
   contact flag (impedance) on or off.
@@ -79,6 +84,7 @@ class Command:
     plunge_speed_m_per_s: float
     start_height_m: float
     contact: bool  # plunge only: impedance on (α > 0) or pure position control
+    adaptive: bool = False  # lane only: force-adaptive (rakectl.governor), top speed speed_m_per_s
 
 
 @dataclass(frozen=True)
@@ -118,7 +124,8 @@ class FuzzCase:
                  else f"reach {c.reach_far_m:.3f}→{c.reach_near_m:.3f} m")
         layers = ", ".join(f"K_e {la.stiffness_n_per_m:.3g} N/m F_c {la.collapse_force_n:.3g} N"
                            for la in self.ground.soil.layers)
-        return (f"case {self.seed}/{self.index}: {c.kind} at {speed}, {where}, depth "
+        kind = f"{c.kind} (adaptive)" if c.adaptive else str(c.kind)
+        return (f"case {self.seed}/{self.index}: {kind} at {speed}, {where}, depth "
                 f"{c.target_depth_m:.3f} m, contact={c.contact}; soil [{layers}]; "
                 f"{len(o.stones)} stones, {len(o.roots)} roots, {len(o.mines)} mines; "
                 f"faults {list(self.faults.kinds()) or 'none'}")
@@ -230,8 +237,11 @@ def generate(seed: int, index: int) -> FuzzCase:
     duration_s = (travel_m / command.speed_m_per_s + 1.0 if kind is CommandKind.PLUNGE
                   else LANE_DURATION_S)
     faults = _faults(rng, (index // 3) % 4, duration_s)
-    return FuzzCase(seed, index, ground, int(rng.integers(0, 2**32)), command, faults,
-                    duration_s)
+    ground_seed = int(rng.integers(0, 2**32))
+    if kind is CommandKind.LANE:  # half the lanes adaptive, drawn apart: the rest unchanged
+        adaptive = bool(np.random.default_rng([seed, index, 1]).integers(0, 2))
+        command = dataclasses.replace(command, adaptive=adaptive)
+    return FuzzCase(seed, index, ground, ground_seed, command, faults, duration_s)
 
 
 # --------------------------------------------------------------------------- serialization
@@ -240,9 +250,9 @@ def generate(seed: int, index: int) -> FuzzCase:
 def _from_plain(tp: Any, value: Any) -> Any:
     """Rebuild a value of type ``tp`` from its ``dataclasses.asdict`` / JSON form."""
     if dataclasses.is_dataclass(tp) and isinstance(tp, type):
-        hints = typing.get_type_hints(tp)
+        hints = typing.get_type_hints(tp)  # a field missing (older JSON) takes its default
         return tp(**{f.name: _from_plain(hints[f.name], value[f.name])
-                     for f in dataclasses.fields(tp) if f.init})
+                     for f in dataclasses.fields(tp) if f.init and f.name in value})
     if typing.get_origin(tp) is tuple:
         item = typing.get_args(tp)[0]
         return tuple(_from_plain(item, v) for v in value)
@@ -273,6 +283,15 @@ def scenario_of(case: FuzzCase) -> Scenario:
                         clearance_m=c.start_height_m,
                         stroke_speed_m_per_s=min(c.speed_m_per_s, 1.0),
                         plunge_speed_m_per_s=max(c.plunge_speed_m_per_s, 1e-3))
+    if c.adaptive:  # the case's speed is the top one, if above the default's
+        defaults = LaneSettings()
+        lane = dataclasses.replace(
+            lane, adaptive=True,
+            max_stroke_speed_m_per_s=max(defaults.max_stroke_speed_m_per_s,
+                                         lane.stroke_speed_m_per_s),
+            max_plunge_speed_m_per_s=max(defaults.max_plunge_speed_m_per_s,
+                                         lane.plunge_speed_m_per_s),
+            max_depth_step_m=max(defaults.max_depth_step_m, lane.depth_step_m))
     emulator = dataclasses.replace(base.emulator, ground=case.ground, seed=case.ground_seed)
     return dataclasses.replace(base, plant=PlantSettings(kind=PlantKind.RAKE), lane=lane,
                                trajectory=dataclasses.replace(base.trajectory,
@@ -375,6 +394,8 @@ def run_case(case: FuzzCase, clamp: VoltageClamp | None = None) -> CaseResult:
             ticks = k + 1
             break
         reference.observe(*loop.measured_tip())
+        if isinstance(reference, LanePlanner):  # an adaptive lane's governor (else: nothing)
+            reference.govern(loop.force_estimate_n, loop.caution_n)
         reference.step()
         hold -= reference.done
         if hold < 0:
@@ -386,7 +407,8 @@ def run_case(case: FuzzCase, clamp: VoltageClamp | None = None) -> CaseResult:
 def _result(case: FuzzCase, loop: FaultyRakeLoop, reference: Reference,
             figures: tuple[float, float, int, float]) -> CaseResult:
     found = isinstance(reference, LanePlanner) and reference.found_at is not None
-    return CaseResult(case.seed, case.index, str(case.command.kind), figures[0], figures[1],
+    kind = str(case.command.kind) + (" (adaptive)" if case.command.adaptive else "")
+    return CaseResult(case.seed, case.index, kind, figures[0], figures[1],
                       figures[2], loop.ground.truth.mine_activated, found, figures[3],
                       case.faults.kinds(), loop.feedback_lost, loop.commands_lost,
                       loop.drive_fault_ticks, loop.controller.clamp.clamped, loop.fault)

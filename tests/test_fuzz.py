@@ -59,6 +59,9 @@ def test_generation_spans_soils_commands_and_faults() -> None:
     stiffness = [la.stiffness_n_per_m for c in cases for la in c.ground.soil.layers]
     assert max(stiffness) / min(stiffness) > 20.0
     assert {c.command.kind for c in cases} == set(CommandKind)
+    assert {c.command.adaptive for c in cases if c.command.kind is CommandKind.LANE} == {
+        False, True}
+    assert not any(c.command.adaptive for c in cases if c.command.kind is not CommandKind.LANE)
     assert {k for c in cases for k in c.faults.kinds()} == {"feedback", "command", "drive"}
     mines = [m for c in cases for m in c.ground.objects.mines]
     assert mines and all(80.0 <= m.activation_force_n <= 100.0 for m in mines)
@@ -66,11 +69,12 @@ def test_generation_spans_soils_commands_and_faults() -> None:
 
 def test_small_campaign_is_safe_and_the_worst_case_replays(tmp_path: Path) -> None:
     """The campaign's CI sample: 24 cases, each command kind (the hostile ones included)
-    twice with no fault and with each fault kind. None may press harder than 90 N on any
-    tick or fire a mine (`rakectl fuzz --scenarios 1000` is the full campaign)."""
+    twice with no fault and with each fault kind, lanes fixed and adaptive. None may press
+    harder than 90 N on any tick or fire a mine (`rakectl fuzz --scenarios 1000` is the full
+    campaign)."""
     report = fuzz.campaign(24, seed=1, workers=2, out_dir=tmp_path)
     assert report.scenarios == len(report.results) == 24
-    assert {r.kind for r in report.results} == {str(k) for k in CommandKind}
+    assert {r.kind for r in report.results} == {*map(str, CommandKind), "lane (adaptive)"}
     assert {k for r in report.results for k in r.faults} == {"feedback", "command", "drive"}
     assert any(r.drive_fault_ticks > 0 for r in report.results)  # a lane may end first
     assert report.safe, report.summary()["by_kind"]
@@ -135,6 +139,29 @@ def test_cases_once_over_the_limit_now_hold(seed: int, index: int) -> None:
     inside a film of soil over it, whose damping at the fall's speed the rest ignored.
     8/904 (700 N, a mine fired), from the first fix of 8/289: the solve left the mine's
     top out of contact, yet its solution ended below it."""
-    result = fuzz.run_case(fuzz.generate(seed, index))
+    case = fuzz.generate(seed, index)  # as found, before a lane could be adaptive
+    case = dataclasses.replace(case, command=dataclasses.replace(case.command, adaptive=False))
+    result = fuzz.run_case(case)
     assert result.ticks_over_limit == 0 and not result.mine_activated
     assert result.f_true_z_max_n < fuzz.FORCE_LIMIT_N
+
+
+def test_an_adaptive_lane_is_governed_and_older_case_files_still_load() -> None:
+    """Case 7/0 is an adaptive lane: it runs with the governor (not as the same lane at its
+    fixed speed would) and safely. A case written before lanes could be adaptive (no
+    ``adaptive`` key) loads as a fixed-speed lane."""
+    case = fuzz.generate(7, 0)
+    assert case.command.kind is CommandKind.LANE and case.command.adaptive
+    lane = fuzz.scenario_of(case).lane
+    assert lane.adaptive and lane.max_stroke_speed_m_per_s >= lane.stroke_speed_m_per_s
+    assert lane.max_plunge_speed_m_per_s >= lane.plunge_speed_m_per_s
+    fixed = dataclasses.replace(case, command=dataclasses.replace(case.command, adaptive=False))
+    assert not fuzz.scenario_of(fixed).lane.adaptive
+    old = case.to_dict()
+    del old["command"]["adaptive"]
+    assert fuzz.case_from_dict(old) == fixed
+    result, as_fixed = fuzz.run_case(case), fuzz.run_case(fixed)
+    assert (result.kind, as_fixed.kind) == ("lane (adaptive)", "lane")
+    assert (result.clamped_ticks, result.f_true_z_max_n) != (as_fixed.clamped_ticks,
+                                                              as_fixed.f_true_z_max_n)
+    assert result.ticks_over_limit == 0 and not result.mine_activated
