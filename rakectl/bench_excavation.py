@@ -35,11 +35,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivers.objects import Contact
+from drivers.soil import Soil
 from rakectl.config import load_settings
 from rakectl.excavation import LanePhase, LanePlanner
 from rakectl.parallel import fork_map
 from rakectl.rake_plant import RakeLoop
 from rakectl.scenario import Scenario
+from rakectl.settings import LaneSettings
 from rakectl.simulate import advance_reference, build_reference
 from rakectl.supervision import ForceLevel
 
@@ -123,6 +125,7 @@ class RunResult:
     fault: str = ""
     series: Series | None = field(default=None, repr=False)
     cycles: int = 0  # lane cycles begun
+    floor_true_m: float = math.nan  # the emulated soil's shallowest floor along the lane
 
     @property
     def safe(self) -> bool:
@@ -201,7 +204,16 @@ def run_job(job: Job) -> RunResult:
         record.stroke_speed_sum / record.stroke_ticks if record.stroke_ticks else math.nan,
         ticks * dt_s, time.perf_counter() - started,
         {name: n * dt_s for name, n in record.phase_ticks.items()}, loop.fault,
-        record.series(ticks), planner.cycle)
+        record.series(ticks), planner.cycle, true_floor_m(loop.ground.soil, settings.lane))
+
+
+def true_floor_m(soil: Soil, lane: LaneSettings) -> float:
+    """The shallowest depth of the soil's surface over the lane's cells, after the run: how
+    deep the lane really is where it is least deep (the reference's depth is what it asked)."""
+    heights = soil.surface_heights_m()
+    inside = [h for j, h in enumerate(heights)
+              if lane.reach_near_m <= soil.cell_centre_m(j) <= lane.reach_far_m]
+    return -max(inside) if inside else math.nan
 
 
 # --------------------------------------------------------------------------- the campaign

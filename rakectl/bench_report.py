@@ -134,7 +134,8 @@ def _time(r: RunResult) -> str:
 
 
 def table_rows(report: ExcavationReport) -> list[tuple[str, ...]]:
-    """One row per run: soil, controller, time, mean stroke speed, max true F_z, ticks over
+    """One row per run: soil, controller, time, the soil's shallowest floor along the lane
+    afterwards, mean stroke speed, max true F_z, ticks over
     90 N, mines fired, max supervised estimate, ticks at caution, speedup vs fixed-safe."""
     rows: list[tuple[str, ...]] = []
     for r in report.results:
@@ -143,13 +144,15 @@ def table_rows(report: ExcavationReport) -> list[tuple[str, ...]]:
             fixed = report.result(r.job.soil, Controller.FIXED_SAFE)
             speedup = f"{fixed.time_s / r.time_s:.2f}×" if fixed.reached else ""
         rows.append((r.job.soil, str(r.job.controller), _time(r),
+                     f"{r.floor_true_m * 1e3:.1f}",
                      f"{r.stroke_speed_mean_m_per_s:.3f}", f"{r.f_true_z_max_n:.1f}",
                      str(r.ticks_over_limit), str(r.mines_activated),
                      f"{r.f_estimate_max_n:.1f}", str(r.caution_ticks), speedup))
     return rows
 
 
-HEADER = ("soil", "controller", "time to depth", "stroke m/s (mean)", "max true F_z N",
+HEADER = ("soil", "controller", "time to depth", "true floor mm (shallowest)",
+          "stroke m/s (mean)", "max true F_z N",
           "ticks > 90 N", "mines fired", "max estimate N", "ticks ≥ caution",
           "speedup vs fixed-safe")
 

@@ -70,6 +70,7 @@ def test_excavation_report_has_every_soil_and_controller_with_finite_figures(
             assert math.isfinite(value) and value >= 0.0
         assert r.series is not None and len(r.series.t_s) == len(r.series.f_true_z_n) > 10
         assert r.cycles == 1  # the tiny lane is one 10 mm cut
+        assert 0.0 < r.floor_true_m <= 0.0105  # the soil's own floor, at most about that deep
     for soil in SOILS:
         assert math.isfinite(excavation.speedup(soil)) and excavation.stroke_bound(soil) >= 1.0
     text = format_excavation(excavation)
