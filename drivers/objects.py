@@ -10,7 +10,17 @@ Above its bottom and within its extent an object shields the soil below its
 top: the soil model never sees the tip lower than the object's top.
 
 * STONE: rigid (K = 1e7 N/m), never yields or collapses.
-* ROOT: elastic–perfectly plastic: K from a 2 cm wooden root bent over
+* ROOT: round, not a rectangle: an ellipse (``width_m`` × ``thickness_m``)
+  inscribed in it. On its upper half the tip meets a curved surface: the
+  penetration is taken vertically below it, the force acts along the
+  surface's normal (vertical K·p/(1 + s²), horizontal −s times that, s the
+  slope), so a tine that meets it just under its top rides up it gradually
+  instead of being pushed sideways into it and then, past a corner, upward by
+  its whole overlap at once (which read 110–140 N on the ground for a tick
+  in the safety campaign). The damping of a rise that the slope alone makes
+  (B·s·v_reach/(1 + s²), ≤ 3.5 N at 0.25 m/s) is left out. Below its
+  middle the push is horizontal, from the nearer side.
+  Elastic–perfectly plastic: K from a 2 cm wooden root bent over
   0.3 m (48EI/L³ with E = 10 GPa ≈ 1.4e5 N/m), force capped at the yield force
   (M_y = σ_y I/(d/2) with σ_y = 40 MPa, F = 4M_y/L ≈ 400 N); beyond it the root
   is pushed along (permanent set) and, once moved by ``break_displacement_m``,
@@ -112,8 +122,8 @@ class Body:
 
     __slots__ = ("activated", "activation_force_n", "bottom_m", "break_m", "broken",
                  "damping_s", "force_reach_n", "force_up_n", "kind", "left_m", "moved_m",
-                 "peak_down_n", "peak_side_n", "right_m", "stiffness_n_per_m", "top_m",
-                 "yield_force_n")
+                 "peak_down_n", "peak_side_n", "right_m", "round", "stiffness_n_per_m",
+                 "top_m", "yield_force_n")
 
     def __init__(self, kind: Contact, p: StoneParams | RootParams | MineParams) -> None:
         self.kind = kind
@@ -127,6 +137,20 @@ class Body:
         self.moved_m = self.force_reach_n = self.force_up_n = 0.0
         self.peak_down_n = self.peak_side_n = 0.0
         self.broken = self.activated = False
+        self.round = kind is Contact.ROOT
+
+    def _upper_surface(self, reach_m: float) -> tuple[float, float]:
+        """A round body's upper surface above ``reach_m`` (inside its extent): (height, slope
+        d height / d reach)."""
+        a, b = 0.5 * (self.right_m - self.left_m), 0.5 * (self.top_m - self.bottom_m)
+        u = (reach_m - self.left_m - a) / a
+        root = math.sqrt(max(1.0 - u * u, 1e-12))
+        return self.bottom_m + b + b * root, -b * u / (a * root)
+
+    def shield_m(self, reach_m: float) -> float:
+        """The height below which it hides the soil from a tip at ``reach_m`` (inside its
+        extent): its top, or a round body's surface there."""
+        return self._upper_surface(reach_m)[0] if self.round else self.top_m
 
     def touch(self, reach_m: float, height_m: float, reach_vel_m_per_s: float,
               height_vel_m_per_s: float) -> bool:
@@ -135,6 +159,8 @@ class Body:
         if self.broken or not (self.left_m < reach_m < self.right_m
                                and self.bottom_m < height_m < self.top_m):
             return False
+        if self.round:
+            return self._touch_round(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s)
         top_m, near_m, far_m = self.top_m - height_m, reach_m - self.left_m, self.right_m - reach_m
         if top_m <= near_m and top_m <= far_m:
             self.force_up_n = self._resist(top_m, -height_vel_m_per_s, 0.0, -1.0)
@@ -147,13 +173,56 @@ class Body:
             self._record_side(self.force_reach_n)
         return True
 
+    def _touch_round(self, reach_m: float, height_m: float, reach_vel_m_per_s: float,
+                     height_vel_m_per_s: float) -> bool:
+        middle_m = 0.5 * (self.top_m + self.bottom_m)
+        if height_m >= middle_m:  # the upper half: a curved surface above the tip
+            surface_m, slope = self._upper_surface(reach_m)
+            if height_m >= surface_m:
+                return False
+            n2 = 1.0 + slope * slope
+            elastic_n = self.stiffness_n_per_m * (surface_m - height_m) / math.sqrt(n2)
+            if elastic_n > self.yield_force_n:  # pushed down and aside, along the normal
+                set_m = (elastic_n - self.yield_force_n) / self.stiffness_n_per_m
+                self._yield(set_m, slope / math.sqrt(n2), -1.0 / math.sqrt(n2))
+                elastic_n = self.yield_force_n
+            damping_n = self.stiffness_n_per_m * self.damping_s * -height_vel_m_per_s
+            up_n = max(0.0, (elastic_n * math.sqrt(n2) + damping_n) / n2)
+            self.force_up_n, self.force_reach_n = up_n, -slope * up_n
+            self._record_top(up_n)
+            return True
+        a, b = 0.5 * (self.right_m - self.left_m), 0.5 * (self.top_m - self.bottom_m)
+        w = (height_m - middle_m) / b
+        half_m = a * math.sqrt(max(1.0 - w * w, 0.0))  # half its width at this height
+        centre_m = self.left_m + a
+        near_m, far_m = reach_m - (centre_m - half_m), centre_m + half_m - reach_m
+        if near_m <= 0.0 or far_m <= 0.0:
+            return False
+        if near_m < far_m:
+            self.force_reach_n = -self._resist(near_m, reach_vel_m_per_s, 1.0, 0.0)
+            self._record_side(-self.force_reach_n)
+        else:
+            self.force_reach_n = self._resist(far_m, -reach_vel_m_per_s, -1.0, 0.0)
+            self._record_side(self.force_reach_n)
+        return True
+
     def vertical_law(self, reach_m: float, height_m: float, face_height_m: float
                      ) -> VerticalLaw | None:
         """Its top face's law (top, K, B, yield force) if a tip at ``height_m`` is inside
-        and, judged at ``face_height_m`` (where the tines were), presses on the top."""
+        and, judged at ``face_height_m`` (where the tines were), presses on the top. A round
+        body's is its surface above ``reach_m``, with the vertical parts of K, B and the
+        yield force there."""
         if self.broken or not (self.left_m < reach_m < self.right_m
                                and self.bottom_m < height_m < self.top_m):
             return None
+        if self.round:
+            if face_height_m < 0.5 * (self.top_m + self.bottom_m):
+                return None  # below its middle: that push is horizontal
+            surface_m, slope = self._upper_surface(reach_m)
+            n2 = 1.0 + slope * slope
+            return VerticalLaw(surface_m, self.stiffness_n_per_m / n2,
+                               self.stiffness_n_per_m * self.damping_s / n2,
+                               self.yield_force_n / math.sqrt(n2), False)
         below_top_m = self.top_m - min(face_height_m, self.top_m)
         if below_top_m > min(reach_m - self.left_m, self.right_m - reach_m):
             return None  # nearer a side face: that push is horizontal
@@ -248,8 +317,8 @@ class Ground:
         contact = Contact.NONE
         for body in self.bodies:
             if (not body.broken and body.left_m < reach_m < body.right_m
-                    and height_m > body.bottom_m and body.top_m > shield_m):
-                shield_m = body.top_m
+                    and height_m > body.bottom_m and body.shield_m(reach_m) > shield_m):
+                shield_m = body.shield_m(reach_m)
             if body.touch(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s):
                 f_reach_n += body.force_reach_n
                 f_up_n += body.force_up_n

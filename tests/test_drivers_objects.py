@@ -164,3 +164,43 @@ def test_max_force_down_includes_the_peak_inside_a_step() -> None:
     g.step(1.0, -0.000149, 0.0, -1.0, DT_S)  # two collapses inside one step
     assert g.truth.force_down_n < 10.0
     assert g.truth.max_force_down_n == pytest.approx(10.0)
+
+
+def test_a_tine_meeting_a_root_under_its_top_rides_up_it() -> None:
+    """A root is round. Dragged toward the robot 1.3 mm under its top, the tip meets its
+    curved upper surface: the force grows with the overlap, upward and pushing the tip
+    back along the slope, with no jump. As a rectangle the root was pushed sideways until
+    the top face was the nearer one, then read its whole overlap upward at once
+    (K·1.3 mm = 182 N), which the safety campaign saw as 110–140 N on the ground."""
+    root = Body(Contact.ROOT, RootParams(reach_m=1.0, depth_m=0.01))
+    height_m = -0.0113
+    ups, backs = [], []
+    for reach_m in np.arange(1.0101, 1.0, -2e-6):  # up the far slope to its crest
+        root.touch(float(reach_m), height_m, -0.2, 0.0)
+        ups.append(root.force_up_n)
+        backs.append(root.force_reach_n)
+    up, back = np.array(ups), np.array(backs)
+    assert up[0] == 0.0 and up.max() == pytest.approx(root.stiffness_n_per_m * 0.0013, rel=0.01)
+    assert np.all(np.diff(up[up > 0.0]) > 0.0)  # grows as the tip goes in
+    assert np.abs(np.diff(up)).max() < 1.0  # no jump at any 2 µm step
+    on_far_slope = up > 0.0
+    assert np.all(back[on_far_slope] > 0.0)  # pushed back, away from the robot
+    assert root.peak_down_n == pytest.approx(up.max())
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(0.991, 1.009), st.floats(-0.02, -0.0101), st.floats(-0.5, 0.5))
+def test_a_roots_law_for_the_tine_mount_is_what_it_reads(reach_m: float, height_m: float,
+                                                         height_vel: float) -> None:
+    """Where the root gives the tine mount a vertical law, that law's force at the tip is the
+    vertical force the root itself reads there (the mount carries what the ground reads)."""
+    root = Body(Contact.ROOT, RootParams(reach_m=1.0, depth_m=0.01))
+    law = root.vertical_law(reach_m, height_m, height_m)
+    touching = root.touch(reach_m, height_m, 0.0, height_vel)
+    if law is None:
+        assert root.force_up_n == 0.0
+        return
+    elastic_n = min(law.stiffness_n_per_m * (law.ref_m - height_m), law.cap_n)
+    expected_n = max(0.0, elastic_n - law.damping_ns_per_m * height_vel)
+    assert touching or expected_n == 0.0
+    assert root.force_up_n == pytest.approx(expected_n, rel=1e-9, abs=1e-9)

@@ -146,6 +146,18 @@ def test_cases_once_over_the_limit_now_hold(seed: int, index: int) -> None:
     assert result.f_true_z_max_n < fuzz.FORCE_LIMIT_N
 
 
+@pytest.mark.parametrize("index", [39, 378, 528, 894])
+def test_adaptive_lanes_once_over_the_limit_now_hold(index: int) -> None:
+    """Adaptive lanes of seed 7 that went over 90 N (111–140 N for a tick or two, no mine)
+    when lanes first ran adaptive in the campaign: each dragged its tines at about 0.2 m/s
+    into a root 1.3 mm under its top. The emulator's roots were rectangles: pushed sideways
+    until the top face was the nearer one, then read their whole overlap upward at once.
+    Roots are round now (drivers.objects), and the tines ride up them."""
+    result = fuzz.run_case(fuzz.generate(7, index))
+    assert result.kind == "lane (adaptive)"
+    assert result.ticks_over_limit == 0 and not result.mine_activated
+    assert result.f_true_z_max_n < 0.5 * fuzz.FORCE_LIMIT_N
+
 def test_an_adaptive_lane_is_governed_and_older_case_files_still_load() -> None:
     """Case 7/0 is an adaptive lane: it runs with the governor (not as the same lane at its
     fixed speed would) and safely. A case written before lanes could be adaptive (no
