@@ -165,13 +165,19 @@ class Body:
         if top_m <= near_m and top_m <= far_m:
             self.force_up_n = self._resist(top_m, -height_vel_m_per_s, 0.0, -1.0)
             self._record_top(self.force_up_n)
-        elif near_m < far_m:
+        else:
+            self._push_side(near_m, far_m, reach_vel_m_per_s)
+        return True
+
+    def _push_side(self, near_m: float, far_m: float, reach_vel_m_per_s: float) -> None:
+        """A horizontal push from the side the tip is nearer (inside by near_m from the
+        robot's side, far_m from the other)."""
+        if near_m < far_m:
             self.force_reach_n = -self._resist(near_m, reach_vel_m_per_s, 1.0, 0.0)
             self._record_side(-self.force_reach_n)
         else:
             self.force_reach_n = self._resist(far_m, -reach_vel_m_per_s, -1.0, 0.0)
             self._record_side(self.force_reach_n)
-        return True
 
     def _touch_round(self, reach_m: float, height_m: float, reach_vel_m_per_s: float,
                      height_vel_m_per_s: float) -> bool:
@@ -198,12 +204,7 @@ class Body:
         near_m, far_m = reach_m - (centre_m - half_m), centre_m + half_m - reach_m
         if near_m <= 0.0 or far_m <= 0.0:
             return False
-        if near_m < far_m:
-            self.force_reach_n = -self._resist(near_m, reach_vel_m_per_s, 1.0, 0.0)
-            self._record_side(-self.force_reach_n)
-        else:
-            self.force_reach_n = self._resist(far_m, -reach_vel_m_per_s, -1.0, 0.0)
-            self._record_side(self.force_reach_n)
+        self._push_side(near_m, far_m, reach_vel_m_per_s)
         return True
 
     def vertical_law(self, reach_m: float, height_m: float, face_height_m: float

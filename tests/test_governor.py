@@ -121,14 +121,16 @@ LANE = LaneSettings(reach_far_m=1.2, reach_near_m=0.7, depth_step_m=0.02, target
                     accel_m_per_s2=1.0)
 
 
-def _stroke_speeds(lane: LaneSettings, force_n: float) -> list[float]:
-    """Reference speeds along the lane's single stroke, with a constant force estimate."""
+def _stroke_speeds(lane: LaneSettings, force_n: float,
+                   phase: LanePhase = LanePhase.STROKE) -> list[float]:
+    """Reference speeds along the lane's strokes (or another phase), with a constant force
+    estimate."""
     planner = LanePlanner(lane, DT_S, lane.reach_far_m, -lane.clearance_m)
     speeds = []
     while not planner.done:
         planner.observe(planner.reach_m, planner.depth_m)  # a tip on its reference: no lag
         planner.govern(force_n, caution_n=55.0)
-        if planner.phase is LanePhase.STROKE:
+        if planner.phase is phase:
             speeds.append(planner.speed_m_per_s)
         planner.step()
     return speeds
@@ -271,25 +273,12 @@ def test_a_max_plunge_speed_below_the_plunge_speed_is_refused_on_an_adaptive_lan
         LaneSettings(adaptive=True, plunge_speed_m_per_s=0.05, max_plunge_speed_m_per_s=0.02)
 
 
-def _plunge_speeds(lane: LaneSettings, force_n: float) -> list[float]:
-    """Reference speeds along the lane's plunges, with a constant force estimate."""
-    planner = LanePlanner(lane, DT_S, lane.reach_far_m, -lane.clearance_m)
-    speeds = []
-    while not planner.done:
-        planner.observe(planner.reach_m, planner.depth_m)
-        planner.govern(force_n, caution_n=55.0)
-        if planner.phase is LanePhase.PLUNGE:
-            speeds.append(planner.speed_m_per_s)
-        planner.step()
-    return speeds
-
-
 def test_an_adaptive_plunge_speeds_up_without_force_and_keeps_its_floor_with_it() -> None:
     lane = dataclasses.replace(LANE, plunge_speed_m_per_s=0.007, max_plunge_speed_m_per_s=0.02,
                                depth_step_m=0.04, target_depth_m=0.04, max_depth_step_m=0.04)
-    free = _plunge_speeds(lane, 0.0)
-    loaded = _plunge_speeds(lane, 60.0)  # over the set point 0.8 × 55 N from the start
-    fixed = _plunge_speeds(dataclasses.replace(lane, adaptive=False), 0.0)
+    free = _stroke_speeds(lane, 0.0, LanePhase.PLUNGE)
+    loaded = _stroke_speeds(lane, 60.0, LanePhase.PLUNGE)  # over 0.8 × 55 N from the start
+    fixed = _stroke_speeds(dataclasses.replace(lane, adaptive=False), 0.0, LanePhase.PLUNGE)
     assert max(free) == pytest.approx(0.02)
     assert max(loaded) == pytest.approx(0.007)  # never slower than the lane's plunge speed,
     assert max(fixed) == pytest.approx(0.007)  # nor faster when loaded or not adaptive
