@@ -125,7 +125,8 @@ _MOUNT_ITERATIONS = 16
 class ContactModel(Protocol):
     """The ground as the tip feels it (implemented by the soil model).
 
-    A model that also has ``vertical_laws(reach_m, height_m, face_height_m)`` and
+    A model that also has ``vertical_laws(reach_m, height_m, face_height_m,
+    reach_vel_m_per_s)`` and
     ``transmitted(force_down_n)`` (Ground) lets the arm solve its compliant tine mount
     implicitly; one without them (the tests' idealized contacts) meets a rigid mount.
     """
@@ -395,8 +396,9 @@ class ArmPlant:
         if self._mount_k > 0.0 and laws is not None and transmitted is not None:
             # every law the tines could meet down to the mount fully extended (the lowest
             # they can reach), so a relaxing mount never carries them unseen into the ground
-            compression_m = self._mount(laws(reach_m, height_m, height_m + self.mount_m),
-                                        height_m, height_vel)
+            compression_m = self._mount(
+                laws(reach_m, height_m, height_m + self.mount_m, reach_vel), height_m,
+                height_vel)
             rate_m_per_s = (compression_m - self.mount_m) / self.substep_s
             mount_n = max(0.0, self._mount_k * compression_m + self._mount_c * rate_m_per_s)
             height_vel += rate_m_per_s

@@ -2,24 +2,21 @@
 
 Each object is a rectangle in the (reach, height) plane: ``width_m`` along the
 reach centred on ``reach_m``, from its top at ``−depth_m`` (below ground level
-0) down ``thickness_m``; it is assumed to span the rake's width. It is felt
-only while the tip is strictly inside that rectangle. The face pressed is the
-one the tip is least deep behind (top, robot side, far side): a penalty
-contact F = K·penetration + K·τ·(approach speed), clipped at 0 (no pulling).
-Above its bottom and within its extent an object shields the soil below its
-top: the soil model never sees the tip lower than the object's top.
+0) down ``thickness_m``, with its top edges rounded (``edge_radius_m``; a root
+is round); it is assumed to span the rake's width. It is felt only while the
+tip is inside it. The face pressed is the one the tip is least deep behind
+(top, robot side, far side; the top on a tie), or, by a top edge, the rounded
+edge: a penalty contact along the normal, F = K·penetration + K·τ·(approach
+speed along the normal), clipped at 0 (no pulling). With square edges a tine
+dragged into a side just under the top was pushed sideways until the top was
+the nearer face, then read its whole overlap upward at once: 110–190 N on the
+ground for a tick or two in the safety campaign, and a mine fired. Above its
+bottom and within its extent an object shields the soil below its top: the
+soil model never sees the tip lower than the object's top.
 
 * STONE: rigid (K = 1e7 N/m), never yields or collapses.
-* ROOT: round, not a rectangle: an ellipse (``width_m`` × ``thickness_m``)
-  inscribed in it. On its upper half the tip meets a curved surface: the
-  penetration is taken vertically below it, the force acts along the
-  surface's normal (vertical K·p/(1 + s²), horizontal −s times that, s the
-  slope), so a tine that meets it just under its top rides up it gradually
-  instead of being pushed sideways into it and then, past a corner, upward by
-  its whole overlap at once (which read 110–140 N on the ground for a tick
-  in the safety campaign). The damping of a rise that the slope alone makes
-  (B·s·v_reach/(1 + s²), ≤ 3.5 N at 0.25 m/s) is left out. Below its
-  middle the push is horizontal, from the nearer side.
+* ROOT: round (its top edges' radius is half its size): a tine that meets it
+  under its top rides up it.
   Elastic–perfectly plastic: K from a 2 cm wooden root bent over
   0.3 m (48EI/L³ with E = 10 GPa ≈ 1.4e5 N/m), force capped at the yield force
   (M_y = σ_y I/(d/2) with σ_y = 40 MPa, F = 4M_y/L ≈ 400 N); beyond it the root
@@ -29,7 +26,8 @@ top: the soil model never sees the tip lower than the object's top.
   ≤ its collapse force, adds to the yield force).
 * MINE: rigid body (K = 5e6 N/m, a plastic casing) whose whole top is the
   pressure plate (conservative). It is activated — latched — the first step
-  the vertical force on its top exceeds ``activation_force_n``; a push on its
+  the vertical force on its top (its rim included) exceeds ``activation_force_n``; a
+  push on its
   side does not activate it (side forces are recorded as ``peak_side_n``).
   Force passed down through covering soil is not counted: it never exceeds the
   tip's total vertical force, which :class:`GroundTruth` records as
@@ -70,6 +68,8 @@ class StoneParams:
     stiffness_n_per_m: float = setting(1.0e7, "Contact stiffness.", unit="N/m", gt=0, le=1e9)
     damping_time_s: float = setting(2.0e-4, "Contact dashpot as a time constant: B = K·τ.",
                                     unit="s", ge=0, le=0.1)
+    edge_radius_m: float = setting(0.005, "Radius of its top edges (0: square).", unit="m",
+                                   ge=0, le=1)
 
 
 @dataclass(frozen=True)
@@ -106,6 +106,8 @@ class MineParams:
     activation_force_n: float = setting(
         90.0, "Plate force that fires it (typical AP mines: 80–100 N).", unit="N",
         gt=0, le=1e4)
+    edge_radius_m: float = setting(0.003, "Radius of its casing's top rim (0: square).",
+                                   unit="m", ge=0, le=1)
 
 
 @dataclass(frozen=True)
@@ -122,7 +124,7 @@ class Body:
 
     __slots__ = ("activated", "activation_force_n", "bottom_m", "break_m", "broken",
                  "damping_s", "force_reach_n", "force_up_n", "kind", "left_m", "moved_m",
-                 "peak_down_n", "peak_side_n", "right_m", "round", "stiffness_n_per_m",
+                 "peak_down_n", "peak_side_n", "radius_m", "right_m", "stiffness_n_per_m",
                  "top_m", "yield_force_n")
 
     def __init__(self, kind: Contact, p: StoneParams | RootParams | MineParams) -> None:
@@ -137,107 +139,83 @@ class Body:
         self.moved_m = self.force_reach_n = self.force_up_n = 0.0
         self.peak_down_n = self.peak_side_n = 0.0
         self.broken = self.activated = False
-        self.round = kind is Contact.ROOT
+        half_m = 0.5 * min(p.width_m, p.thickness_m)
+        self.radius_m = half_m if isinstance(p, RootParams) else min(p.edge_radius_m, half_m)
 
-    def _upper_surface(self, reach_m: float) -> tuple[float, float]:
-        """A round body's upper surface above ``reach_m`` (inside its extent): (height, slope
-        d height / d reach)."""
-        a, b = 0.5 * (self.right_m - self.left_m), 0.5 * (self.top_m - self.bottom_m)
-        u = (reach_m - self.left_m - a) / a
-        root = math.sqrt(max(1.0 - u * u, 1e-12))
-        return self.bottom_m + b + b * root, -b * u / (a * root)
-
-    def shield_m(self, reach_m: float) -> float:
-        """The height below which it hides the soil from a tip at ``reach_m`` (inside its
-        extent): its top, or a round body's surface there."""
-        return self._upper_surface(reach_m)[0] if self.round else self.top_m
-
-    def touch(self, reach_m: float, height_m: float, reach_vel_m_per_s: float,
-              height_vel_m_per_s: float) -> bool:
-        """Forces on the tip at this position; False (and zero forces) if not touching."""
-        self.force_reach_n = self.force_up_n = 0.0
-        if self.broken or not (self.left_m < reach_m < self.right_m
-                               and self.bottom_m < height_m < self.top_m):
-            return False
-        if self.round:
-            return self._touch_round(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s)
-        top_m, near_m, far_m = self.top_m - height_m, reach_m - self.left_m, self.right_m - reach_m
-        if top_m <= near_m and top_m <= far_m:
-            self.force_up_n = self._resist(top_m, -height_vel_m_per_s, 0.0, -1.0)
-            self._record_top(self.force_up_n)
-        else:
-            self._push_side(near_m, far_m, reach_vel_m_per_s)
-        return True
-
-    def _push_side(self, near_m: float, far_m: float, reach_vel_m_per_s: float) -> None:
-        """A horizontal push from the side the tip is nearer (inside by near_m from the
-        robot's side, far_m from the other)."""
-        if near_m < far_m:
-            self.force_reach_n = -self._resist(near_m, reach_vel_m_per_s, 1.0, 0.0)
-            self._record_side(-self.force_reach_n)
-        else:
-            self.force_reach_n = self._resist(far_m, -reach_vel_m_per_s, -1.0, 0.0)
-            self._record_side(self.force_reach_n)
-
-    def _touch_round(self, reach_m: float, height_m: float, reach_vel_m_per_s: float,
-                     height_vel_m_per_s: float) -> bool:
-        middle_m = 0.5 * (self.top_m + self.bottom_m)
-        if height_m >= middle_m:  # the upper half: a curved surface above the tip
-            surface_m, slope = self._upper_surface(reach_m)
-            if height_m >= surface_m:
-                return False
-            n2 = 1.0 + slope * slope
-            elastic_n = self.stiffness_n_per_m * (surface_m - height_m) / math.sqrt(n2)
-            if elastic_n > self.yield_force_n:  # pushed down and aside, along the normal
-                set_m = (elastic_n - self.yield_force_n) / self.stiffness_n_per_m
-                self._yield(set_m, slope / math.sqrt(n2), -1.0 / math.sqrt(n2))
-                elastic_n = self.yield_force_n
-            damping_n = self.stiffness_n_per_m * self.damping_s * -height_vel_m_per_s
-            up_n = max(0.0, (elastic_n * math.sqrt(n2) + damping_n) / n2)
-            self.force_up_n, self.force_reach_n = up_n, -slope * up_n
-            self._record_top(up_n)
-            return True
-        a, b = 0.5 * (self.right_m - self.left_m), 0.5 * (self.top_m - self.bottom_m)
-        w = (height_m - middle_m) / b
-        half_m = a * math.sqrt(max(1.0 - w * w, 0.0))  # half its width at this height
-        centre_m = self.left_m + a
-        near_m, far_m = reach_m - (centre_m - half_m), centre_m + half_m - reach_m
-        if near_m <= 0.0 or far_m <= 0.0:
-            return False
-        self._push_side(near_m, far_m, reach_vel_m_per_s)
-        return True
-
-    def vertical_law(self, reach_m: float, height_m: float, face_height_m: float
-                     ) -> VerticalLaw | None:
-        """Its top face's law (top, K, B, yield force) if a tip at ``height_m`` is inside
-        and, judged at ``face_height_m`` (where the tines were), presses on the top. A round
-        body's is its surface above ``reach_m``, with the vertical parts of K, B and the
-        yield force there."""
+    def _contact(self, reach_m: float, height_m: float) -> tuple[float, float, float] | None:
+        """(penetration, outward normal (n_reach, n_height)) of a tip at this point, or None
+        outside: the nearer of the top and the sides (the top on a tie; never the bottom),
+        or, within ``radius_m`` of a top corner, the rounded edge there."""
         if self.broken or not (self.left_m < reach_m < self.right_m
                                and self.bottom_m < height_m < self.top_m):
             return None
-        if self.round:
-            if face_height_m < 0.5 * (self.top_m + self.bottom_m):
-                return None  # below its middle: that push is horizontal
-            surface_m, slope = self._upper_surface(reach_m)
-            n2 = 1.0 + slope * slope
-            return VerticalLaw(surface_m, self.stiffness_n_per_m / n2,
-                               self.stiffness_n_per_m * self.damping_s / n2,
-                               self.yield_force_n / math.sqrt(n2), False)
-        below_top_m = self.top_m - min(face_height_m, self.top_m)
-        if below_top_m > min(reach_m - self.left_m, self.right_m - reach_m):
-            return None  # nearer a side face: that push is horizontal
-        return VerticalLaw(self.top_m, self.stiffness_n_per_m,
-                           self.stiffness_n_per_m * self.damping_s, self.yield_force_n, False)
+        half_x, rho = 0.5 * (self.right_m - self.left_m), self.radius_m
+        x = reach_m - self.left_m - half_x
+        q_x = abs(x) - (half_x - rho)  # > 0: beside the flat part of the top
+        q_z = height_m - (self.top_m - rho)  # > 0: above the sides' straight part
+        if q_x > 0.0 and q_z > 0.0:  # by a top corner: its rounded edge
+            d = math.hypot(q_x, q_z)
+            if d >= rho:
+                return None
+            return rho - d, math.copysign(q_x / d, x), q_z / d
+        if q_z >= q_x:
+            return (rho - q_z, 0.0, 1.0) if q_z < rho else None
+        return (rho - q_x, math.copysign(1.0, x), 0.0) if q_x < rho else None
 
-    def _resist(self, depth_m: float, approach_m_per_s: float, dx: float, dz: float) -> float:
-        """Penalty force of a face; a root yields, moving along (dx, dz)."""
+    def shield_m(self, reach_m: float) -> float:
+        """The height below which it hides the soil from a tip at ``reach_m`` (inside its
+        extent): its top, lower by the rounded edges near its sides."""
+        half_x = 0.5 * (self.right_m - self.left_m)
+        q_x = abs(reach_m - self.left_m - half_x) - (half_x - self.radius_m)
+        if q_x <= 0.0:
+            return self.top_m
+        return self.top_m - self.radius_m + math.sqrt(max(self.radius_m ** 2 - q_x * q_x, 0.0))
+
+    def touch(self, reach_m: float, height_m: float, reach_vel_m_per_s: float,
+              height_vel_m_per_s: float) -> bool:
+        """Forces on the tip at this position; False (and zero forces) if not touching. The
+        force acts along the normal: K·penetration (a root's capped at its yield force, the
+        rest a permanent set along the normal) plus B times the approach speed along it."""
+        self.force_reach_n = self.force_up_n = 0.0
+        contact = self._contact(reach_m, height_m)
+        if contact is None:
+            return False
+        depth_m, n_reach, n_up = contact
         elastic_n = self.stiffness_n_per_m * depth_m
         if elastic_n > self.yield_force_n:
-            self._yield((elastic_n - self.yield_force_n) / self.stiffness_n_per_m, dx, dz)
+            self._yield((elastic_n - self.yield_force_n) / self.stiffness_n_per_m,
+                        -n_reach, -n_up)
             elastic_n = self.yield_force_n
-        force_n = elastic_n + self.stiffness_n_per_m * self.damping_s * approach_m_per_s
-        return force_n if force_n > 0.0 else 0.0
+        approach_m_per_s = -(reach_vel_m_per_s * n_reach + height_vel_m_per_s * n_up)
+        normal_n = elastic_n + self.stiffness_n_per_m * self.damping_s * approach_m_per_s
+        normal_n = normal_n if normal_n > 0.0 else 0.0
+        self.force_reach_n, self.force_up_n = normal_n * n_reach, normal_n * n_up
+        if n_up > 0.0:
+            self._record_top(self.force_up_n)
+        if n_reach != 0.0:
+            self._record_side(abs(self.force_reach_n))
+        return True
+
+    def vertical_law(self, reach_m: float, height_m: float, face_height_m: float,
+                     reach_vel_m_per_s: float = 0.0) -> VerticalLaw | None:
+        """The law of the face the tines press from above, if any, as the tine mount solves
+        it: linearized where the tines were (``face_height_m``; or, above it then, at
+        ``height_m``), along the normal there: K·n², B·n² and the yield force·n on the
+        height, the approach the reach speed makes along the normal folded into the
+        reference. None on a side (that push is horizontal) or outside."""
+        at_m = face_height_m
+        contact = self._contact(reach_m, at_m)
+        if contact is None:
+            at_m = height_m
+            contact = self._contact(reach_m, at_m)
+        if contact is None or contact[2] <= 0.0:
+            return None
+        depth_m, n_reach, n_up = contact
+        damping = self.stiffness_n_per_m * self.damping_s
+        ref_m = (at_m + depth_m / n_up
+                 - damping * n_reach * reach_vel_m_per_s / (self.stiffness_n_per_m * n_up))
+        return VerticalLaw(ref_m, self.stiffness_n_per_m * n_up * n_up,
+                           damping * n_up * n_up, self.yield_force_n * n_up, False)
 
     def _yield(self, set_m: float, dx: float, dz: float) -> None:
         self.left_m += dx * set_m
@@ -331,14 +309,15 @@ class Ground:
         self._record(truth, contact, f_reach_n + soil.force_reach_n, f_up_n)
         return truth.force_drag_n, truth.force_down_n
 
-    def vertical_laws(self, reach_m: float, height_m: float, face_height_m: float
-                      ) -> list[VerticalLaw]:
+    def vertical_laws(self, reach_m: float, height_m: float, face_height_m: float,
+                      reach_vel_m_per_s: float = 0.0) -> list[VerticalLaw]:
         """The vertical laws a tip at reach_m could meet from ``height_m`` up: the soil's
-        (Soil.vertical_law) and any buried object's top (which face, judged where the
-        tines were: ``face_height_m``); used by the arm's compliant tine mount."""
+        (Soil.vertical_law) and any buried object's top or rounded edge (which, judged
+        where the tines were: ``face_height_m``; an edge's law depends on the tip's reach
+        speed too); used by the arm's compliant tine mount."""
         laws = []
         for body in self.bodies:
-            law = body.vertical_law(reach_m, height_m, face_height_m)
+            law = body.vertical_law(reach_m, height_m, face_height_m, reach_vel_m_per_s)
             if law is not None:
                 laws.append(law)
         law = self.soil.vertical_law(reach_m, height_m)

@@ -47,9 +47,9 @@ class PeakRecorder:
             self.peak_down_n = self.truth.force_down_n
         return force
 
-    def vertical_laws(self, reach_m: float, height_m: float, face_height_m: float
-                      ) -> list[VerticalLaw]:
-        return self.ground.vertical_laws(reach_m, height_m, face_height_m)
+    def vertical_laws(self, reach_m: float, height_m: float, face_height_m: float,
+                      reach_vel_m_per_s: float = 0.0) -> list[VerticalLaw]:
+        return self.ground.vertical_laws(reach_m, height_m, face_height_m, reach_vel_m_per_s)
 
     def transmitted(self, force_down_n: float) -> None:
         self.ground.transmitted(force_down_n)
