@@ -2,17 +2,20 @@
 
 Each object is a rectangle in the (reach, height) plane: ``width_m`` along the
 reach centred on ``reach_m``, from its top at ``−depth_m`` (below ground level
-0) down ``thickness_m``, with its top edges rounded (``edge_radius_m``; a root
-is round); it is assumed to span the rake's width. It is felt only while the
+0) down ``thickness_m``; it is assumed to span the rake's width. A root is
+round: its top edges are rounded by half its size. It is felt only while the
 tip is inside it. The face pressed is the one the tip is least deep behind
-(top, robot side, far side; the top on a tie), or, by a top edge, the rounded
-edge: a penalty contact along the normal, F = K·penetration + K·τ·(approach
-speed along the normal), clipped at 0 (no pulling). With square edges a tine
-dragged into a side just under the top was pushed sideways until the top was
-the nearer face, then read its whole overlap upward at once: 110–190 N on the
-ground for a tick or two in the safety campaign, and a mine fired. Above its
-bottom and within its extent an object shields the soil below its top: the
-soil model never sees the tip lower than the object's top.
+(top, robot side, far side; the top on a tie), or, by a rounded edge, the edge:
+a penalty contact along the normal, F = K·penetration + K·τ·(approach speed
+along the normal), clipped at 0 (no pulling). Square, a root dragged into just
+under its top was pushed sideways until the top was the nearer face, then
+read the whole overlap upward at once (110–190 N on the ground for a tick or
+two in the safety campaign). Stones and mines keep square edges: rounding
+theirs (5 and 3 mm) made plunges onto them read 97–120 N in the campaign
+(not yet understood), so a tine dragged into a mine's side just under its
+plate still meets a square rim (one adaptive lane, 7/516: 106 N, the mine
+fired). Above its bottom and within its extent an object shields the soil
+below its top: the soil model never sees the tip lower than the object's top.
 
 * STONE: rigid (K = 1e7 N/m), never yields or collapses.
 * ROOT: round (its top edges' radius is half its size): a tine that meets it
@@ -68,8 +71,6 @@ class StoneParams:
     stiffness_n_per_m: float = setting(1.0e7, "Contact stiffness.", unit="N/m", gt=0, le=1e9)
     damping_time_s: float = setting(2.0e-4, "Contact dashpot as a time constant: B = K·τ.",
                                     unit="s", ge=0, le=0.1)
-    edge_radius_m: float = setting(0.005, "Radius of its top edges (0: square).", unit="m",
-                                   ge=0, le=1)
 
 
 @dataclass(frozen=True)
@@ -106,8 +107,6 @@ class MineParams:
     activation_force_n: float = setting(
         90.0, "Plate force that fires it (typical AP mines: 80–100 N).", unit="N",
         gt=0, le=1e4)
-    edge_radius_m: float = setting(0.003, "Radius of its casing's top rim (0: square).",
-                                   unit="m", ge=0, le=1)
 
 
 @dataclass(frozen=True)
@@ -139,8 +138,8 @@ class Body:
         self.moved_m = self.force_reach_n = self.force_up_n = 0.0
         self.peak_down_n = self.peak_side_n = 0.0
         self.broken = self.activated = False
-        half_m = 0.5 * min(p.width_m, p.thickness_m)
-        self.radius_m = half_m if isinstance(p, RootParams) else min(p.edge_radius_m, half_m)
+        # a root is round; stones and mines keep square edges (see the module docstring)
+        self.radius_m = 0.5 * min(p.width_m, p.thickness_m) if isinstance(p, RootParams) else 0.0
 
     def _contact(self, reach_m: float, height_m: float) -> tuple[float, float, float] | None:
         """(penetration, outward normal (n_reach, n_height)) of a tip at this point, or None
@@ -199,15 +198,17 @@ class Body:
     def vertical_law(self, reach_m: float, height_m: float, face_height_m: float,
                      reach_vel_m_per_s: float = 0.0) -> VerticalLaw | None:
         """The law of the face the tines press from above, if any, as the tine mount solves
-        it: linearized where the tines were (``face_height_m``; or, above it then, at
-        ``height_m``), along the normal there: K·n², B·n² and the yield force·n on the
-        height, the approach the reach speed makes along the normal folded into the
-        reference. None on a side (that push is horizontal) or outside."""
-        at_m = face_height_m
+        it, if the tip at ``height_m`` is inside: linearized where the tines were
+        (``face_height_m``; on its surface if they were above it), along the normal
+        there: K·n², B·n² and the yield force·n on the height, the approach the reach
+        speed makes along the normal folded into the reference. None on a side (that
+        push is horizontal) or outside."""
+        if self.broken or not (self.left_m < reach_m < self.right_m
+                               and self.bottom_m < height_m < self.top_m):
+            return None
+        # judged where the tines were; tines above it press where its surface is
+        at_m = min(face_height_m, self.shield_m(reach_m) - 1e-9)
         contact = self._contact(reach_m, at_m)
-        if contact is None:
-            at_m = height_m
-            contact = self._contact(reach_m, at_m)
         if contact is None or contact[2] <= 0.0:
             return None
         depth_m, n_reach, n_up = contact

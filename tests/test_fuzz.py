@@ -146,21 +146,29 @@ def test_cases_once_over_the_limit_now_hold(seed: int, index: int) -> None:
     assert result.f_true_z_max_n < fuzz.FORCE_LIMIT_N
 
 
-@pytest.mark.parametrize("index", [39, 378, 516, 528, 894, 924])
+@pytest.mark.parametrize("index", [39, 378, 528, 894, 924])
 def test_adaptive_lanes_once_over_the_limit_now_hold(index: int) -> None:
     """Adaptive lanes of seed 7 that went over 90 N when lanes first ran adaptive in the
-    campaign, each time because the emulator's objects had square edges: 39, 378, 528, 894
-    (111–140 N for a tick or two) dragged their tines at about 0.2 m/s into a root 1.3 mm
-    under its top, which was pushed sideways until its top face was the nearer one and then
-    read the whole overlap upward at once; with roots made round (an ellipse, upper and
-    lower halves apart), 924 (188 N) met a root's lower half beside it and crossed into the
-    upper half 5 mm under the surface, and 516 caught a mine's square rim 0.5 mm under the
-    plate (106 N, the mine fired). Objects now have rounded top edges and the force acts
-    along the normal (drivers.objects): the tines ride up them."""
+    campaign, each time at a root's square edge: 39, 378, 528, 894 (111–140 N for a tick or
+    two) dragged their tines at about 0.2 m/s into a root 1.3 mm under its top, which was
+    pushed sideways until its top face was the nearer one and then read the whole overlap
+    upward at once; with roots first made round as an ellipse with upper and lower halves
+    apart, 924 (188 N) met the lower half beside it and crossed into the upper half 5 mm
+    under the surface. Roots are round now, the force along the normal (drivers.objects):
+    the tines ride up them."""
     result = fuzz.run_case(fuzz.generate(7, index))
     assert result.kind == "lane (adaptive)"
     assert result.ticks_over_limit == 0 and not result.mine_activated
     assert result.f_true_z_max_n < fuzz.FORCE_LIMIT_N
+
+@pytest.mark.xfail(strict=True, reason="a mine's square rim: see drivers.objects")
+def test_an_adaptive_lane_into_a_mines_square_rim() -> None:
+    """Not mended: adaptive lane 7/516 drags its tine into a mine's side 0.5 mm under its
+    plate; the emulator's square rim turns that into 106 N on the plate for a tick and the
+    mine (89 N fuse) fires. Rounding stones' and mines' edges (5 and 3 mm) held it, but made
+    five hostile plunges read 97–120 N, not yet understood. Strict: it fails once it holds."""
+    result = fuzz.run_case(fuzz.generate(7, 516))
+    assert result.ticks_over_limit == 0 and not result.mine_activated
 
 def test_an_adaptive_lane_is_governed_and_older_case_files_still_load() -> None:
     """Case 7/0 is an adaptive lane: it runs with the governor (not as the same lane at its
