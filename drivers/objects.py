@@ -29,8 +29,7 @@ below its top: the soil model never sees the tip lower than the object's top.
   ≤ its collapse force, adds to the yield force).
 * MINE: rigid body (K = 5e6 N/m, a plastic casing) whose whole top is the
   pressure plate (conservative). It is activated — latched — the first step
-  the vertical force on its top (its rim included) exceeds ``activation_force_n``; a
-  push on its
+  the vertical force on its top exceeds ``activation_force_n``; a push on its
   side does not activate it (side forces are recorded as ``peak_side_n``).
   Force passed down through covering soil is not counted: it never exceeds the
   tip's total vertical force, which :class:`GroundTruth` records as
@@ -297,8 +296,8 @@ class Ground:
         contact = Contact.NONE
         for body in self.bodies:
             if (not body.broken and body.left_m < reach_m < body.right_m
-                    and height_m > body.bottom_m and body.shield_m(reach_m) > shield_m):
-                shield_m = body.shield_m(reach_m)
+                    and height_m > body.bottom_m):
+                shield_m = max(shield_m, body.shield_m(reach_m))
             if body.touch(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s):
                 f_reach_n += body.force_reach_n
                 f_up_n += body.force_up_n

@@ -135,8 +135,8 @@ def _time(r: RunResult) -> str:
 
 def table_rows(report: ExcavationReport) -> list[tuple[str, ...]]:
     """One row per run: soil, controller, time, the soil's shallowest floor along the lane
-    afterwards, mean stroke speed, max true F_z, ticks over
-    90 N, mines fired, max supervised estimate, ticks at caution, speedup vs fixed-safe."""
+    afterwards, mean stroke speed, max true F_z, ticks over 90 N, mines fired, max
+    supervised estimate, ticks at caution, speedup vs fixed-safe."""
     rows: list[tuple[str, ...]] = []
     for r in report.results:
         speedup = ""

@@ -84,7 +84,7 @@ class Command:
     plunge_speed_m_per_s: float
     start_height_m: float
     contact: bool  # plunge only: impedance on (α > 0) or pure position control
-    adaptive: bool = False  # lane only: force-adaptive (rakectl.governor), top speed speed_m_per_s
+    adaptive: bool = False  # lane only: force-adaptive (rakectl.governor; see scenario_of)
 
 
 @dataclass(frozen=True)
