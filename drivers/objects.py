@@ -1,21 +1,22 @@
 """Buried objects and the :class:`Ground` that combines them with the soil (pure model).
 
-Each object is a rectangle in the (reach, height) plane: ``width_m`` along the
-reach centred on ``reach_m``, from its top at ``−depth_m`` (below ground level
-0) down ``thickness_m``; it is assumed to span the rake's width. A root is
-round: its top edges are rounded by half its size. It is felt only while the
-tip is inside it. The face pressed is the one the tip is least deep behind
-(top, robot side, far side; the top on a tie), or, by a rounded edge, the edge:
-a penalty contact along the normal, F = K·penetration + K·τ·(approach speed
-along the normal), clipped at 0 (no pulling). Square, a root dragged into just
-under its top was pushed sideways until the top was the nearer face, then
-read the whole overlap upward at once (110–190 N on the ground for a tick or
-two in the safety campaign). Stones and mines keep square edges: rounding
-theirs (5 and 3 mm) made plunges onto them read 97–120 N in the campaign
-(not yet understood), so a tine dragged into a mine's side just under its
-plate still meets a square rim (one adaptive lane, 7/516: 106 N, the mine
-fired). Above its bottom and within its extent an object shields the soil
-below its top: the soil model never sees the tip lower than the object's top.
+Each object is a rectangle in the (reach, height) plane: ``width_m`` along
+the reach centred on ``reach_m``, from its top at ``−depth_m`` (below ground
+level 0) down ``thickness_m``; it is assumed to span the rake's width. Its
+top edges are rounded: a root's by half its size, a stone's and a mine's by
+``edge_radius_m`` (5 and 3 mm: a round tine tip, 4.7 mm in radius, meets a
+square corner as a point meets a corner rounded by that radius). It is felt
+only while the tip is inside it. The face pressed is the one the tip is
+least deep behind (top, robot side, far side; the top on a tie), or, by a
+rounded edge, the edge: a penalty contact along the normal, F =
+K·penetration + K·τ·(approach speed along the normal), clipped at 0 (no
+pulling). Square, a tine dragged into just under a top was pushed sideways
+until the top was the nearer face, then read the whole overlap upward at
+once (110–190 N on the ground for a tick or two in the safety campaign; a
+mine's rim, 106 N, fired it). The law the tine mount solves folds in the
+reach speed only toward an edge (see ``vertical_law``). Above its bottom and
+within its extent an object shields the soil below its top: the soil model
+never sees the tip lower than the object's top.
 
 * STONE: rigid (K = 1e7 N/m), never yields or collapses.
 * ROOT: round (its top edges' radius is half its size): a tine that meets it
@@ -70,6 +71,8 @@ class StoneParams:
     stiffness_n_per_m: float = setting(1.0e7, "Contact stiffness.", unit="N/m", gt=0, le=1e9)
     damping_time_s: float = setting(2.0e-4, "Contact dashpot as a time constant: B = K·τ.",
                                     unit="s", ge=0, le=0.1)
+    edge_radius_m: float = setting(0.005, "Radius of its top edges (0: square).", unit="m",
+                                   ge=0, le=1)
 
 
 @dataclass(frozen=True)
@@ -106,6 +109,8 @@ class MineParams:
     activation_force_n: float = setting(
         90.0, "Plate force that fires it (typical AP mines: 80–100 N).", unit="N",
         gt=0, le=1e4)
+    edge_radius_m: float = setting(0.003, "Radius of its casing's top rim (0: square).",
+                                   unit="m", ge=0, le=1)
 
 
 @dataclass(frozen=True)
@@ -137,8 +142,8 @@ class Body:
         self.moved_m = self.force_reach_n = self.force_up_n = 0.0
         self.peak_down_n = self.peak_side_n = 0.0
         self.broken = self.activated = False
-        # a root is round; stones and mines keep square edges (see the module docstring)
-        self.radius_m = 0.5 * min(p.width_m, p.thickness_m) if isinstance(p, RootParams) else 0.0
+        half_m = 0.5 * min(p.width_m, p.thickness_m)
+        self.radius_m = half_m if isinstance(p, RootParams) else min(p.edge_radius_m, half_m)
 
     def _contact(self, reach_m: float, height_m: float) -> tuple[float, float, float] | None:
         """(penetration, outward normal (n_reach, n_height)) of a tip at this point, or None
@@ -212,8 +217,14 @@ class Body:
             return None
         depth_m, n_reach, n_up = contact
         damping = self.stiffness_n_per_m * self.damping_s
+        # Only a reach speed INTO an edge is folded into the reference (it raises it: the
+        # tines ride up sooner). One away from it would lower the reference below the
+        # surface, and the mount rests its tines on the reference: sliding off an edge,
+        # they would sit inside it by B·n_reach·v/(K·n_up) (≈10 µm at 0.1 m/s), a force
+        # the mount never carried (seed 7's plunges 277, 442, 514, 595, 688: 97-120 N).
+        reach_approach_m_per_s = max(0.0, -n_reach * reach_vel_m_per_s)
         ref_m = (at_m + depth_m / n_up
-                 - damping * n_reach * reach_vel_m_per_s / (self.stiffness_n_per_m * n_up))
+                 + damping * reach_approach_m_per_s / (self.stiffness_n_per_m * n_up))
         return VerticalLaw(ref_m, self.stiffness_n_per_m * n_up * n_up,
                            damping * n_up * n_up, self.yield_force_n * n_up, False)
 

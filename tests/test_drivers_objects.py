@@ -212,8 +212,11 @@ def test_a_roots_law_for_the_tine_mount_is_what_it_reads(reach_m: float, height_
        st.floats(-0.5, 0.5))
 def test_a_mines_law_for_the_tine_mount_is_what_it_reads(
         reach_m: float, height_m: float, reach_vel: float, height_vel: float) -> None:
-    """The same on a mine's top and by its square rim, the tip moving along the reach too:
-    only its top gives the mount a law, and its sides push horizontally."""
+    """The same on a mine's top and by its rounded rim, the tip moving along the reach too.
+    Moving into the rim or along the top, the law reads what the mine reads. Moving away
+    from the rim, the mine reads less by the separating speed's damping, which the law
+    leaves out: folded in, it put the law's reference below the surface, where the mount
+    rested its tines inside the rim (seed 7's plunges 277, 442, 514, 595, 688: 97–120 N)."""
     mine = Body(Contact.MINE, MineParams(reach_m=1.0, depth_m=0.01, width_m=0.08))
     law = mine.vertical_law(reach_m, height_m, height_m, reach_vel)
     mine.touch(reach_m, height_m, reach_vel, height_vel)
@@ -222,4 +225,10 @@ def test_a_mines_law_for_the_tine_mount_is_what_it_reads(
         return
     expected_n = max(0.0, law.stiffness_n_per_m * (law.ref_m - height_m)
                      - law.damping_ns_per_m * height_vel)
-    assert mine.force_up_n == pytest.approx(expected_n, rel=1e-9, abs=1e-6)
+    contact = mine._contact(reach_m, height_m)
+    if contact is None:  # above the rounded rim, beside the top
+        assert mine.force_up_n == 0.0 and expected_n == 0.0
+    elif contact[1] * reach_vel <= 0.0:  # into the rim, or along the top (n_reach = 0)
+        assert mine.force_up_n == pytest.approx(expected_n, rel=1e-9, abs=1e-6)
+    else:
+        assert mine.force_up_n <= expected_n + 1e-6
