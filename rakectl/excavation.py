@@ -15,6 +15,11 @@ between ``plunge_speed_m_per_s`` and ``max_plunge_speed_m_per_s``. Nor is the
 depth of cut: each cycle's step is the last one's scaled by the last stroke's margin
 (:func:`~rakectl.governor.next_depth_step_m`), from ``depth_step_m`` up to
 ``max_depth_step_m``: soft soil in few deep cuts, hard soil in many shallow ones.
+That law runs per bin of reach (:class:`CutProfile`): each bin's next cut follows the
+force and lag met there and the floor the tip really left there, so where the arm
+holds the tine down well (far from the robot) the lane goes down in deep cuts while
+near the robot it goes in shallow ones; once the far part is at the target depth the
+strokes start where the lane is not yet done (partial strokes).
 
 Depth is positive below ground level 0 (the same axis as the impedance
 controller's x).
@@ -51,18 +56,196 @@ LAG_TARGET_SHARE = 0.5
 # and F̂ reads its descent (K_e·α·v, 40 N after a 20 mm/s plunge, gone in about 60 ms).
 # The depth of the next cut is judged on the stroke's force after this.
 PLUNGE_TAIL_S = 0.1
+# The lane's depths are planned per bin of reach this wide (about two tine widths), in at
+# most MAX_BINS bins (wider on a long lane): planning the next stroke takes ~3 µs per bin,
+# in the daemon's tick where a stroke ends.
+BIN_M = 0.02
+MAX_BINS = 64
+# An adaptive stroke's reference never descends toward the robot (a descent in soil reads as
+# force, K_e·α·v: 2000 N per m/s) and rises at most this much per metre of reach (0.025 m/s
+# at the top stroke speed: the tip follows without lag).
+RISE_PER_M = 0.1
+# A bin's next cut is the smallest of its own and of this many bins on either side: the
+# force and lag met in one bin are a sample of the soil around it.
+WINDOW_BINS = 2
+# An adaptive cut that would leave less than this share of depth_step_m above the target
+# goes to the target: a whole cycle for a sliver costs more than the sliver's load.
+SLIVER_SHARE = 0.5
 
 
 class LanePhase(enum.Enum):
-    APPROACH = enum.auto()  # free space: to above the far end of the lane
-    LOWER = enum.auto()  # free space: down to just above the last floor
+    APPROACH = enum.auto()  # free space: to above where the next stroke starts
+    LOWER = enum.auto()  # free space: down to just above the floor there
     PLUNGE = enum.auto()  # contact: down into the soil to this cycle's depth
-    STROKE = enum.auto()  # contact: toward the robot at this cycle's depth
+    STROKE = enum.auto()  # contact: toward the robot along this cycle's depths
     LIFT = enum.auto()  # free space: up to the clearance height
     DONE = enum.auto()  # holding above the lane
 
 
 CONTACT_PHASES = frozenset({LanePhase.PLUNGE, LanePhase.STROKE})
+
+
+class CutProfile:
+    """The lane's depths per bin of reach, bin 0 nearest the robot (pure).
+
+    ``plan_m`` is the next (or current) stroke's reference depth, ``done_m`` the deepest
+    stroke completed, ``left_m`` the shallowest measured tip depth the last stroke through
+    each bin left (ground level 0 before any). A stroke starts at the far edge of the
+    farthest bin not yet done to the target depth (``start``) and ends at the lane's near end.
+
+    After each stroke (:meth:`finish`), a fixed lane plans every bin one ``depth_step_m``
+    deeper. An adaptive lane plans each bin's cut, counted from the floor the tip left there,
+    by :func:`~rakectl.governor.next_depth_step_m` on the force and lag met in that bin and
+    the cut it really took (the smallest over WINDOW_BINS on either side), and never less
+    than ``depth_step_m`` below what was done. The plan is then shaped: not deeper than
+    the target, not descending toward the robot, rising at most RISE_PER_M; a bin that
+    would be left less than SLIVER_SHARE of a step short of the target goes to it. The shaping
+    keeps every bin not yet done at least ``min(target, done + depth_step_m)`` deep (the
+    done depths are themselves non-descending and within the rise: each plan was), so
+    every stroke makes progress.
+    """
+
+    __slots__ = ("_adaptive", "_force_n", "_lag_m", "_max_step_m", "_min_step_m", "_target_m",
+                 "_tip_m", "done_m", "left_m", "n_bins", "near_m", "plan_m", "start", "width_m")
+
+    def __init__(self, lane: LaneSettings) -> None:
+        span_m = lane.reach_far_m - lane.reach_near_m
+        if not span_m > 0.0:
+            raise ValueError("lane: reach_far_m must be > reach_near_m")
+        self.n_bins = min(MAX_BINS, max(1, math.ceil(span_m / BIN_M - 1e-9)))
+        self.width_m = span_m / self.n_bins
+        self.near_m = lane.reach_near_m
+        self._adaptive = lane.adaptive
+        self._target_m = lane.target_depth_m
+        self._min_step_m, self._max_step_m = lane.depth_step_m, lane.max_depth_step_m
+        n = self.n_bins
+        self.plan_m = [min(lane.depth_step_m, lane.target_depth_m)] * n
+        self.done_m = [0.0] * n
+        self.left_m = [0.0] * n
+        self.start = n - 1
+        self._tip_m = [math.inf] * n  # this stroke's shallowest measured tip per bin
+        self._force_n = [-math.inf] * n  # this stroke's peak force estimate per bin
+        self._lag_m = [0.0] * n  # this stroke's peak lag per bin
+
+    def bin_of(self, reach_m: float) -> int:
+        b = int((reach_m - self.near_m) / self.width_m)
+        return 0 if b < 0 else (self.n_bins - 1 if b >= self.n_bins else b)
+
+    @property
+    def complete(self) -> bool:
+        return self.start < 0
+
+    @property
+    def start_reach_m(self) -> float:
+        return self.near_m + (self.start + 1) * self.width_m
+
+    @property
+    def start_depth_m(self) -> float:
+        return self.plan_m[self.start]
+
+    def depth_at(self, reach_m: float) -> float:
+        """The stroke's reference depth at ``reach_m``: linear between the bins' centres,
+        the start bin's depth beyond its centre."""
+        x = (reach_m - self.near_m) / self.width_m - 0.5
+        start = self.start
+        if x >= start:
+            return self.plan_m[start]
+        if x <= 0.0:
+            return self.plan_m[0]
+        b = int(x)
+        return self.plan_m[b] + (x - b) * (self.plan_m[b + 1] - self.plan_m[b])
+
+    def slope_at(self, reach_m: float) -> float:
+        """d(depth)/d(reach) of :meth:`depth_at` (≥ 0: the plan never descends toward the
+        robot)."""
+        x = (reach_m - self.near_m) / self.width_m - 0.5
+        if x >= self.start or x <= 0.0:
+            return 0.0
+        b = int(x)
+        return (self.plan_m[b + 1] - self.plan_m[b]) / self.width_m
+
+    def landing_m(self, band_m: float) -> float:
+        """Shallowest floor a descent at the start meets: done there, and what the tip left
+        within ``band_m`` on the robot's side of the start."""
+        start = self.start
+        lowest = self.bin_of(self.start_reach_m - band_m + 1e-9)
+        return min(self.done_m[start], min(self.left_m[lowest:start + 1]))
+
+    def record(self, reach_m: float, depth_m: float, lag_m: float) -> None:
+        """The measured tip and its lag, each tick of a stroke."""
+        b = self.bin_of(reach_m)
+        if depth_m < self._tip_m[b]:
+            self._tip_m[b] = depth_m
+        if lag_m > self._lag_m[b]:
+            self._lag_m[b] = lag_m
+
+    def record_force(self, reach_m: float, force_n: float) -> None:
+        """A stroke's force estimate where the tip is (a non-finite one sticks as nan)."""
+        b = self.bin_of(reach_m)
+        if not math.isfinite(force_n):
+            self._force_n[b] = math.nan
+        elif force_n > self._force_n[b]:
+            self._force_n[b] = force_n
+
+    def finish(self, force_target_n: float, lag_target_m: float) -> None:
+        """A stroke ended at the lane's near end: plan the next one (see the class)."""
+        n, target = self.n_bins, self._target_m
+        seen = list(range(self.start + 1))  # the stroke ran from the start to the near end
+        for b in seen:
+            self.done_m[b] = max(self.done_m[b], self.plan_m[b])
+            if self._tip_m[b] == math.inf:  # not observed: taken to be on its reference
+                self._tip_m[b] = self.plan_m[b]
+        want = [target] * n
+        if self._adaptive and math.isfinite(force_target_n):
+            cut = self._next_cuts(seen, force_target_n, lag_target_m)
+            sliver_m = SLIVER_SHARE * self._min_step_m
+            for b in seen:
+                want[b] = max(self.done_m[b] + self._min_step_m, self._tip_m[b] + cut[b])
+                if want[b] > target - sliver_m:  # not a cycle for what is left
+                    want[b] = target
+        else:
+            for b in range(n):
+                want[b] = self.done_m[b] + self._min_step_m
+        for b in seen:
+            self.left_m[b] = self._tip_m[b]
+        plan = [min(target, w) for w in want]
+        rise_m = RISE_PER_M * self.width_m
+        for b in range(1, n):  # rising at most RISE_PER_M away from the robot
+            plan[b] = min(plan[b], plan[b - 1] + rise_m)
+        for b in range(n - 2, -1, -1):  # never descending toward it
+            plan[b] = min(plan[b], plan[b + 1])
+        self.plan_m = plan
+        start = n - 1
+        while start >= 0 and self.done_m[start] >= target - 1e-9:
+            start -= 1
+        self.start = start
+        self._tip_m = [math.inf] * n
+        self._force_n = [-math.inf] * n
+        self._lag_m = [0.0] * n
+
+    def _next_cuts(self, seen: list[int], force_target_n: float,
+                   lag_target_m: float) -> list[float]:
+        """Each seen bin's next cut (adaptive): the depth law on the cut it took."""
+        n = self.n_bins
+        force = list(self._force_n)
+        carried = -math.inf  # a bin with no sample (the plunge's tail) takes its neighbour's
+        for b in seen:
+            if force[b] == -math.inf:
+                force[b] = carried
+            else:
+                carried = force[b]
+        for b in reversed(seen):
+            if force[b] == -math.inf:
+                force[b] = carried
+            else:
+                carried = force[b]
+        own = [math.inf] * n
+        for b in seen:
+            took_m = max(self.plan_m[b] - self.left_m[b], self._min_step_m)
+            peak_n = force[b] if force[b] != -math.inf else math.nan  # none: the least cut
+            own[b] = next_depth_step_m(took_m, peak_n, force_target_n, self._lag_m[b],
+                                       lag_target_m, self._min_step_m, self._max_step_m)
+        return [min(own[max(0, b - WINDOW_BINS):b + WINDOW_BINS + 1]) for b in range(n)]
 
 
 class LanePlanner:
@@ -75,18 +258,17 @@ class LanePlanner:
         self.depth_m = depth_m
         self.phase = LanePhase.APPROACH
         self.cycle = 1
-        self.floor_m = 0.0  # deepest completed stroke so far (ground level at first)
-        self.landing_m = math.inf  # shallowest measured tip at the last stroke's start
+        self.profile = CutProfile(lane)
+        self.floor_m = 0.0  # shallowest depth the strokes have been along the whole lane
         self.found_at: tuple[float, float] | None = None  # (reach, depth) of a rigid object
         self.stopped_by_force = False
         self.speed_m_per_s = 0.0  # along the path; trapezoidal, zero at every corner
         self.lag_m = 0.0  # how far the tip is from its reference on a stroke (check_stall)
         self._tip_depths = [math.nan] * SETTLE_TICKS  # measured, the last ticks (a ring)
         self._tip_index = 0
+        self._tip_reach_m = reach_m  # measured, the last tick
         self._settling_ticks = 0
-        self.step_m = lane.depth_step_m  # this cycle's depth step (adaptive: it varies)
-        self.cycle_depth_m = min(self.step_m, lane.target_depth_m)
-        self._stroke_peak_n = self._stroke_peak_lag_m = 0.0
+        self.cycle_depth_m = self.profile.start_depth_m  # where this cycle's stroke starts
         self._stroke_ticks = 0
         self._caution_n = math.inf  # supervision's caution level, from govern()
         self.governor: StrokeGovernor | None = None
@@ -120,12 +302,12 @@ class LanePlanner:
         Every tick's measured depth is also kept to see the tip settle before a plunge."""
         self._tip_index = (self._tip_index + 1) % SETTLE_TICKS
         self._tip_depths[self._tip_index] = depth_m
+        self._tip_reach_m = reach_m
         if self.phase is not LanePhase.STROKE or self.found_at is not None:
             self.lag_m = 0.0
             return False
-        if reach_m >= self.lane.reach_far_m - LANDING_BAND_M:
-            self.landing_m = min(self.landing_m, depth_m)
         self.lag_m = math.hypot(self.reach_m - reach_m, self.depth_m - depth_m)
+        self.profile.record(reach_m, depth_m, self.lag_m)
         if self.lag_m <= self.lane.stall_error_m:
             return False
         self.found_at = (reach_m, depth_m)
@@ -150,11 +332,8 @@ class LanePlanner:
             self.governor.update(force_n, lane.force_target_share * caution_n, self.lag_m,
                                  LAG_TARGET_SHARE * lane.stall_error_m, self.speed_m_per_s)
             self._stroke_ticks += 1
-            if not math.isfinite(force_n):
-                self._stroke_peak_n = math.nan
-            elif self._stroke_ticks * self.dt_s > PLUNGE_TAIL_S:
-                self._stroke_peak_n = max(self._stroke_peak_n, force_n)
-            self._stroke_peak_lag_m = max(self._stroke_peak_lag_m, self.lag_m)
+            if self._stroke_ticks * self.dt_s > PLUNGE_TAIL_S or not math.isfinite(force_n):
+                self.profile.record_force(self._tip_reach_m, force_n)
             self._caution_n = caution_n
 
     @property
@@ -183,15 +362,16 @@ class LanePlanner:
     def _target(self) -> tuple[float, float, float]:
         """(reach, depth, speed) the current phase moves toward."""
         lane, above = self.lane, -self.lane.clearance_m
+        profile = self.profile
         if self.phase is LanePhase.APPROACH:
-            return lane.reach_far_m, above, lane.travel_speed_m_per_s
+            return profile.start_reach_m, above, lane.travel_speed_m_per_s
         if self.phase is LanePhase.LOWER:
-            landing_m = min(self.floor_m, self.landing_m)
-            return lane.reach_far_m, landing_m - PLUNGE_MARGIN_M, lane.travel_speed_m_per_s
+            landing_m = profile.landing_m(LANDING_BAND_M)
+            return profile.start_reach_m, landing_m - PLUNGE_MARGIN_M, lane.travel_speed_m_per_s
         if self.phase is LanePhase.PLUNGE:
-            return lane.reach_far_m, self.cycle_depth_m, self.plunge_speed_m_per_s
+            return profile.start_reach_m, self.cycle_depth_m, self.plunge_speed_m_per_s
         if self.phase is LanePhase.STROKE:
-            return lane.reach_near_m, self.cycle_depth_m, self.stroke_speed_m_per_s
+            return lane.reach_near_m, profile.depth_at(lane.reach_near_m), self.stroke_speed_m_per_s
         return self.reach_m, above, lane.travel_speed_m_per_s  # LIFT, DONE
 
     def _tip_settled(self) -> bool:
@@ -204,17 +384,13 @@ class LanePlanner:
 
     def _next_phase(self) -> LanePhase:
         if self.phase is LanePhase.LIFT:
-            if (self.found_at is not None or self.stopped_by_force
-                    or self.floor_m >= self.lane.target_depth_m - 1e-12):
+            if self.found_at is not None or self.stopped_by_force or self.profile.complete:
                 return LanePhase.DONE
             self.cycle += 1
-            self.cycle_depth_m = min(self.floor_m + self.step_m, self.lane.target_depth_m)
+            self.cycle_depth_m = self.profile.start_depth_m
             return LanePhase.APPROACH
         if self.phase is LanePhase.STROKE:
-            self.floor_m = self.cycle_depth_m
-            self._next_step()
-        if self.phase is LanePhase.PLUNGE:
-            self.landing_m = math.inf  # measured afresh at this stroke's start
+            self._finish_stroke()
         if self.phase is LanePhase.LOWER and self.plunge_governor is not None:
             # each plunge starts at the lane's own speed: the tip meets the soil there
             self.plunge_governor.speed_m_per_s = self.lane.plunge_speed_m_per_s
@@ -222,15 +398,13 @@ class LanePlanner:
                  LanePhase.LIFT)
         return order[order.index(self.phase) + 1]
 
-    def _next_step(self) -> None:
-        """At a stroke's end: the next cycle's depth step (adaptive lanes only)."""
+    def _finish_stroke(self) -> None:
+        """At a stroke's end: the next cycle's depths (:class:`CutProfile`; an adaptive lane
+        that was not governed, told no caution level, cuts like a fixed one)."""
         lane = self.lane
-        if self.governor is not None and math.isfinite(self._caution_n):  # it was governed
-            self.step_m = next_depth_step_m(
-                self.step_m, self._stroke_peak_n, lane.force_target_share * self._caution_n,
-                self._stroke_peak_lag_m, LAG_TARGET_SHARE * lane.stall_error_m,
-                lane.depth_step_m, lane.max_depth_step_m)
-        self._stroke_peak_n = self._stroke_peak_lag_m = 0.0
+        self.profile.finish(lane.force_target_share * self._caution_n,
+                            LAG_TARGET_SHARE * lane.stall_error_m)
+        self.floor_m = min(self.profile.done_m)
         self._stroke_ticks = 0
         self._caution_n = math.inf
 
@@ -240,7 +414,8 @@ class LanePlanner:
             return
         reach, depth, top_speed = self._target()
         d_reach, d_depth = reach - self.reach_m, depth - self.depth_m
-        distance = math.hypot(d_reach, d_depth)
+        stroke = self.phase is LanePhase.STROKE  # along the profile: distance in reach
+        distance = -d_reach if stroke else math.hypot(d_reach, d_depth)
         accel = self.lane.accel_m_per_s2
         self.speed_m_per_s = min(top_speed, self.speed_m_per_s + accel * self.dt_s,
                                  math.sqrt(2.0 * accel * distance))
@@ -254,6 +429,10 @@ class LanePlanner:
                 return
             self._settling_ticks = 0
             self.phase = self._next_phase()
+            return
+        if stroke:  # the path's speed, not the reach's, is the limit
+            self.reach_m -= travel / math.hypot(1.0, self.profile.slope_at(self.reach_m))
+            self.depth_m = self.profile.depth_at(self.reach_m)
             return
         self.reach_m += d_reach * travel / distance
         self.depth_m += d_depth * travel / distance

@@ -149,9 +149,12 @@ class LaneSettings:
         0.8, "Adaptive: the stroke's force set point as a share of "
         "supervision.caution_force_n.", gt=0, lt=1)
     max_depth_step_m: float = setting(
-        0.04, "Adaptive: deepest cut. Each cut's depth step is the last one's times the last "
-        "stroke's margin (force set point / its peak estimate, and the same for the lag), at "
-        "most doubled, never below depth_step_m.", unit="m", gt=0, le=0.1)
+        0.04, "Adaptive: deepest cut. Per 20 mm of reach, each cut is the one the last stroke "
+        "took there (from the floor the tip left) times that stroke's margin there (force set "
+        "point / its peak estimate, and the same for the lag), at most doubled, at least "
+        "depth_step_m below what was done; deeper far from the robot, never descending toward "
+        "it. Strokes start where the lane is not yet at target_depth_m.", unit="m", gt=0,
+        le=0.1)
     governor_gain_per_s: float = setting(
         2.0, "Adaptive: with no force the speed limit rises by this share of "
         "max_stroke_speed_m_per_s per second; above the set point it falls 8× faster.",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from collections.abc import Callable
@@ -13,7 +14,9 @@ from hypothesis import strategies as st
 from rakectl.excavation import (
     LANDING_BAND_M,
     PLUNGE_MARGIN_M,
+    RISE_PER_M,
     SETTLE_TIMEOUT_S,
+    CutProfile,
     LanePhase,
     LanePlanner,
 )
@@ -142,3 +145,139 @@ def test_the_next_descent_stops_above_the_soil_the_last_stroke_left_at_its_start
     # a tip that rode up only further along is not where the next descent lands
     assert _second_descent_end(0.008, lambda reach: reach < far - 2 * LANDING_BAND_M) == (
         pytest.approx(floor - PLUNGE_MARGIN_M))
+
+
+# --------------------------------------------------------------------------- the cut profile
+
+ADAPTIVE = LaneSettings(reach_far_m=1.4, reach_near_m=0.4, depth_step_m=0.01,
+                        target_depth_m=0.1, max_depth_step_m=0.04, adaptive=True)
+FORCE_TARGET_N, LAG_TARGET_M = 44.0, 0.01
+
+
+def _stroke(profile: CutProfile, force_of: Callable[[float], float],
+            ride_of: Callable[[float], float] = lambda reach: 0.0) -> None:
+    """One stroke from the profile's start to the near end, 1 mm per tick: the force
+    estimate ``force_of(reach)``, the tip ``ride_of(reach)`` above its reference."""
+    reach = profile.start_reach_m
+    while reach >= profile.near_m:
+        ride = ride_of(reach)
+        profile.record(reach, profile.depth_at(reach) - ride, ride)
+        profile.record_force(reach, force_of(reach))
+        reach -= 0.001
+    profile.finish(FORCE_TARGET_N, LAG_TARGET_M)
+
+
+def _shape_holds(profile: CutProfile) -> None:
+    plan, done, rise = profile.plan_m, profile.done_m, RISE_PER_M * profile.width_m
+    for near, far in itertools.pairwise(range(profile.n_bins)):
+        assert plan[near] <= plan[far] + 1e-12  # never descending toward the robot
+        assert plan[far] - plan[near] <= rise + 1e-12
+    target, step = ADAPTIVE.target_depth_m, ADAPTIVE.depth_step_m
+    for b in range(profile.start + 1):  # every bin not yet done makes progress
+        assert plan[b] >= min(target, done[b] + step) - 1e-12
+    assert max(plan) <= target + 1e-12
+
+
+def test_a_lane_goes_deeper_where_the_load_is_light_and_strokes_start_where_it_is_not_done(
+        ) -> None:
+    profile = CutProfile(ADAPTIVE)
+    heavy_near = 0.7
+
+    def force(reach: float) -> float:  # over the set point near the robot, light beyond
+        return 60.0 if reach < heavy_near else 10.0
+
+    strokes = 0
+    while not profile.complete:
+        assert profile.start_reach_m == pytest.approx(  # the far edge of the first bin not done
+            profile.near_m + (profile.start + 1) * profile.width_m)
+        _stroke(profile, force)
+        _shape_holds(profile)
+        strokes += 1
+        if strokes == 2:
+            far, near = profile.plan_m[-1], profile.plan_m[0]
+            assert far > near + 0.02  # far: doubled twice from 10 mm; near: one step a cycle
+            assert near == pytest.approx(0.03)
+    assert strokes == 10  # the near end, one depth step a stroke, sets the count
+    assert profile.done_m == pytest.approx([ADAPTIVE.target_depth_m] * profile.n_bins)
+
+
+def test_partial_strokes_begin_once_the_far_part_is_done() -> None:
+    profile = CutProfile(ADAPTIVE)
+    starts = []
+    while not profile.complete:
+        starts.append(profile.start_reach_m)
+        _stroke(profile, lambda reach: 60.0 if reach < 0.7 else 10.0)
+    assert starts[0] == pytest.approx(ADAPTIVE.reach_far_m)
+    # the last strokes rake only the heavy part near the robot and the rise out of it
+    assert starts[-1] < 0.9
+    assert starts == sorted(starts, reverse=True)
+
+
+def test_a_bins_next_cut_counts_from_where_the_tip_really_was() -> None:
+    """A tip that rode 8 mm up near the robot left soil there: the next cut's depth there
+    counts from that floor (not from the reference), within one depth step of it."""
+    flat = CutProfile(ADAPTIVE)
+    rode = CutProfile(ADAPTIVE)
+    _stroke(flat, lambda reach: 44.0)  # at the set point: the same cut again
+    _stroke(rode, lambda reach: 44.0, lambda reach: 0.008 if reach < 0.6 else 0.0)
+    assert flat.plan_m[0] == pytest.approx(0.02)
+    assert rode.plan_m[0] == pytest.approx(0.02)  # at least one step below what was done
+    assert rode.left_m[0] == pytest.approx(0.002)
+    assert rode.plan_m[-1] == pytest.approx(0.02)
+
+
+def test_a_sliver_short_of_the_target_is_cut_with_the_last_stroke() -> None:
+    lane = dataclasses.replace(ADAPTIVE, target_depth_m=0.037, max_depth_step_m=0.04)
+    profile = CutProfile(lane)
+    _stroke(profile, lambda reach: 22.0)  # half the set point: twice as deep, 20 mm
+    assert profile.plan_m[0] == pytest.approx(0.03)  # 7 mm short: a cycle of its own
+    lane = dataclasses.replace(lane, target_depth_m=0.033)
+    profile = CutProfile(lane)
+    _stroke(profile, lambda reach: 22.0)
+    assert profile.plan_m[0] == pytest.approx(0.033)  # 3 mm short: cut with this one
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(st.floats(0.0, 200.0), st.floats(0.0, 0.03), st.floats(0.4, 1.4)),
+                min_size=1, max_size=6))
+def test_the_profile_keeps_its_shape_and_progress_whatever_the_strokes_meet(
+        loads: list[tuple[float, float, float]]) -> None:
+    """Forces and ride-ups that change along the lane and from stroke to stroke: the plan
+    never descends toward the robot, rises within its limit, and every stroke deepens
+    every bin not done by a step, so the lane is done in target/step strokes at most."""
+    profile = CutProfile(ADAPTIVE)
+    for k in range(10):
+        force_n, ride_m, where = loads[k % len(loads)]
+
+        def force(reach: float, f: float = force_n, w: float = where) -> float:
+            return f if reach < w else 0.5 * f
+
+        def ride(reach: float, r: float = ride_m, w: float = where) -> float:
+            return r if reach < w else 0.0
+
+        _stroke(profile, force, ride)
+        _shape_holds(profile)
+        if profile.complete:
+            break
+    assert profile.complete
+
+
+def test_a_partial_stroke_approaches_lowers_and_plunges_at_its_start() -> None:
+    lane = dataclasses.replace(ADAPTIVE, reach_far_m=1.0, reach_near_m=0.6,
+                               target_depth_m=0.03, travel_speed_m_per_s=0.5,
+                               accel_m_per_s2=2.0, plunge_speed_m_per_s=0.05,
+                               max_plunge_speed_m_per_s=0.05)
+    planner = LanePlanner(lane, 1e-3, lane.reach_far_m, -lane.clearance_m)
+    plunges: dict[int, float] = {}
+    while not planner.done:
+        planner.observe(planner.reach_m, planner.depth_m)
+        heavy = planner.phase is LanePhase.STROKE and planner.reach_m < 0.8
+        planner.govern(60.0 if heavy else 5.0, caution_n=55.0)
+        if planner.phase in (LanePhase.LOWER, LanePhase.PLUNGE):
+            plunges.setdefault(planner.cycle, planner.reach_m)
+            assert planner.reach_m == pytest.approx(plunges[planner.cycle])
+        planner.step()
+    assert plunges[1] == pytest.approx(lane.reach_far_m)
+    # a stroke that began where the lane was not done (the heavy part and the rise out of it)
+    assert min(plunges.values()) < lane.reach_far_m - 0.05
+    assert planner.floor_m == pytest.approx(lane.target_depth_m)
