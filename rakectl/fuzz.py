@@ -446,10 +446,16 @@ class Report:
             k["mine_activations"] += r.mine_activated
         return out
 
+    def over_limit(self) -> list[str]:
+        """Every case over the limit or that fired a mine: 'seed/index kind F N [mine]'."""
+        return [f"{self.worst_case.seed}/{r.index} {r.kind} {r.f_true_z_max_n:.1f} N"
+                + (" mine fired" if r.mine_activated else "")
+                for r in self.results if r.ticks_over_limit or r.mine_activated]
+
     def summary(self) -> dict[str, Any]:
         return {"scenarios": self.scenarios, "f_true_z_max_n": self.f_true_z_max_n,
                 "ticks_over_limit": self.ticks_over_limit,
-                "cases_over_limit": self.cases_over_limit,
+                "cases_over_limit": self.cases_over_limit, "over_limit": self.over_limit(),
                 "mine_activations": self.mine_activations,
                 "controller_faults": self.controller_faults, "by_kind": self.by_kind(),
                 "worst": self.worst.to_dict(), "worst_case": self.worst_case.describe(),
@@ -528,6 +534,7 @@ def _human(report: Report) -> str:
              f"mine activations: {s['mine_activations']}",
              f"controller faults: {s['controller_faults']}"]
     lines += [f"  {kind}: {k}" for kind, k in s["by_kind"].items()]
+    lines += [f"over the limit: {case}" for case in s["over_limit"]]
     lines.append(f"worst: {s['worst_case']} → {s['f_true_z_max_n']:.1f} N at "
                  f"t = {report.worst.f_true_z_max_t_s:.3f} s")
     if report.worst_case_path:

@@ -102,6 +102,12 @@ def test_the_clamp_is_what_holds() -> None:
     assert clamped.ticks_over_limit == 0 and not clamped.mine_activated
     assert unclamped.f_true_z_max_n > 1.3 * fuzz.FORCE_LIMIT_N
     assert unclamped.ticks_over_limit > 1000 and unclamped.mine_activated
+    # a campaign's report names every case over the limit, not only the worst
+    report = fuzz.Report(2, unclamped.f_true_z_max_n, unclamped.ticks_over_limit, 1, 1, 0,
+                         unclamped, case, (clamped, unclamped), 1.0)
+    assert report.over_limit() == [
+        f"{case.seed}/{case.index} plunge {unclamped.f_true_z_max_n:.1f} N mine fired"]
+    assert report.summary()["over_limit"] == report.over_limit()
 
 
 def test_full_speed_plunge_onto_a_stone_stays_below_the_limit() -> None:
