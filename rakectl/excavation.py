@@ -71,6 +71,10 @@ WINDOW_BINS = 2
 # An adaptive cut that would leave less than this share of depth_step_m above the target
 # goes to the target: a whole cycle for a sliver costs more than the sliver's load.
 SLIVER_SHARE = 0.5
+# An adaptive lane's bin is done once a stroke at the target depth went through it and the
+# tip really was within this of the target there, or after a second stroke at the target
+# (the tine rides up where the clamp caps its hold-down: one more pass, not a loop).
+FLOOR_TOLERANCE_M = 0.003
 
 
 class LanePhase(enum.Enum):
@@ -99,14 +103,17 @@ class CutProfile:
     the cut it really took (the smallest over WINDOW_BINS on either side), and never less
     than ``depth_step_m`` below what was done. The plan is then shaped: not deeper than
     the target, not descending toward the robot, rising at most RISE_PER_M; a bin that
-    would be left less than SLIVER_SHARE of a step short of the target goes to it. The shaping
+    would be left less than SLIVER_SHARE of a step short of the target goes to it; on an
+    adaptive lane a bin at the target whose measured floor is more than FLOOR_TOLERANCE_M
+    short gets one more stroke. The shaping
     keeps every bin not yet done at least ``min(target, done + depth_step_m)`` deep (the
     done depths are themselves non-descending and within the rise: each plan was), so
     every stroke makes progress.
     """
 
-    __slots__ = ("_adaptive", "_force_n", "_lag_m", "_max_step_m", "_min_step_m", "_target_m",
-                 "_tip_m", "done_m", "left_m", "n_bins", "near_m", "plan_m", "start", "width_m")
+    __slots__ = ("_adaptive", "_at_target", "_force_n", "_lag_m", "_max_step_m", "_min_step_m",
+                 "_target_m", "_tip_m", "done_m", "left_m", "n_bins", "near_m", "plan_m",
+                 "start", "width_m")
 
     def __init__(self, lane: LaneSettings) -> None:
         span_m = lane.reach_far_m - lane.reach_near_m
@@ -123,6 +130,7 @@ class CutProfile:
         self.done_m = [0.0] * n
         self.left_m = [0.0] * n
         self.start = n - 1
+        self._at_target = [0] * n  # strokes at the target depth through each bin
         self._tip_m = [math.inf] * n  # this stroke's shallowest measured tip per bin
         self._force_n = [-math.inf] * n  # this stroke's peak force estimate per bin
         self._lag_m = [0.0] * n  # this stroke's peak lag per bin
@@ -193,6 +201,7 @@ class CutProfile:
         seen = list(range(self.start + 1))  # the stroke ran from the start to the near end
         for b in seen:
             self.done_m[b] = max(self.done_m[b], self.plan_m[b])
+            self._at_target[b] += self.plan_m[b] >= target - 1e-9
             if self._tip_m[b] == math.inf:  # not observed: taken to be on its reference
                 self._tip_m[b] = self.plan_m[b]
         want = [target] * n
@@ -216,12 +225,25 @@ class CutProfile:
             plan[b] = min(plan[b], plan[b + 1])
         self.plan_m = plan
         start = n - 1
-        while start >= 0 and self.done_m[start] >= target - 1e-9:
+        while start >= 0 and self._finished(start):
             start -= 1
         self.start = start
         self._tip_m = [math.inf] * n
         self._force_n = [-math.inf] * n
         self._lag_m = [0.0] * n
+
+    def _finished(self, b: int) -> bool:
+        if self.done_m[b] < self._target_m - 1e-9:
+            return False
+        return (not self._adaptive or self._at_target[b] >= 2
+                or self.left_m[b] >= self._target_m - FLOOR_TOLERANCE_M)
+
+    @property
+    def depth_reached_m(self) -> float:
+        """The lane's depth where it is least deep: the depth done, except that a bin an
+        adaptive lane has not finished counts where the tip really left it."""
+        return min(d if self._finished(b) else min(d, self.left_m[b])
+                   for b, d in enumerate(self.done_m))
 
     def _next_cuts(self, seen: list[int], force_target_n: float,
                    lag_target_m: float) -> list[float]:
@@ -404,7 +426,7 @@ class LanePlanner:
         lane = self.lane
         self.profile.finish(lane.force_target_share * self._caution_n,
                             LAG_TARGET_SHARE * lane.stall_error_m)
-        self.floor_m = min(self.profile.done_m)
+        self.floor_m = self.profile.depth_reached_m
         self._stroke_ticks = 0
         self._caution_n = math.inf
 

@@ -244,9 +244,10 @@ def test_the_profile_keeps_its_shape_and_progress_whatever_the_strokes_meet(
         loads: list[tuple[float, float, float]]) -> None:
     """Forces and ride-ups that change along the lane and from stroke to stroke: the plan
     never descends toward the robot, rises within its limit, and every stroke deepens
-    every bin not done by a step, so the lane is done in target/step strokes at most."""
+    every bin not done by a step, so the lane is done in target/step strokes at most, and
+    one more where the tine rode up on the stroke at the target."""
     profile = CutProfile(ADAPTIVE)
-    for k in range(10):
+    for k in range(11):
         force_n, ride_m, where = loads[k % len(loads)]
 
         def force(reach: float, f: float = force_n, w: float = where) -> float:
@@ -260,6 +261,24 @@ def test_the_profile_keeps_its_shape_and_progress_whatever_the_strokes_meet(
         if profile.complete:
             break
     assert profile.complete
+
+
+def test_a_bin_the_tine_rode_up_in_at_the_target_gets_one_more_stroke() -> None:
+    lane = dataclasses.replace(ADAPTIVE, target_depth_m=0.02)
+    for ride_m, strokes in ((0.002, 2), (0.004, 3)):  # within the tolerance, or beyond it
+        profile = CutProfile(lane)
+        done = 0
+        def ride(reach: float, r: float = ride_m) -> float:
+            return r if 0.6 < reach < 0.65 else 0.0
+
+        while not profile.complete:
+            _stroke(profile, lambda reach: 44.0, ride)
+            done += 1
+            assert done <= strokes
+            if not profile.complete:
+                assert profile.depth_reached_m < lane.target_depth_m
+        assert done == strokes
+        assert profile.depth_reached_m == pytest.approx(lane.target_depth_m)
 
 
 def test_a_partial_stroke_approaches_lowers_and_plunges_at_its_start() -> None:
