@@ -69,7 +69,9 @@ def test_excavation_report_has_every_soil_and_controller_with_finite_figures(
                       r.stroke_speed_mean_m_per_s, *r.phase_s.values()):
             assert math.isfinite(value) and value >= 0.0
         assert r.series is not None and len(r.series.t_s) == len(r.series.f_true_z_n) > 10
-        assert r.cycles == 1  # the tiny lane is one 10 mm cut
+        # the tiny lane is one 10 mm cut; an adaptive lane gives a place where the tine rode
+        # more than 3 mm high one more stroke
+        assert r.cycles == 1 or (r.job.controller == Controller.ADAPTIVE and r.cycles == 2)
         assert 0.0 < r.floor_true_m <= 0.0105  # the soil's own floor, at most about that deep
     for soil in SOILS:
         assert math.isfinite(excavation.speedup(soil)) and excavation.stroke_bound(soil) >= 1.0
