@@ -30,7 +30,8 @@ never sees the tip lower than the object's top.
   ≤ its collapse force, adds to the yield force).
 * MINE: rigid body (K = 5e6 N/m, a plastic casing) whose whole top is the
   pressure plate (conservative). It is activated — latched — the first step
-  the vertical force on its top exceeds ``activation_force_n``; a push on its
+  the vertical force on its top (its rounded rim included) exceeds
+  ``activation_force_n``; a push on its
   side does not activate it (side forces are recorded as ``peak_side_n``).
   Force passed down through covering soil is not counted: it never exceeds the
   tip's total vertical force, which :class:`GroundTruth` records as

@@ -105,10 +105,9 @@ class CutProfile:
     the target, not descending toward the robot, rising at most RISE_PER_M; a bin that
     would be left less than SLIVER_SHARE of a step short of the target goes to it; on an
     adaptive lane a bin at the target whose measured floor is more than FLOOR_TOLERANCE_M
-    short gets one more stroke. The shaping
-    keeps every bin not yet done at least ``min(target, done + depth_step_m)`` deep (the
-    done depths are themselves non-descending and within the rise: each plan was), so
-    every stroke makes progress.
+    short gets one more stroke. The shaping keeps every bin not yet done at least
+    ``min(target, done + depth_step_m)`` deep (the done depths are themselves
+    non-descending and within the rise: each plan was), so every stroke makes progress.
     """
 
     __slots__ = ("_adaptive", "_at_target", "_force_n", "_lag_m", "_max_step_m", "_min_step_m",
@@ -151,26 +150,19 @@ class CutProfile:
     def start_depth_m(self) -> float:
         return self.plan_m[self.start]
 
-    def depth_at(self, reach_m: float) -> float:
-        """The stroke's reference depth at ``reach_m``: linear between the bins' centres,
-        the start bin's depth beyond its centre."""
+    def depth_and_slope_at(self, reach_m: float) -> tuple[float, float]:
+        """The stroke's reference depth at ``reach_m`` and its slope d(depth)/d(reach) (≥ 0:
+        the plan never descends toward the robot): linear between the bins' centres, the
+        start bin's depth beyond its centre."""
         x = (reach_m - self.near_m) / self.width_m - 0.5
-        start = self.start
-        if x >= start:
-            return self.plan_m[start]
+        plan = self.plan_m
+        if x >= self.start:
+            return plan[self.start], 0.0
         if x <= 0.0:
-            return self.plan_m[0]
+            return plan[0], 0.0
         b = int(x)
-        return self.plan_m[b] + (x - b) * (self.plan_m[b + 1] - self.plan_m[b])
-
-    def slope_at(self, reach_m: float) -> float:
-        """d(depth)/d(reach) of :meth:`depth_at` (≥ 0: the plan never descends toward the
-        robot)."""
-        x = (reach_m - self.near_m) / self.width_m - 0.5
-        if x >= self.start or x <= 0.0:
-            return 0.0
-        b = int(x)
-        return (self.plan_m[b + 1] - self.plan_m[b]) / self.width_m
+        rise_m = plan[b + 1] - plan[b]
+        return plan[b] + (x - b) * rise_m, rise_m / self.width_m
 
     def landing_m(self, band_m: float) -> float:
         """Shallowest floor a descent at the start meets: done there, and what the tip left
@@ -290,7 +282,6 @@ class LanePlanner:
         self._tip_index = 0
         self._tip_reach_m = reach_m  # measured, the last tick
         self._settling_ticks = 0
-        self.cycle_depth_m = self.profile.start_depth_m  # where this cycle's stroke starts
         self._stroke_ticks = 0
         self._caution_n = math.inf  # supervision's caution level, from govern()
         self.governor: StrokeGovernor | None = None
@@ -359,6 +350,11 @@ class LanePlanner:
             self._caution_n = caution_n
 
     @property
+    def cycle_depth_m(self) -> float:
+        """Where this cycle's stroke starts (during LIFT: the next one's)."""
+        return self.profile.start_depth_m
+
+    @property
     def plunge_speed_m_per_s(self) -> float:
         """The plunge's speed limit now: the governor's, or the lane's fixed one."""
         if self.plunge_governor is not None:
@@ -391,9 +387,9 @@ class LanePlanner:
             landing_m = profile.landing_m(LANDING_BAND_M)
             return profile.start_reach_m, landing_m - PLUNGE_MARGIN_M, lane.travel_speed_m_per_s
         if self.phase is LanePhase.PLUNGE:
-            return profile.start_reach_m, self.cycle_depth_m, self.plunge_speed_m_per_s
+            return profile.start_reach_m, profile.start_depth_m, self.plunge_speed_m_per_s
         if self.phase is LanePhase.STROKE:
-            return lane.reach_near_m, profile.depth_at(lane.reach_near_m), self.stroke_speed_m_per_s
+            return lane.reach_near_m, profile.plan_m[0], self.stroke_speed_m_per_s
         return self.reach_m, above, lane.travel_speed_m_per_s  # LIFT, DONE
 
     def _tip_settled(self) -> bool:
@@ -409,7 +405,6 @@ class LanePlanner:
             if self.found_at is not None or self.stopped_by_force or self.profile.complete:
                 return LanePhase.DONE
             self.cycle += 1
-            self.cycle_depth_m = self.profile.start_depth_m
             return LanePhase.APPROACH
         if self.phase is LanePhase.STROKE:
             self._finish_stroke()
@@ -453,8 +448,9 @@ class LanePlanner:
             self.phase = self._next_phase()
             return
         if stroke:  # the path's speed, not the reach's, is the limit
-            self.reach_m -= travel / math.hypot(1.0, self.profile.slope_at(self.reach_m))
-            self.depth_m = self.profile.depth_at(self.reach_m)
+            _, slope = self.profile.depth_and_slope_at(self.reach_m)
+            self.reach_m -= travel / math.hypot(1.0, slope)
+            self.depth_m, _ = self.profile.depth_and_slope_at(self.reach_m)
             return
         self.reach_m += d_reach * travel / distance
         self.depth_m += d_depth * travel / distance

@@ -161,7 +161,7 @@ def _stroke(profile: CutProfile, force_of: Callable[[float], float],
     reach = profile.start_reach_m
     while reach >= profile.near_m:
         ride = ride_of(reach)
-        profile.record(reach, profile.depth_at(reach) - ride, ride)
+        profile.record(reach, profile.depth_and_slope_at(reach)[0] - ride, ride)
         profile.record_force(reach, force_of(reach))
         reach -= 0.001
     profile.finish(FORCE_TARGET_N, LAG_TARGET_M)
