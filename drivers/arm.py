@@ -17,7 +17,7 @@ momenta p_r = M_r ṙ and p_θ = M_θ θ̇::
 
 Q holds the motor loads (drivers.motor), joint damping, hard stops at the
 Workspace limits and the tip contact force mapped through Jᵀ by
-``rakectl.kinematics.joint_loads``.
+``rakectl.core.kinematics.joint_loads``.
 
 Integration: symplectic Euler, p first from q_n, then q from p_{n+1}. Because
 ∂H/∂r depends on p_θ only and ∂H/∂θ on neither momentum, this is explicit and
@@ -58,10 +58,10 @@ from drivers.motor import (
     substeps_in,
 )
 from drivers.soil import VerticalLaw
-from rakectl import kinematics
-from rakectl.declare import setting
+from rakectl.config.declare import setting
+from rakectl.core import kinematics
+from rakectl.core.kinematics import Workspace
 from rakectl.errors import ConfigError, NonFiniteError
-from rakectl.kinematics import Workspace
 
 DEFAULT_SUBSTEP_S = 5e-5  # set by the contact; see the module docstring
 MAX_EXPLICIT_DAMPING = 0.1  # largest allowed h·c/M of an explicitly integrated damper
@@ -108,7 +108,7 @@ class ArmParams:
     )
     tine_mount_stiffness_n_per_m: float = setting(
         3.0e4, "Vertical stiffness of the tines' compliant mount (0: rigid). In series with "
-        "whatever the tines press on, it bounds the contact stiffness (rakectl.clamp).",
+        "whatever the tines press on, it bounds the contact stiffness (rakectl.core.clamp).",
         unit="N/m", ge=0, le=1e9,
     )
     tine_mount_damping_ns_per_m: float = setting(

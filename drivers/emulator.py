@@ -51,9 +51,9 @@ from drivers.arm import ArmPlant
 from drivers.node import BadInput, DriveKind, DriveNode, DriveSpec, Frame, InputStats
 from drivers.objects import Ground
 from drivers.settings import EmulatorConfig, TimingMode
-from rakectl.codec import SYNC_COB_ID, SYNC_COUNTER_MAX, EmcyCode
-from rakectl.kinematics import Workspace
-from rakectl.motor_model import MotorParams, joint_per_motor_rad
+from rakectl.core.kinematics import Workspace
+from rakectl.core.motor_model import MotorParams, joint_per_motor_rad
+from rakectl.protocol.codec import SYNC_COB_ID, SYNC_COUNTER_MAX, EmcyCode
 
 REPORT_INTERVAL_S: Final = 0.25  # how often counters are checked for the rate-limited log
 LOG_INTERVAL_S: Final = 1.0  # at most one log event per kind per this

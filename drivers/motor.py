@@ -34,8 +34,7 @@ from __future__ import annotations
 import enum
 import math
 
-from rakectl.errors import ConfigError
-from rakectl.motor_model import (
+from rakectl.core.motor_model import (
     R_MOTOR_DEFAULT,
     THETA_MOTOR_DEFAULT,
     TWO_PI,
@@ -50,6 +49,7 @@ from rakectl.motor_model import (
     stall_current_a,
     stall_joint_load,
 )
+from rakectl.errors import ConfigError
 
 __all__ = [
     "R_MOTOR_DEFAULT",

@@ -1,7 +1,7 @@
 """One emulated CANopen drive with an open-loop voltage mode: frames in, frames out.
 
 A :class:`DriveNode` is the protocol side of one Roboteq/Faulhaber-class drive
-(CiA 301 + CiA 402, the layouts of :mod:`rakectl.codec`). It does no bus I/O
+(CiA 301 + CiA 402, the layouts of :mod:`rakectl.protocol.codec`). It does no bus I/O
 and reads no clock: :meth:`DriveNode.receive` takes a frame's COB-ID, data and
 the time, :meth:`~DriveNode.poll` the time alone, :meth:`~DriveNode.sense` the
 physics' latest sample; each returns the frames to send as ``(can_id, data)``.
@@ -36,7 +36,7 @@ in this drive: writing their present value succeeds, any other value aborts.
 Identity 0x1018: product code from the EDS, serial number from the
 configuration.
 
-CiA 402 (:mod:`rakectl.cia402`). The drive boots to SWITCH_ON_DISABLED. RPDO1
+CiA 402 (:mod:`rakectl.protocol.cia402`). The drive boots to SWITCH_ON_DISABLED. RPDO1
 is synchronous: its controlword and voltage take effect at the next SYNC (the
 command computed from SYNC k's TPDO1 acts from SYNC k+1); a controlword
 written by SDO to 0x6040 acts at once. The command's voltage is applied only
@@ -86,9 +86,11 @@ from typing import Any, Final
 import canopen
 from canopen import SdoAbortedError
 
-from rakectl import cia402
-from rakectl.cia402 import Command, State, StatusFlag
-from rakectl.codec import (
+from rakectl.core.motor_model import MotorParams, joint_resolution
+from rakectl.errors import FrameError
+from rakectl.protocol import cia402
+from rakectl.protocol.cia402 import Command, State, StatusFlag
+from rakectl.protocol.codec import (
     EMCY_ERROR_REGISTER,
     INT32_LIMIT,
     NMT_COB_ID,
@@ -110,12 +112,10 @@ from rakectl.codec import (
     pack_tpdo2_into,
     rad_per_s_to_rpm,
 )
-from rakectl.errors import FrameError
-from rakectl.motor_model import MotorParams, joint_resolution
+from rakectl.protocol.files import EDS_DIR
 
 Frame = tuple[int, bytes | bytearray]
 NO_FRAMES: Final[tuple[Frame, ...]] = ()
-EDS_DIR: Final = Path(__file__).resolve().parent / "eds"
 OVERCURRENT_SHARE: Final = 0.95  # |i| ≥ this share of the limit counts as "at the limit"
 MAX_COUNTS_PER_REV: Final = 10**9  # MotorParams' bound on encoder_counts_per_rev
 

@@ -46,7 +46,7 @@ import math
 from dataclasses import dataclass
 
 from drivers.soil import Soil, SoilParams, VerticalLaw
-from rakectl.declare import section, setting
+from rakectl.config.declare import section, setting
 from rakectl.errors import NonFiniteError
 
 

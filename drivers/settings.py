@@ -7,9 +7,9 @@ from dataclasses import dataclass
 
 from drivers.arm import DEFAULT_SUBSTEP_S, ArmParams
 from drivers.objects import GroundParams
-from rakectl.declare import section, setting
-from rakectl.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, MotorParams
-from rakectl.settings import BusSettings, GeometrySettings
+from rakectl.config.declare import section, setting
+from rakectl.config.settings import BusSettings, GeometrySettings
+from rakectl.core.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, MotorParams
 
 
 @dataclass(frozen=True)

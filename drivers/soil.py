@@ -67,7 +67,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rakectl.declare import setting
+from rakectl.config.declare import setting
 from rakectl.errors import ConfigError
 
 _STANDARD_GRAVITY_M_PER_S2 = 9.80665

@@ -1,5 +1,5 @@
 import sys
 
-from rakectl.cli import main
+from rakectl.cli.main import main
 
 sys.exit(main())

@@ -5,8 +5,8 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from rakectl.api import api_reference
-from rakectl.docs import settings_reference
+from rakectl.api.server import api_reference
+from rakectl.config.reference import settings_reference
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from rakectl import api
-from rakectl.settings import BusSettings
+from rakectl.api import server as api
+from rakectl.config.settings import BusSettings
 
 SYSTEMD = Path(__file__).resolve().parents[1] / "systemd"
 UNITS = ("rakectl.service", "rakectl-emulator.service")
@@ -184,14 +184,14 @@ def test_sysusers_creates_the_user_and_group(tmp_path: Path) -> None:
 _MDWE_WORKLOAD = textwrap.dedent("""
     import mmap, tempfile, pathlib
     import numpy, yaml, structlog, can, canopen, drivers
-    import rakectl.api, rakectl.config, rakectl.sdnotify, rakectl.simulate
+    import rakectl.api.server, rakectl.config.loader, rakectl.daemon.sdnotify, rakectl.sim.simulate
     assert numpy.allclose(numpy.linalg.solve(2 * numpy.eye(3), numpy.ones(3)), 0.5)
     bus = can.Bus(interface="virtual", channel="mdwe")
     bus.send(can.Message(arbitration_id=0x80, data=b""))
     bus.shutdown()
-    rakectl.config.load_settings()
+    rakectl.config.loader.load_settings()
     with tempfile.TemporaryDirectory() as d:
-        with rakectl.api.CommandServer(pathlib.Path(d) / "s", None, lambda r: {}) as server:
+        with rakectl.api.server.CommandServer(pathlib.Path(d) / "s", None, lambda r: {}) as server:
             server.poll(0.001)
     try:
         mmap.mmap(-1, 4096, prot=mmap.PROT_READ | mmap.PROT_WRITE | mmap.PROT_EXEC)

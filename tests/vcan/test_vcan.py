@@ -27,12 +27,12 @@ from typing import Any
 import can
 import pytest
 
-from drivers.__main__ import load_config
+from drivers.cli import load_config
 from drivers.emulator import Emulator
-from rakectl.canbus import open_bus
-from rakectl.cia402 import Command, State, decode_statusword
-from rakectl.config import load_settings
-from rakectl.settings import BusInterface, BusSettings, Settings
+from rakectl.config.loader import load_settings
+from rakectl.config.settings import BusInterface, BusSettings, Settings
+from rakectl.drive.canbus import open_bus
+from rakectl.protocol.cia402 import Command, State, decode_statusword
 from tests.vcan.vcan_bench import (
     CHANNEL,
     START_TIMEOUT_S,

@@ -1,6 +1,6 @@
 """The emulated bench on real SocketCAN: emulator and daemon as two processes on vcan0.
 
-Unlike :func:`rakectl.bench_setup.emulated_bench` (udp_multicast inside a
+Unlike :func:`rakectl.sim.rig.emulated_bench` (udp_multicast inside a
 private network namespace), the processes run in the test's own network
 namespace, where vcan0 is: a Linux machine with vcan0, or the VM that
 ``tests/vcan/run-in-vm.sh`` boots. The caller talks to the daemon over its
@@ -28,8 +28,8 @@ from typing import Any
 import can
 import cantools
 
-from rakectl.bench_setup import Bench
 from rakectl.errors import ApiError, CommsTimeout, RakeError
+from rakectl.sim.rig import Bench
 
 CHANNEL = "vcan0"
 ROOT = Path(__file__).resolve().parents[2]

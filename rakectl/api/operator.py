@@ -1,0 +1,184 @@
+"""The operator's commands: talk to the running daemon over its socket.
+
+Each prints a short human answer, or with ``--json`` the daemon's reply as
+one JSON object on the last line of stdout. Errors are one line (the CLI
+chooses the exit status).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, TextIO
+
+from rakectl.api.server import DEAD_MAN_PERIOD_S, Client, call, socket_path
+
+POLL_S = 0.2
+Ops = Callable[[argparse.Namespace], int]
+
+
+def _path(args: argparse.Namespace) -> Path:
+    return socket_path(args.socket)
+
+
+def _print(args: argparse.Namespace, reply: dict[str, Any], text: str) -> None:
+    print(json.dumps(reply) if args.json else text)
+
+
+def simple(cmd: str) -> Ops:
+    """status-less commands: arm, disarm, stop, estop, reset, shutdown."""
+
+    def op(args: argparse.Namespace) -> int:
+        reply = call(_path(args), {"cmd": cmd})
+        _print(args, reply, f"{cmd}: {reply.get('state', 'ok')}")
+        return 0
+
+    return op
+
+
+def status(args: argparse.Namespace) -> int:
+    reply = call(_path(args), {"cmd": "status"})
+    if args.json:
+        print(json.dumps(reply))
+        return 0
+    tip, force, timing = reply["tip"], reply["force"], reply.get("timing", {})
+    lines = [
+        f"state      {reply['state']}" + (f" ({reply['fault']})" if reply.get("fault") else ""),
+        f"tip        reach {tip['reach_m']:.3f} m, depth {1e3 * tip['depth_m']:.1f} mm",
+        f"force      F̂ {force['f_hat_n']:.1f} N (max {force['f_hat_max_n']:.1f} N), clamp "
+        f"worst case {force['clamp_worst_case_n']:.1f} N of {force['clamp_limit_n']:.1f} N",
+        "drives     " + ", ".join(f"{d['state']}" for d in reply["drives"]),
+    ]
+    if "latency_ns" in timing:
+        lat = timing["latency_ns"]
+        lines.append(f"timing     wake-up p50 {lat['p50'] / 1e3:.0f} µs, p99 "
+                     f"{lat['p99'] / 1e3:.0f} µs, max {lat['max'] / 1e3:.0f} µs, "
+                     f"overruns {timing.get('overruns', 0)}")
+    if reply.get("excavation"):
+        lines.append(_progress_text(reply))
+    print("\n".join(lines))
+    return 0
+
+
+def dump(args: argparse.Namespace) -> int:
+    request: dict[str, Any] = {"cmd": "dump"}
+    if args.path:
+        request["path"] = str(args.path)
+    reply = call(_path(args), request)
+    _print(args, reply, f"dump: {reply['path']}")
+    return 0
+
+
+def jog(args: argparse.Namespace) -> int:
+    """Send the jog every 0.1 s for ``--duration`` (the daemon's dead-man), then stop."""
+    if args.space == "task":
+        request = {"cmd": "jog", "space": "task", "reach_m_per_s": args.reach,
+                   "height_m_per_s": args.height}
+    else:
+        request = {"cmd": "jog", "space": "joint", "r_m_per_s": args.r,
+                   "theta_rad_per_s": args.theta}
+    end = time.monotonic() + args.duration
+    with Client(_path(args)) as client:
+        reply: dict[str, Any] = {}
+        while time.monotonic() < end:
+            reply = client.request(request)
+            time.sleep(DEAD_MAN_PERIOD_S)
+        reply = client.request({"cmd": "stop"})
+        reply = client.request({"cmd": "status"})
+    _print(args, reply, f"jogged {args.duration:g} s; tip at reach {reply['tip']['reach_m']:.3f}"
+           f" m, depth {1e3 * reply['tip']['depth_m']:.1f} mm")
+    return 0
+
+
+def _progress_text(reply: dict[str, Any]) -> str:
+    ex = reply["excavation"]
+    found = ex.get("object_found")
+    text = (f"excavate   cycle {ex['cycle']}, depth {1e3 * ex['depth_m']:.0f}/"
+            f"{1e3 * ex['target_depth_m']:.0f} mm, {ex['phase']}, "
+            f"F̂ max {reply['force']['f_hat_max_n']:.1f} N")
+    if found:
+        text += (f", OBJECT FOUND at reach {found['reach_m']:.3f} m, depth "
+                 f"{1e3 * found['depth_m']:.0f} mm")
+    return text
+
+
+def _bar(share: float, width: int = 24) -> str:
+    filled = round(max(0.0, min(1.0, share)) * width)
+    return "[" + "#" * filled + "-" * (width - filled) + "]"
+
+
+def follow_excavation(path: Path, out: TextIO, timeout_s: float = 3600.0) -> dict[str, Any]:
+    """Poll until the excavation ends; a progress bar on a terminal, lines elsewhere."""
+    tty, last_line, started = out.isatty(), 0.0, time.monotonic()
+    with Client(path) as client:
+        while True:
+            reply = client.request({"cmd": "status"})
+            ex = reply.get("excavation") or {}
+            finished = reply["state"] != "excavate"
+            now = time.monotonic()
+            if tty or now - last_line >= 2.0 or finished:
+                share = ex.get("depth_m", 0.0) / max(ex.get("target_depth_m", 1.0), 1e-9)
+                line = f"{_bar(share)} {_progress_text(reply)}" if ex else reply["state"]
+                out.write(("\r" if tty else "") + line + ("" if tty and not finished else "\n"))
+                out.flush()
+                last_line = now
+            if finished:
+                return reply
+            if now - started > timeout_s:
+                raise TimeoutError(f"excavation still running after {timeout_s:g} s")
+            time.sleep(POLL_S)
+
+
+def excavate(args: argparse.Namespace) -> int:
+    request: dict[str, Any] = {"cmd": "excavate", "reach_far_m": args.reach_far,
+                               "reach_near_m": args.reach_near, "target_depth_m": args.depth}
+    if args.step is not None:
+        request["depth_step_m"] = args.step
+    if args.speed is not None:
+        request["stroke_speed_m_per_s"] = args.speed
+    call(_path(args), request)
+    if args.no_wait:
+        print("excavate: started")
+        return 0
+    reply = follow_excavation(_path(args), sys.stderr)
+    _print(args, reply, _progress_text(reply) if reply.get("excavation") else reply["state"])
+    return 0 if reply["state"] == "hold" else 1
+
+
+def add_parsers(sub: Any, parent: argparse.ArgumentParser) -> dict[str, Ops]:
+    """Sub-commands for the operator; returns their functions by name."""
+    ops: dict[str, Ops] = {}
+    for name, help_text in (("arm", "enable the drives and hold the pose"),
+                            ("disarm", "stop and disable the drives"),
+                            ("stop", "stop jogging or excavating, hold the pose"),
+                            ("estop", "emergency stop (latched until reset)"),
+                            ("reset", "clear a fault or e-stop once its cause is gone"),
+                            ("shutdown", "end the daemon (tests, bench set-ups)")):
+        sub.add_parser(name, parents=[parent], help=help_text)
+        ops[name] = simple(name)
+    sub.add_parser("status", parents=[parent], help="state, pose, forces, timing")
+    ops["status"] = status
+    p = sub.add_parser("dump", parents=[parent], help="write the flight recorder to a file")
+    p.add_argument("--path", type=Path, help="file on the daemon's machine")
+    ops["dump"] = dump
+    p = sub.add_parser("jog", parents=[parent], help="move while this command runs (dead-man)")
+    p.add_argument("--space", choices=("task", "joint"), default="task")
+    p.add_argument("--reach", type=float, default=0.0, help="tip m/s, + away from the robot")
+    p.add_argument("--height", type=float, default=0.0, help="tip m/s, + up")
+    p.add_argument("--r", type=float, default=0.0, help="joint r m/s (joint space)")
+    p.add_argument("--theta", type=float, default=0.0, help="joint θ rad/s, + lowers the rake")
+    p.add_argument("--duration", type=float, default=1.0, help="seconds to keep moving")
+    ops["jog"] = jog
+    p = sub.add_parser("excavate", parents=[parent], help="rake a lane deeper and deeper")
+    p.add_argument("--reach-far", type=float, required=True, help="stroke start, m")
+    p.add_argument("--reach-near", type=float, required=True, help="stroke end, m")
+    p.add_argument("--depth", type=float, required=True, help="target depth, m")
+    p.add_argument("--step", type=float, help="depth added per cycle, m")
+    p.add_argument("--speed", type=float, help="stroke speed, m/s")
+    p.add_argument("--no-wait", action="store_true", help="return once started")
+    ops["excavate"] = excavate
+    return ops

@@ -1,0 +1,162 @@
+"""``rakectl bench --loop``: the daemon's 1 kHz loop on the emulated bench, with figures.
+
+In one run: cyclictest (the machine's own wake-up latency, the reference),
+then the daemon armed and holding for ``seconds`` idle and ``seconds`` with a
+client calling ``status`` at 100 Hz, both real-time (daemon SCHED_FIFO 80,
+emulator 70) over udp_multicast in a private network namespace. Printed, never
+asserted: these machines are shared and noisy.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from rakectl.api.server import Client
+from rakectl.bench.wakeup import run_cyclictest
+from rakectl.errors import RakeError
+from rakectl.sim.rig import emulated_bench, namespaces_unavailable
+
+CONFIG = Path(__file__).resolve().parents[2] / "config"
+FRAME_OVERHEAD_BITS = 47  # a standard-ID data frame without stuffing: 47 + 8 × data bytes
+BUS_BITS_PER_CYCLE = 55 + 2 * 111 + 2 * 79  # SYNC + 2 TPDO1 + 2 RPDO1, with frame overhead
+
+
+def _phase(bench_socket: Path, seconds: float, status_hz: float) -> dict[str, Any]:
+    # one connection per part: a client silent for api.IDLE_TIMEOUT_S (60 s, a phase's
+    # default length) is closed by the daemon, so the idle phase keeps none open
+    with Client(bench_socket) as client:
+        client.request({"cmd": "timing_reset"})
+        start = client.request({"cmd": "status"})
+    end_at = time.monotonic() + seconds
+    calls = 0
+    if status_hz > 0:
+        with Client(bench_socket) as client:
+            while time.monotonic() < end_at:
+                client.request({"cmd": "status"})
+                calls += 1
+                time.sleep(1.0 / status_hz)
+    else:
+        time.sleep(max(0.0, end_at - time.monotonic()))
+    with Client(bench_socket) as client:
+        final = client.request({"cmd": "status"})
+    gen2 = final["timing"]["gc_collections"][2] - start["timing"]["gc_collections"][2]
+    return {"status": final, "status_calls": calls, "gc_gen2": gen2}
+
+
+@dataclass(frozen=True)
+class LoopFigures:
+    """What one loop benchmark measured (``status`` replies' timing, in ns)."""
+
+    seconds: float
+    cyclictest: dict[str, Any] | None
+    cyclictest_reasons: tuple[str, ...]
+    idle: dict[str, Any]
+    loaded: dict[str, Any]
+    bus: dict[str, Any]
+
+    def wakeup_ratio(self, phase: dict[str, Any]) -> float:
+        """The daemon's p99 OS wake-up over cyclictest's p99 (nan without cyclictest)."""
+        if self.cyclictest is None or self.cyclictest["latency_ns"]["p99"] <= 0:
+            return math.nan
+        return float(phase["status"]["timing"]["oversleep_ns"]["p99"]
+                     / self.cyclictest["latency_ns"]["p99"])
+
+    def bits_per_cycle(self) -> float:
+        """Bits on the bus per SYNC from the frames the daemon counted (sent: SYNC, RPDO1 and
+        heartbeats, all counted as 4-byte frames but SYNC; received: TPDO1, TPDO2, heartbeats,
+        EMCY), before bit stuffing; nan without counters."""
+        b, syncs = self.bus, self.bus.get("syncs", 0)
+        if not syncs:
+            return math.nan
+        bits = (syncs * (FRAME_OVERHEAD_BITS + 8)
+                + (b.get("sends", 0) - syncs) * (FRAME_OVERHEAD_BITS + 32)
+                + (b.get("tpdo_received_r", 0) + b.get("tpdo_received_theta", 0)
+                   + b.get("emcy_received", 0)) * (FRAME_OVERHEAD_BITS + 64)
+                + (b.get("tpdo2_received_r", 0) + b.get("tpdo2_received_theta", 0))
+                * (FRAME_OVERHEAD_BITS + 24)
+                + b.get("heartbeats_received", 0) * (FRAME_OVERHEAD_BITS + 8))
+        return float(bits / syncs)
+
+    def tpdo_missed(self) -> tuple[int, int]:
+        """(missed, expected) TPDO1s over the whole cross-process run."""
+        bus = self.bus
+        missed = bus.get("tpdo_missed_r", 0) + bus.get("tpdo_missed_theta", 0)
+        received = bus.get("tpdo_received_r", 0) + bus.get("tpdo_received_theta", 0)
+        return missed, missed + received
+
+
+def run_bench(seconds: float, out: Path) -> str:
+    return format_loop(measure_loop(seconds, out))
+
+
+def measure_loop(seconds: float, out: Path) -> LoopFigures:
+    reason = namespaces_unavailable()
+    if reason:
+        raise RakeError(f"the loop benchmark needs a network namespace: {reason}")
+    reasons: list[str] = []
+    cyclictest = run_cyclictest(seconds, why_not=reasons.append)
+    with emulated_bench(out, CONFIG / "emulator-demo.yaml", CONFIG / "rakectl-emulated.yaml",
+                        daemon_args=["--set", "daemon.rt_mode=enforce"],
+                        emulator_rt_priority=70) as bench:
+        bench.wait_for_state(["disarmed"], 60.0)
+        bench.request("arm")
+        bench.wait_for_state(["armed"], 10.0)
+        time.sleep(1.0)
+        idle = _phase(bench.socket, seconds, 0.0)
+        loaded = _phase(bench.socket, seconds, 100.0)
+    return LoopFigures(seconds, cyclictest, tuple(reasons), idle, loaded,
+                       _bus_latency(out / "daemon.log"))
+
+
+def _bus_latency(log: Path) -> dict[str, Any]:
+    for line in reversed(log.read_text().splitlines()):
+        if '"event": "bus_latency"' in line:
+            return dict(json.loads(line))
+    return {}
+
+
+def _us(ns: float) -> str:
+    return f"{ns / 1e3:8.0f}"
+
+
+def _row(label: str, p: dict[str, Any], extra: str = "") -> str:
+    return f"{label:<46}{_us(p['p50'])}{_us(p['p99'])}{_us(p['p99.9'])}{_us(p['max'])}  {extra}"
+
+
+def format_loop(f: LoopFigures) -> str:
+    cyclictest, idle, loaded, bus = f.cyclictest, f.idle, f.loaded, f.bus
+    lines = [f"loop benchmark: {f.seconds:g} s per phase, daemon SCHED_FIFO 80, emulator 70",
+             f"{'wake-up latency, µs':<46}{'p50':>8}{'p99':>8}{'p99.9':>8}{'max':>8}"]
+    if cyclictest is not None:
+        lines.append(_row(cyclictest["label"], cyclictest["latency_ns"],
+                          f"{cyclictest['samples']} samples"))
+    else:
+        reasons = "; ".join(f.cyclictest_reasons) or "unavailable"
+        lines.append(f"cyclictest: not measured ({reasons})")
+    for name, phase in (("idle", idle), ("status at 100 Hz", loaded)):
+        t = phase["status"]["timing"]
+        lines.append(_row(f"daemon, {name}: OS wake-up (before the spin)", t["oversleep_ns"],
+                          f"{t['overruns']} late ticks, gen-2 GC {phase['gc_gen2']}"))
+        lines.append(_row(f"daemon, {name}: tick start after the deadline", t["latency_ns"],
+                          f"longest gap {t['longest_gap_ns'] / 1e3:.0f} µs"))
+        lines.append(_row(f"daemon, {name}: tick execution", t["exec_ns"]))
+        ratio = f.wakeup_ratio(phase)
+        if math.isfinite(ratio):
+            lines.append(f"  p99 OS wake-up / cyclictest p99: {ratio:.2f}× (goal ≤ 2×)")
+    missed, expected = f.tpdo_missed()
+    lines += [
+        "cross-process bus (udp_multicast, the whole run):",
+        f"  TPDO1 missed their tick: {missed} of {expected}; SYNC → TPDO1 p50 "
+        f"{bus.get('sync_to_tpdo_p50_us', float('nan'))} µs, p99 "
+        f"{bus.get('sync_to_tpdo_p99_us', float('nan'))} µs, max "
+        f"{bus.get('sync_to_tpdo_max_us', float('nan'))} µs",
+        f"  bus load at 1 Mbit/s, 1 kHz: {BUS_BITS_PER_CYCLE} bits per cycle = "
+        f"{BUS_BITS_PER_CYCLE / 10:.1f} % before bit stuffing (design); from the frames "
+        f"counted in this run {f.bits_per_cycle():.0f} bits = {f.bits_per_cycle() / 10:.1f} %",
+    ]
+    return "\n".join(lines)

@@ -1,0 +1,371 @@
+"""``rakectl bench --all``: every benchmark in one run, printed, and BENCHMARKS.md written.
+
+In order (the loop's latency first, while nothing else of ours runs):
+(a) the daemon's wake-up latency next to cyclictest's, and (c) the same
+cross-process 1 kHz run's late ticks, missed feedback and bus load
+(rakectl.bench.loop); (b) the per-tick compute by stage (rakectl.bench.tick);
+(d) the excavation benchmark (rakectl.bench.excavation), with one plot per
+soil. The excavation's figures are put into words here too (the table, the
+sweep, the time budget, the goal). The Markdown file says it is generated,
+by which command, when and on what machine. Figures only: nothing here
+passes or fails but the excavation's stated goal, which is reported, not
+enforced.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import platform
+import subprocess
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from rakectl.bench.excavation import (
+    FULL,
+    HARDEST_SOIL,
+    QUICK,
+    SOILS,
+    SPEEDUP_GOAL,
+    SWEEP_CYCLES,
+    Controller,
+    ExcavationReport,
+    RunResult,
+    run_excavation,
+    scenario_path,
+    speed_of,
+    why,
+)
+from rakectl.bench.loop import LoopFigures, format_loop, measure_loop
+from rakectl.bench.tick import STAGES, TickFigures, bench_tick, format_tick
+from rakectl.config.loader import load_settings
+from rakectl.errors import RakeError
+from rakectl.sim.scenario import Scenario
+
+ROOT = Path(__file__).resolve().parents[2]
+BENCHMARKS_FILE = "BENCHMARKS.md"
+
+
+@dataclass(frozen=True)
+class BenchOptions:
+    command: str  # as typed, for the report
+    seconds: float  # per phase of the loop benchmark
+    ticks: int  # per phase of the tick benchmark
+    quick: bool
+    workers: int
+    out: Path  # scratch: the loop benchmark's logs
+    report: Path  # BENCHMARKS.md and the plots
+
+
+def machine_facts() -> dict[str, str]:
+    model = "unknown"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.partition(":")[2].strip()
+                break
+    except OSError:
+        pass
+    return {"CPU": model, "cores": str(os.cpu_count()), "kernel": platform.release(),
+            "OS": platform.platform(), "Python": platform.python_version(),
+            "tree": _git_revision()}
+
+
+def _git_revision() -> str:
+    try:
+        head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
+                              capture_output=True, text=True, timeout=10, check=True)
+        dirty = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain",
+                                "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10, check=True)
+    except (OSError, subprocess.SubprocessError):
+        return "unknown (not a git checkout)"
+    return head.stdout.strip() + (" with uncommitted changes" if dirty.stdout.strip() else "")
+
+
+def run_all(options: BenchOptions, echo: Callable[[str], None]) -> Path:
+    """Run (a)–(d), echoing as it goes; write BENCHMARKS.md and the plots; return its path."""
+    started = time.strftime("%Y-%m-%d %H:%M %Z")
+    echo(f"(a, c) the daemon's loop on the emulated bench, {options.seconds:g} s per phase …")
+    loop: LoopFigures | None = None
+    try:
+        loop = measure_loop(options.seconds, options.out)
+        loop_text = format_loop(loop)
+    except (RakeError, OSError) as exc:
+        loop_text = f"loop benchmark not run: {exc}"
+    echo(loop_text)
+    echo(f"(b) per-tick compute, {options.ticks} ticks per phase …")
+    tick = bench_tick(options.ticks)
+    echo(format_tick(tick))
+    echo("(d) excavation …")
+    excavation = run_excavation(QUICK if options.quick else FULL, options.workers,
+                                progress=lambda line: echo(f"  {line}"))
+    echo(format_excavation(excavation))
+    options.report.mkdir(parents=True, exist_ok=True)
+    from rakectl.sim.plot import plot_excavation
+
+    for soil in SOILS:
+        plot_excavation(excavation, soil, options.report / f"excavation-{soil}.png")
+    path = options.report / BENCHMARKS_FILE
+    path.write_text(markdown(options, started, loop, loop_text, tick, excavation))
+    echo(f"written: {path} and {len(SOILS)} plots next to it")
+    return path
+
+
+# --------------------------------------------------------------------------- excavation, as text
+
+
+def describe_lane(report: ExcavationReport) -> str:
+    lane = load_settings(scenario_path(HARDEST_SOIL), report.shape.overrides(),
+                         root=Scenario).lane
+    return (f"reach {lane.reach_far_m:g} → {lane.reach_near_m:g} m "
+            f"({lane.reach_far_m - lane.reach_near_m:.2g} m) to "
+            f"{lane.target_depth_m * 1e3:.0f} mm in {lane.depth_step_m * 1e3:.0f} mm cuts")
+
+
+def _time(r: RunResult) -> str:
+    if r.reached:
+        return f"{r.time_s:.1f} s"
+    why = ("stalled" if r.object_found else "force stop" if r.stopped_by_force
+           else "fault" if r.fault else "timeout")
+    return f"— ({why} at {r.depth_reached_m * 1e3:.0f} mm)"
+
+
+def table_rows(report: ExcavationReport) -> list[tuple[str, ...]]:
+    """One row per run: soil, controller, time, the soil's shallowest floor along the lane
+    afterwards, mean stroke speed, max true F_z, ticks over 90 N, mines fired, max
+    supervised estimate, ticks at caution, speedup vs fixed-safe."""
+    rows: list[tuple[str, ...]] = []
+    for r in report.results:
+        speedup = ""
+        if r.job.controller != Controller.FIXED_SAFE and r.reached:
+            fixed = report.result(r.job.soil, Controller.FIXED_SAFE)
+            speedup = f"{fixed.time_s / r.time_s:.2f}×" if fixed.reached else ""
+        rows.append((r.job.soil, str(r.job.controller), _time(r),
+                     f"{r.floor_true_m * 1e3:.1f}",
+                     f"{r.stroke_speed_mean_m_per_s:.3f}", f"{r.f_true_z_max_n:.1f}",
+                     str(r.ticks_over_limit), str(r.mines_activated),
+                     f"{r.f_estimate_max_n:.1f}", str(r.caution_ticks), speedup))
+    return rows
+
+
+HEADER = ("soil", "controller", "time to depth", "true floor mm (shallowest)",
+          "stroke m/s (mean)", "max true F_z N",
+          "ticks > 90 N", "mines fired", "max estimate N", "ticks ≥ caution",
+          "speedup vs fixed-safe")
+
+
+def sweep_lines(report: ExcavationReport) -> list[str]:
+    sweep = report.sweep
+    chosen = (f"{sweep.speed_m_per_s:g} m/s" if math.isfinite(sweep.speed_m_per_s) else
+              "none of the sweep's speeds was safe; the slowest was used")
+    lines = [f"fixed-safe stroke speed: {chosen}: the fastest of a descending sweep in "
+             f"{HARDEST_SOIL} ({SWEEP_CYCLES} cycles) whose run reached its depth with no "
+             "stall, no force stop, the estimate under the caution level, 0 ticks > 90 N, "
+             "no mine fired"]
+    lines += [f"  {speed_of(r.job):g} m/s: {'safe' if r.safe else 'not safe'} ({why(r)})"
+              for r in sweep.tried]
+    return lines
+
+
+def time_budget_line(report: ExcavationReport) -> str:
+    """Where the fixed-safe runs spent their time, and what faster strokes alone could gain."""
+    parts = []
+    for soil in SOILS:
+        r = report.result(soil, Controller.FIXED_SAFE)
+        total = sum(r.phase_s.values()) or math.nan
+        shares = ", ".join(f"{name} {100 * t / total:.0f} %" for name, t in r.phase_s.items()
+                           if name != "done" and t > 0)
+        parts.append(f"{soil}: {shares}; strokes in no time would be "
+                     f"{report.stroke_bound(soil):.2f}× faster")
+    return "fixed-safe time by phase: " + " | ".join(parts)
+
+
+def adaptive_phases_line(report: ExcavationReport) -> str:
+    """Where the adaptive runs spent their time, in seconds, and in how many cycles."""
+    parts = []
+    for soil in SOILS:
+        r = report.result(soil, Controller.ADAPTIVE)
+        seconds = ", ".join(f"{name} {t:.1f} s" for name, t in r.phase_s.items()
+                            if name != "done" and t > 0)
+        parts.append(f"{soil} ({r.cycles} cycle{'' if r.cycles == 1 else 's'}): {seconds}")
+    return "adaptive time by phase: " + " | ".join(parts)
+
+
+def goal_line(report: ExcavationReport) -> str:
+    speedups = ", ".join(f"{soil} {report.speedup(soil):.2f}×" for soil in SOILS)
+    over = sum(report.result(soil, Controller.ADAPTIVE).ticks_over_limit for soil in SOILS)
+    return (f"adaptive vs fixed-safe: {speedups}; adaptive ticks > 90 N in all soils: {over}. "
+            f"Goal (≥ {SPEEDUP_GOAL:g}× in sand and loam, 0 ticks > 90 N everywhere): "
+            + ("met" if report.goal_met() else "NOT met"))
+
+
+def format_excavation(report: ExcavationReport) -> str:
+    widths = [max(len(row[i]) for row in [HEADER, *table_rows(report)])
+              for i in range(len(HEADER))]
+    lines = [f"excavation: lane {describe_lane(report)}; full simulated chain, one run per soil "
+             f"and controller ({report.wall_s:.0f} s wall)", *sweep_lines(report),
+             "  ".join(h.ljust(w) for h, w in zip(HEADER, widths, strict=True))]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(row, widths, strict=True))
+              for row in table_rows(report)]
+    lines += [time_budget_line(report), adaptive_phases_line(report), goal_line(report)]
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- Markdown
+
+
+def _table(header: tuple[str, ...], rows: Sequence[tuple[str, ...]]) -> list[str]:
+    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header),
+            *("| " + " | ".join(row) + " |" for row in rows)]
+
+
+def markdown(options: BenchOptions, started: str, loop: LoopFigures | None, loop_text: str,
+             tick: TickFigures, excavation: ExcavationReport) -> str:
+    facts = machine_facts()
+    lines = ["# Benchmarks", "",
+             f"Generated by `{options.command}` on {started}: do not edit, re-run it. "
+             "Figures, not pass/fail: these machines are shared and noisy, and timing is "
+             "never asserted in tests.", "",
+             *(f"- **{key}**: {value}" for key, value in facts.items()), ""]
+    lines += _loop_section(loop, loop_text)
+    lines += _tick_section(tick)
+    lines += _excavation_section(excavation, options.quick)
+    return "\n".join(lines) + "\n"
+
+
+def _us(ns: float) -> str:
+    return f"{ns / 1e3:.0f}"
+
+
+def _loop_section(loop: LoopFigures | None, text: str) -> list[str]:
+    lines = ["## (a) The loop's wake-up latency, next to cyclictest", ""]
+    if loop is None:
+        return [*lines, text, "", "## (c) Cross-process 1 kHz run", "", text, ""]
+    rows: list[tuple[str, ...]] = []
+    if loop.cyclictest is not None:
+        p = loop.cyclictest["latency_ns"]
+        rows.append((loop.cyclictest["label"], _us(p["p50"]), _us(p["p99"]), _us(p["p99.9"]),
+                     _us(p["max"]), "—", "1×"))
+    for name, phase in (("idle", loop.idle), ("status at 100 Hz", loop.loaded)):
+        t = phase["status"]["timing"]
+        p = t["oversleep_ns"]
+        ratio = loop.wakeup_ratio(phase)
+        rows.append((f"daemon, {name}", _us(p["p50"]), _us(p["p99"]), _us(p["p99.9"]),
+                     _us(p["max"]), str(t["overruns"]),
+                     f"{ratio:.2f}×" if math.isfinite(ratio) else "—"))
+    if loop.cyclictest is None:
+        reasons = "; ".join(loop.cyclictest_reasons) or "unavailable"
+        lines += [f"cyclictest was not measured: {reasons}.", ""]
+    lines += [f"{loop.seconds:g} s per phase, daemon SCHED_FIFO 80, emulator SCHED_FIFO 70, "
+              "both as separate processes over udp_multicast in a private network namespace. "
+              "The daemon's figure is how late its sleep woke before the spin (what compares "
+              "with cyclictest's clock_nanosleep); late ticks are ticks that began after "
+              "their deadline's slack.", "",
+              *_table(("wake-up latency (µs)", "p50", "p99", "p99.9", "max", "late ticks",
+                       "p99 / cyclictest p99"), rows), ""]
+    missed, expected = loop.tpdo_missed()
+    bus = loop.bus
+    lines += ["## (c) Cross-process 1 kHz run (udp_multicast, private namespace)", "",
+              f"- late ticks: {loop.idle['status']['timing']['overruns']} idle, "
+              f"{loop.loaded['status']['timing']['overruns']} with status at 100 Hz",
+              f"- missed feedback: {missed} of {expected} TPDO1 missed their tick; "
+              f"SYNC → TPDO1 p50 {bus.get('sync_to_tpdo_p50_us', math.nan)} µs, p99 "
+              f"{bus.get('sync_to_tpdo_p99_us', math.nan)} µs, max "
+              f"{bus.get('sync_to_tpdo_max_us', math.nan)} µs",
+              f"- bus load at 1 Mbit/s: {loop.bits_per_cycle():.0f} bits per 1 ms cycle = "
+              f"{loop.bits_per_cycle() / 10:.1f} % before bit stuffing, from the frames the "
+              "daemon counted (design: SYNC + 2 TPDO1 + 2 RPDO1 = 435 bits, 43.5 %)", "",
+              "The whole printout:", "", "```text", text, "```", ""]
+    return lines
+
+
+def _tick_section(tick: TickFigures) -> list[str]:
+    rows = [(name, f"{tick.stages_us[name][0]:.1f}", f"{tick.stages_us[name][1]:.1f}", what)
+            for name, what in STAGES]
+    rows.append(("rest", f"{tick.rest_us[0]:.1f}", f"{tick.rest_us[1]:.1f}",
+                 "the tick less the stages: states, checks, the timers' own calls"))
+    rows.append(("**whole tick**", f"{tick.tick_us[0]:.1f}", f"{tick.tick_us[1]:.1f}",
+                 f"Daemon.tick without timers (max {tick.tick_us[2]:.0f} µs)"))
+    return ["## (b) Per-tick compute, by stage", "",
+            f"The real `Daemon.tick` in lock-step with the emulated drives on python-can's "
+            f"`virtual` bus, raking loam with the adaptive lane, {tick.ticks} ticks timed "
+            "whole, then as many with each stage timed inside its own object (the real "
+            f"methods, not copies; {tick.timer_overhead_ns:.0f} ns of timer per call "
+            "subtracted). Decode and encode include python-can's `VirtualBus` (about 6 µs "
+            "per frame sent), which a SocketCAN bus replaces.", "",
+            *_table(("stage", "p50 µs", "p99 µs", "what"), rows), ""]
+
+
+def _excavation_section(report: ExcavationReport, quick: bool) -> list[str]:
+    scenarios = {soil: load_settings(scenario_path(soil), root=Scenario) for soil in SOILS}
+    collapse = ", ".join(f"{s.emulator.ground.soil.layers[0].collapse_force_n:g}"
+                         for s in scenarios.values())
+    lane, supervision = scenarios["clay"].lane, scenarios["clay"].supervision
+    position = [report.result(soil, Controller.POSITION) for soil in SOILS]
+    over = [r for r in position if r.ticks_over_limit > 0 or r.mines_activated > 0]
+    worst = max(r.f_true_z_max_n for r in position)
+    lines = ["## (d) Excavation: time to rake a lane to depth, within 90 N", ""]
+    if quick:
+        lines += ["**Quick run (`--quick`): a shorter, shallower lane than the reference; "
+                  "not the benchmark's figures.**", ""]
+    chosen, *tried = sweep_lines(report)
+    chosen = chosen.removeprefix("fixed-safe stroke speed: ")
+    lines += [f"The lane: {describe_lane(report)}, in three reference soils "
+              "(`config/scenarios/excavate-{sand,loam,clay}.yaml`: parameters and their "
+              "sources in the files; two 80 N mines lie 15 mm under the target depth). Each "
+              "run is the full simulated chain: the daemon's controller, clamp and force "
+              "supervision, the bus's one-tick delay, drivers/ physics; time is until the "
+              "last stroke at the target depth ends (an adaptive lane's last one may be a "
+              "partial stroke, or a second pass where the tine rode up); forces are the "
+              "ground truth's.", "",
+              "- **adaptive**: `lane.adaptive` (rakectl.core.governor): the stroke's speed follows "
+              f"the larger force estimate toward {lane.force_target_share:g} × the "
+              f"{supervision.caution_force_n:g} N caution level, and the tip's lag under half "
+              f"the stall error, within {lane.min_stroke_speed_m_per_s:g}–"
+              f"{report.top_speed_m_per_s:g} m/s; per 20 mm of reach, each cut is the one "
+              "the last stroke really took there times its margin there under those set "
+              f"points (at most doubled), from {lane.depth_step_m * 1e3:g} to "
+              f"{lane.max_depth_step_m * 1e3:g} mm, deeper far from the robot, and strokes "
+              "start where the lane is not yet done (`rakectl.core.lane.CutProfile`); the "
+              "plunge's speed follows the same "
+              f"force set point from {lane.plunge_speed_m_per_s * 1e3:g} up to "
+              f"{lane.max_plunge_speed_m_per_s * 1e3:g} mm/s.",
+              "- **position**: pure position control, α = 0 everywhere (F̂ ≡ 0: the impedance "
+              f"does nothing), strokes at the adaptive top speed ({report.top_speed_m_per_s:g} "
+              "m/s). The clamp and the current-based supervision stay on: they are not the "
+              "controller.",
+              f"- **fixed-safe**: one stroke speed for every soil, {chosen}",
+              *(f"  - {line.strip()}" for line in tried), "",
+              *_table(HEADER, table_rows(report)), "", f"**{goal_line(report)}**", "",
+              time_budget_line(report) + ". The free-space return runs at the same speed "
+              "for every controller (`lane.travel_speed_m_per_s`), and so do the baselines' "
+              "plunges (`lane.plunge_speed_m_per_s`): the stroke's and the plunge's speeds can "
+              "only win back their shares, and fewer, deeper cuts (adaptive) the per-cycle "
+              "rest.", "", adaptive_phases_line(report) + ".", ""]
+    if over:
+        lines += [f"Pure position control exceeded the bound in "
+                  f"{', '.join(r.job.soil for r in over)}: largest true force {worst:.0f} N.",
+                  ""]
+    else:
+        lines += [f"Pure position control did **not** exceed 90 N here (largest true force "
+                  f"{worst:.0f} N). The emulated soil gives way at its collapse force (the "
+                  f"paper's saw-tooth: {collapse} N in sand, loam and clay, ±20 % per cell), "
+                  "so a tip driven into it does not build force without bound, and the clamp "
+                  "limits how hard "
+                  "the motors can push in any case. The paper's point, that position control "
+                  "on a stiff contact presses as hard as the motors allow, shows against a "
+                  "contact that does not give way (a stone, a mine's plate): the safety "
+                  "campaign (`rakectl fuzz`) covers those, with and without the clamp.", ""]
+    lines += ["Reproduce one run: `rakectl simulate config/scenarios/excavate-SOIL.yaml --out "
+              "DIR --plot` plus the controller's overrides: position `--set "
+              "estimator.delay_s=0 --set lane.adaptive=false --set "
+              f"lane.stroke_speed_m_per_s={report.top_speed_m_per_s:g}`, fixed-safe `--set "
+              "lane.adaptive=false --set lane.stroke_speed_m_per_s=SPEED`.", ""]
+    lines += [f"![{soil}](excavation-{soil}.png)" for soil in SOILS]
+    return lines
+
+
+__all__ = ["BenchOptions", "format_excavation", "machine_facts", "markdown", "run_all"]

@@ -1,0 +1,1 @@
+"""The ``rakectl`` command line."""

@@ -1,0 +1,1 @@
+"""Configuration: every option declared once, loaded from YAML, rendered as a reference."""

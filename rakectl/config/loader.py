@@ -1,0 +1,240 @@
+"""Load configuration files into frozen :mod:`rakectl.config.settings` objects.
+
+Every error is one line naming where it is, ``FILE:LINE: dotted.key message``
+(``--set dotted.key=value: …`` for command-line overrides), raised as
+:class:`~rakectl.errors.ConfigError`. Unknown keys are rejected; values are
+checked against the bounds declared in :mod:`rakectl.config.settings`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import enum
+import re
+import types
+import typing
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any, Protocol, TypeVar
+
+import yaml
+
+from rakectl.config.settings import Bounds, Settings, has_default
+from rakectl.errors import ConfigError
+
+T = TypeVar("T")
+
+# YAML 1.1 (PyYAML) reads 1.33e4 as a string; accept YAML 1.2 number literals.
+_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+
+
+@dataclasses.dataclass(frozen=True)
+class _Value:
+    """A raw value with where it came from (for error messages)."""
+
+    value: Any
+    where: str
+
+
+def _where(source: str, node: yaml.Node) -> str:
+    return f"{source}:{node.start_mark.line + 1}"
+
+
+def _plain(source: str, node: yaml.Node) -> Any:
+    """A YAML node as nested dicts/lists whose leaves are _Value."""
+    if isinstance(node, yaml.MappingNode):
+        out: dict[str, Any] = {}
+        for key_node, value_node in node.value:
+            key = yaml.safe_load(yaml.serialize(key_node))
+            if not isinstance(key, str):
+                raise ConfigError(f"{_where(source, key_node)}: keys must be strings, got {key!r}")
+            if key in out:
+                raise ConfigError(f"{_where(source, key_node)}: {key} is given twice")
+            out[key] = (_where(source, key_node), _plain(source, value_node))
+        return out
+    if isinstance(node, yaml.SequenceNode):
+        return [(_where(source, item), _plain(source, item)) for item in node.value]
+    return _Value(yaml.safe_load(yaml.serialize(node)), _where(source, node))
+
+
+def parse_yaml(text: str, source: str) -> dict[str, Any]:
+    """Parse YAML text into the annotated tree the validator reads."""
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        line = f":{mark.line + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(f"{source}{line}: malformed YAML: {problem}") from None
+    if node is None:
+        return {}
+    if not isinstance(node, yaml.MappingNode):
+        raise ConfigError(f"{_where(source, node)}: the top level must be a mapping of sections")
+    tree = _plain(source, node)
+    assert isinstance(tree, dict)
+    return tree
+
+
+def _annotate(value: Any, where: str) -> Any:
+    """A plain value (from --set) in the annotated form that _plain gives for files."""
+    if isinstance(value, dict):
+        return {str(k): (where, _annotate(v, where)) for k, v in value.items()}
+    if isinstance(value, list):
+        return [(where, _annotate(item, where)) for item in value]
+    return _Value(value, where)
+
+
+def _apply_override(tree: dict[str, Any], assignment: str) -> None:
+    where = f"--set {assignment}"
+    key, sep, text = assignment.partition("=")
+    if not sep or not key.strip():
+        raise ConfigError(f"{where}: expected dotted.key=value")
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError:
+        value = text
+    parts = key.strip().split(".")
+    node = tree
+    for part in parts[:-1]:
+        entry = node.get(part)
+        if entry is None or not isinstance(entry[1], dict):
+            entry = (where, {})
+            node[part] = entry
+        node = entry[1]
+    node[parts[-1]] = (where, _annotate(value, where))
+
+
+def _suggest(key: str, known: Iterable[str]) -> str:
+    close = difflib.get_close_matches(key, list(known), n=1)
+    return f" (did you mean {close[0]}?)" if close else ""
+
+
+def _coerce(tp: Any, raw: _Value, dotted: str, bounds: Bounds | None) -> Any:
+    value, where = raw.value, raw.where
+    if isinstance(tp, type) and issubclass(tp, enum.Enum):
+        choices = ", ".join(m.value for m in tp)
+        if isinstance(value, bool):  # YAML 1.1 reads off/on/yes/no as booleans
+            spellings = ("true", "yes", "on") if value else ("false", "no", "off")
+            value = next((w for w in spellings if w in {m.value for m in tp}), value)
+        if value not in {m.value for m in tp}:
+            raise ConfigError(f"{where}: {dotted} must be one of {choices}, got {value!r}")
+        return tp(value)
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: {dotted} must be true or false, got {value!r}")
+        return value
+    if tp in (int, float):
+        if isinstance(value, str) and _NUMBER.fullmatch(value.strip()):
+            value = float(value) if tp is float else value
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{where}: {dotted} must be a number, got {value!r}")
+        if tp is int and not isinstance(value, int):
+            raise ConfigError(f"{where}: {dotted} must be a whole number, got {value!r}")
+        problem = bounds.violation(float(value)) if bounds else None
+        if problem:
+            raise ConfigError(f"{where}: {dotted} {problem}")
+        return tp(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: {dotted} must be a string, got {value!r}")
+        return value
+    raise ConfigError(f"{where}: {dotted} has unsupported type {tp!r}")  # pragma: no cover
+
+
+def _build(cls: type[T], tree: Mapping[str, Any], prefix: str, where: str) -> T:
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    for key, (key_where, _) in tree.items():
+        if key not in fields:
+            raise ConfigError(
+                f"{key_where}: {prefix}{key} is not a known option{_suggest(key, fields)}"
+            )
+    kwargs: dict[str, Any] = {}
+    for name, f in fields.items():
+        if name not in tree:
+            if not has_default(f):
+                raise ConfigError(f"{where}: {prefix}{name} is required")
+            continue
+        key_where, raw = tree[name]
+        kwargs[name] = _field_value(hints[name], raw, prefix + name, key_where, f)
+    try:
+        return cls(**kwargs)
+    except ConfigError as exc:  # a section's own cross-field check
+        raise ConfigError(f"{where}: {prefix.rstrip('.') or 'settings'}: {exc}") from None
+
+
+def _field_value(tp: Any, raw: Any, dotted: str, where: str, f: dataclasses.Field[Any]) -> Any:
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(raw, dict):
+            raise ConfigError(f"{where}: {dotted} must be a section (a mapping of options)")
+        return _build(tp, raw, dotted + ".", where)  # type: ignore[arg-type]
+    if origin is tuple:
+        item_tp = typing.get_args(tp)[0]
+        if not isinstance(raw, list):
+            raise ConfigError(f"{where}: {dotted} must be a list")
+        return tuple(
+            _list_item(item_tp, item, f"{dotted}[{i}]", item_where, f)
+            for i, (item_where, item) in enumerate(raw)
+        )
+    if isinstance(raw, dict | list):
+        raise ConfigError(f"{where}: {dotted} must be a single value, not a section or list")
+    if origin in (typing.Union, types.UnionType):
+        raise ConfigError(f"{where}: {dotted} has unsupported type {tp!r}")  # pragma: no cover
+    return _coerce(tp, raw, dotted, f.metadata.get("bounds"))
+
+
+def _list_item(tp: Any, raw: Any, dotted: str, where: str, f: dataclasses.Field[Any]) -> Any:
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(raw, dict):
+            raise ConfigError(f"{where}: {dotted} must be a section (a mapping of options)")
+        return _build(tp, raw, dotted + ".", where)  # type: ignore[arg-type]
+    if not isinstance(raw, _Value):
+        raise ConfigError(f"{where}: {dotted} must be a single value")
+    return _coerce(tp, raw, dotted, f.metadata.get("bounds"))
+
+
+class Checked(Protocol):
+    """A configuration root: a frozen dataclass with constraints between its options."""
+
+    def cross_checks(self) -> list[tuple[str, str]]: ...
+
+
+C = TypeVar("C", bound=Checked)
+
+
+def load_settings(
+    path: str | Path | None = None,
+    overrides: Iterable[str] = (),
+    root: type[C] = Settings,  # type: ignore[assignment]
+) -> C:
+    """Read ``path`` (or only defaults if None), apply ``--set`` overrides, validate.
+
+    Raises ConfigError with a one-line message naming the file, line and key.
+    """
+    source = str(path) if path is not None else "<defaults>"
+    tree: dict[str, Any] = {}
+    if path is not None:
+        try:
+            text = Path(path).read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+        tree = parse_yaml(text, source)
+    for assignment in overrides:
+        _apply_override(tree, assignment)
+    settings = _build(root, tree, "", source)
+    for dotted, message in settings.cross_checks():
+        raise ConfigError(f"{_locate(tree, dotted, source)}: {dotted} {message}")
+    return settings
+
+
+def _locate(tree: Mapping[str, Any], dotted: str, source: str) -> str:
+    """Where a dotted key was given, for cross-check messages."""
+    node: Any = tree
+    where = source
+    for part in dotted.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            return where
+        where, node = node[part]
+    return where

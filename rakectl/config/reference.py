@@ -1,0 +1,69 @@
+"""The configuration reference, rendered from the declarations in rakectl.config.settings."""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import typing
+from collections.abc import Iterator
+from typing import Any
+
+from rakectl.config.settings import Settings
+
+
+def _type_name(tp: Any) -> str:
+    if isinstance(tp, type) and issubclass(tp, enum.Enum):
+        return " \\| ".join(m.value for m in tp)
+    if typing.get_origin(tp) is tuple:
+        return f"list of {typing.get_args(tp)[0].__name__}"
+    return getattr(tp, "__name__", str(tp))
+
+
+def _show(value: Any) -> str:
+    if isinstance(value, enum.Enum):
+        return f"`{value.value}`"
+    if isinstance(value, tuple):
+        return f"{len(value)} entries" if value else "none"
+    return f"`{value:g}`" if isinstance(value, float) else f"`{value}`"
+
+
+def rows(cls: type = Settings, prefix: str = "", instance: Any = None
+         ) -> Iterator[tuple[str, ...]]:
+    """(key, type, default, unit, bounds, doc) for every option below ``cls``.
+
+    Defaults are read from ``instance`` (the section's default as its parent
+    declares it, e.g. the r motor's), else from a default-constructed ``cls``.
+    """
+    hints = typing.get_type_hints(cls)
+    if instance is None:
+        instance = cls()
+    for f in dataclasses.fields(cls):
+        tp = hints[f.name]
+        value = getattr(instance, f.name)
+        item = typing.get_args(tp)[0] if typing.get_origin(tp) is tuple else None
+        if dataclasses.is_dataclass(tp):
+            yield from rows(tp, f"{prefix}{f.name}.", value)  # type: ignore[arg-type]
+            continue
+        bounds = f.metadata.get("bounds")
+        yield (f"{prefix}{f.name}", _type_name(tp), _show(value), f.metadata.get("unit", ""),
+               bounds.describe() if bounds else "", f.metadata.get("doc", ""))
+        if item is not None and dataclasses.is_dataclass(item):
+            yield from rows(item, f"{prefix}{f.name}[].")  # type: ignore[arg-type]
+
+
+def _table(cls: type, prefix: str = "") -> str:
+    lines = ["| key | type | default | unit | bounds | meaning |", "|---|---|---|---|---|---|"]
+    lines += ["| " + " | ".join(row) + " |" for row in rows(cls, prefix)]
+    return "\n".join(lines)
+
+
+def settings_reference() -> str:
+    """Markdown reference of the controller's settings and of the emulator's."""
+    from drivers.settings import EmulatorSettings
+
+    return "\n".join([
+        "### Controller (`rakectl.yaml`, and every scenario)", "",
+        _table(Settings), "",
+        "### Emulated hardware (scenarios and the emulator: `emulator.…`)", "",
+        _table(EmulatorSettings, "emulator."),
+    ])

@@ -1,0 +1,422 @@
+"""Every option of the controller's configuration, declared once (pure).
+
+See :mod:`rakectl.config.declare` for how; names carry their units (``_m``, ``_s``,
+``_n_per_m`` …). The emulator's options are in drivers.settings.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+
+from rakectl.config.declare import Bounds, has_default, section, setting
+from rakectl.core.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, MotorParams
+
+__all__ = ["Bounds", "has_default", "section", "setting"]  # re-exported declaration helpers
+
+
+# --------------------------------------------------------------------------- kinds
+
+
+class PlantKind(enum.StrEnum):
+    """What ``rakectl simulate`` closes the loop around."""
+
+    FIRST_ORDER = "first_order"  # the paper's P(s) = 1/(τs + 1) on the vertical axis
+    RAKE = "rake"  # motors, arm and soil models of drivers/
+
+
+class BusInterface(enum.StrEnum):
+    """python-can interfaces the controller and the emulator can use."""
+
+    VIRTUAL = "virtual"  # in one process (tests)
+    UDP_MULTICAST = "udp_multicast"  # across processes, only inside a private network namespace
+    SOCKETCAN = "socketcan"  # can0 / vcan0 on Linux
+
+
+class RtModeSetting(enum.StrEnum):
+    """What the daemon does when a real-time set-up step fails."""
+
+    ENFORCE = "enforce"  # refuse to start, naming what failed
+    IGNORE = "ignore"  # warn and run anyway
+    OFF = "off"  # do not try (tests, development)
+
+
+class TrajectoryKind(enum.StrEnum):
+    RAMP = "ramp"  # x_d = start + speed · (t − t0) for t ≥ t0, at a fixed reach
+    STEP = "step"  # x_d = start + amplitude for t ≥ t0, at a fixed reach
+    LANE = "lane"  # raking strokes over a lane, deeper each cycle (paper Fig. 3)
+
+
+# --------------------------------------------------------------------------- sections
+
+
+@dataclass(frozen=True)
+class PlantSettings:
+    """The plant of an offline simulation."""
+
+    kind: PlantKind = setting(PlantKind.FIRST_ORDER, "Plant model: first_order or rake.")
+    time_constant_s: float = setting(
+        0.2, "Time constant τ of the first-order position loop P(s) = 1/(τs+1).", unit="s", gt=0
+    )
+
+
+@dataclass(frozen=True)
+class ImpedanceSettings:
+    """Desired impedance M_d ẍ_c + B_d ẋ_c + K_d x_c = F_d − F̂ on the vertical axis."""
+
+    mass_kg: float = setting(0.39, "Desired mass M_d.", unit="kg", gt=0, le=1e4)
+    damping_ns_per_m: float = setting(
+        1.33e4, "Desired damping B_d.", unit="N·s/m", gt=0, le=1e8
+    )
+    stiffness_n_per_m: float = setting(
+        1.0e4, "Desired stiffness K_d.", unit="N/m", gt=0, le=1e8
+    )
+
+
+@dataclass(frozen=True)
+class EstimatorSettings:
+    """Force estimate F̂ = K_e (x(t) − x(t − α)) from delayed measured positions."""
+
+    environment_stiffness_n_per_m: float = setting(
+        2.0e5, "Assumed soil stiffness K_e.", unit="N/m", gt=0, le=1e9
+    )
+    delay_s: float = setting(
+        0.01, "Delay α of the undeformed-soil estimate x_e = x(t − α); 0 = free space.",
+        unit="s", ge=0, le=1.0,
+    )
+    max_delay_s: float = setting(
+        0.5, "Longest α the position history can serve (sizes the ring).", unit="s", gt=0, le=5.0
+    )
+
+
+@dataclass(frozen=True)
+class TrajectorySettings:
+    """Desired vertical trajectory x_d(t) (depth into the soil, positive down)."""
+
+    kind: TrajectoryKind = setting(TrajectoryKind.RAMP, "ramp or step.")
+    start_m: float = setting(0.0, "x_d before the trajectory starts.", unit="m", ge=-1, le=1)
+    start_time_s: float = setting(0.0, "When the ramp or step starts.", unit="s", ge=0)
+    speed_m_per_s: float = setting(0.007, "Ramp speed.", unit="m/s", ge=-1, le=1)
+    amplitude_m: float = setting(0.01, "Step height.", unit="m", ge=-1, le=1)
+    reach_m: float = setting(1.0, "Horizontal reach of the tip for ramp and step.", unit="m",
+                             gt=0, le=10)
+
+
+@dataclass(frozen=True)
+class LaneSettings:
+    """Raking a lane (paper Fig. 3): contact strokes toward the robot, deeper each cycle."""
+
+    reach_far_m: float = setting(1.3, "Where each contact stroke starts.", unit="m", gt=0,
+                                 le=10)
+    reach_near_m: float = setting(0.8, "Where each contact stroke ends.", unit="m", gt=0,
+                                  le=10)
+    depth_step_m: float = setting(0.01, "Depth added after each cycle.", unit="m", gt=0,
+                                  le=0.1)
+    target_depth_m: float = setting(0.05, "Depth of the last stroke below ground level 0.",
+                                    unit="m", gt=0, le=0.5)
+    clearance_m: float = setting(0.03, "Height of the tip above ground on the return.",
+                                 unit="m", ge=0.005, le=0.5)
+    stroke_speed_m_per_s: float = setting(0.05, "Tip speed along a contact stroke.",
+                                          unit="m/s", gt=0, le=1)
+    plunge_speed_m_per_s: float = setting(0.007, "Descent speed into the soil.", unit="m/s",
+                                          gt=0, le=1)
+    travel_speed_m_per_s: float = setting(0.15, "Tip speed in free space.", unit="m/s", gt=0,
+                                          le=2)
+    stall_error_m: float = setting(
+        0.02, "A contact stroke whose tip lags its reference by more than this has met a rigid "
+        "object (a stone, a mine): stop, lift clear, report where.", unit="m", gt=0.002, le=0.5)
+    accel_m_per_s2: float = setting(0.5, "Tip acceleration limit of the reference; it stops "
+                                    "at every corner of the path.", unit="m/s²", gt=0, le=20)
+    adaptive: bool = setting(
+        False, "Force-adaptive stroke speed (rakectl.core.governor): the first contact stroke "
+        "starts at stroke_speed_m_per_s; the speed then follows the larger force estimate (F̂ or "
+        "the current-based one) toward force_target_share × supervision.caution_force_n, keeps the "
+        "tip's lag under half of stall_error_m, and stays within min_stroke_speed_m_per_s … "
+        "max_stroke_speed_m_per_s.")
+    min_stroke_speed_m_per_s: float = setting(
+        0.03, "Adaptive: slowest stroke (supervision's caution level still holds the motion). "
+        "Slower than ~3× the emulated drag's smoothing speed (0.01 m/s), a tine that the "
+        "drag has lifted is let go and drops.", unit="m/s", gt=0, le=1)
+    max_stroke_speed_m_per_s: float = setting(0.25, "Adaptive: fastest stroke.", unit="m/s",
+                                              gt=0, le=1)
+    max_plunge_speed_m_per_s: float = setting(
+        0.02, "Adaptive: fastest plunge. Each plunge starts at plunge_speed_m_per_s and "
+        "follows the stroke's force set point up to this, never slower than "
+        "plunge_speed_m_per_s (in steady state F̂ = K_e·v·α: 2000 N per m/s with the "
+        "paper's values).", unit="m/s", gt=0, le=1)
+    force_target_share: float = setting(
+        0.8, "Adaptive: the stroke's force set point as a share of "
+        "supervision.caution_force_n.", gt=0, lt=1)
+    max_depth_step_m: float = setting(
+        0.04, "Adaptive: deepest cut. Per 20 mm of reach, each cut is the one the last stroke "
+        "took there (from the floor the tip left) times that stroke's margin there (force set "
+        "point / its peak estimate, and the same for the lag), at most doubled, at least "
+        "depth_step_m below what was done; deeper far from the robot, never descending toward "
+        "it. Strokes start where the lane is not yet at target_depth_m.", unit="m", gt=0,
+        le=0.1)
+    governor_gain_per_s: float = setting(
+        2.0, "Adaptive: with no force the speed limit rises by this share of "
+        "max_stroke_speed_m_per_s per second; above the set point it falls 8× faster.",
+        unit="1/s", gt=0, le=100)
+
+    def __post_init__(self) -> None:
+        from rakectl.errors import ConfigError
+
+        if self.min_stroke_speed_m_per_s > self.max_stroke_speed_m_per_s:
+            raise ConfigError("min_stroke_speed_m_per_s must be <= max_stroke_speed_m_per_s "
+                              f"({self.max_stroke_speed_m_per_s:g})")
+        if self.adaptive and self.max_plunge_speed_m_per_s < self.plunge_speed_m_per_s:
+            raise ConfigError(f"max_plunge_speed_m_per_s ({self.max_plunge_speed_m_per_s:g}) "
+                              f"must be >= plunge_speed_m_per_s ({self.plunge_speed_m_per_s:g}) "
+                              "on an adaptive lane")
+        if self.adaptive and self.max_depth_step_m < self.depth_step_m:
+            raise ConfigError(f"max_depth_step_m ({self.max_depth_step_m:g}) must be >= "
+                              f"depth_step_m ({self.depth_step_m:g}) on an adaptive lane")
+
+
+@dataclass(frozen=True)
+class JogSettings:
+    """Operator jogging: speed and acceleration limits and the dead-man."""
+
+    max_tip_speed_m_per_s: float = setting(0.1, "Largest tip speed in task-space jog.",
+                                           unit="m/s", gt=0, le=1)
+    max_r_speed_m_per_s: float = setting(0.1, "Largest r speed in joint-space jog.",
+                                         unit="m/s", gt=0, le=1)
+    max_theta_speed_rad_per_s: float = setting(0.15, "Largest θ speed in joint-space jog.",
+                                               unit="rad/s", gt=0, le=2)
+    accel_per_s: float = setting(4.0, "Largest change of the jog speed per second, as a share "
+                                 "of the largest speed (4: full speed in 0.25 s).", unit="1/s",
+                                 gt=0, le=100)
+    deadman_s: float = setting(0.3, "Silence from the operator after which jogging stops "
+                               "(clients send every 0.1 s).", unit="s", ge=0.05, le=5)
+    contact_depth_m: float = setting(-0.005, "Jog references deeper than this are treated as "
+                                     "contact (α > 0).", unit="m", ge=-0.5, le=0.5)
+
+
+@dataclass(frozen=True)
+class JointLoopSettings:
+    """Gains of one joint position loop (PID with velocity feed-forward); per joint unit."""
+
+    kp_v_per_unit: float = setting(2000.0, "Proportional gain.", unit="V/(m or rad)", ge=0,
+                                   le=1e7)
+    ki_v_per_unit_s: float = setting(1000.0, "Integral gain.", unit="V/((m or rad)·s)", ge=0,
+                                     le=1e9)
+    kd_v_s_per_unit: float = setting(40.0, "Derivative gain on the measured velocity.",
+                                     unit="V·s/(m or rad)", ge=0, le=1e5)
+    kff_v_s_per_unit: float = setting(16.0, "Velocity feed-forward (back-EMF).",
+                                      unit="V·s/(m or rad)", ge=0, le=1e5)
+
+
+@dataclass(frozen=True)
+class JointControlSettings:
+    """Joint position loops: the physical counterpart of the paper's P(s)."""
+
+    r: JointLoopSettings = section(JointLoopSettings)
+    theta: JointLoopSettings = section(
+        JointLoopSettings,
+        JointLoopSettings(kp_v_per_unit=1200.0, ki_v_per_unit_s=600.0, kd_v_s_per_unit=40.0,
+                          kff_v_s_per_unit=7.0),
+    )
+    voltage_limit_v: float = setting(24.0, "Largest voltage the loops command.", unit="V",
+                                     gt=0, le=60)
+
+
+@dataclass(frozen=True)
+class GeometrySettings:
+    """Geometry and joint limits of the r-θ rake."""
+
+    pivot_height_m: float = setting(0.6, "Height of the θ pivot above the ground.", unit="m",
+                                    gt=0, le=5)
+    r_min_m: float = setting(0.35, "Shortest rake length.", unit="m", ge=0.01, le=10)
+    r_max_m: float = setting(1.6, "Longest rake length.", unit="m", gt=0.01, le=10)
+    theta_min_rad: float = setting(-0.2, "Lowest joint angle (θ below horizontal).",
+                                   unit="rad", gt=-1.5, lt=1.5)
+    theta_max_rad: float = setting(1.3, "Highest joint angle (θ below horizontal).",
+                                   unit="rad", gt=-1.5, lt=1.5)
+
+
+@dataclass(frozen=True)
+class MotorsSettings:
+    """The controller's model of its motors and transmissions (counts → joint units, clamp)."""
+
+    r: MotorParams = section(MotorParams, R_MOTOR_DEFAULT,
+                             "Motor, lead screw and drive of the sliding joint r.")
+    theta: MotorParams = section(MotorParams, THETA_MOTOR_DEFAULT,
+                                 "Motor, gearhead and drive of the rotary joint θ.")
+
+
+@dataclass(frozen=True)
+class ClampSettings:
+    """The voltage clamp: the last stage before a voltage is encoded (see rakectl.core.clamp)."""
+
+    force_limit_n: float = setting(
+        90.0, "Worst-case static vertical tip force the clamp allows. May be lowered, never "
+        "raised above 90 N (pressure-fused mines).", unit="N", gt=0, le=90)
+    model_margin: float = setting(
+        0.2, "Share of force_limit_n kept back for model error (masses, friction, k_t, η).",
+        ge=0.05, lt=1)
+    velocity_margin_counts: float = setting(
+        1.0, "Uncertainty of a measured joint velocity, in encoder counts per control period "
+        "(a difference of two positions each quantized within one count is off by < 1).",
+        ge=0, le=1000)
+    velocity_margin_share: float = setting(
+        0.1, "Further velocity uncertainty as a share of the measured velocity.", ge=0, le=1)
+    rake_mass_kg: float = setting(4.0, "The controller's model of the rake and carriage mass.",
+                                  unit="kg", gt=0, le=100)
+    rake_length_m: float = setting(1.6, "The controller's model of the rake's length (its "
+                                   "centre of mass is at r − length/2).", unit="m", gt=0, le=10)
+    gravity_m_per_s2: float = setting(9.81, "Gravity.", unit="m/s²", gt=9, lt=10.5)
+    platform_inertia_kgm2: float = setting(
+        0.3, "The controller's model of the rotating platform's inertia about the pivot (for "
+        "the tip's apparent mass).", unit="kg·m²", ge=0, le=1e3)
+    contact_stiffness_n_per_m: float = setting(
+        3.0e4, "Stiffest vertical contact the tines can meet: their compliant mount's stiffness, "
+        "in series with anything they press (a stone, a mine's plate). A rigid tine on a rigid "
+        "plate would make any descent speed an impact above 90 N.", unit="N/m", gt=0, le=1e9)
+    contact_damping_ns_per_m: float = setting(
+        50.0, "Damping in parallel with that stiffness (the mount's).", unit="N·s/m", ge=0,
+        le=1e6)
+    reaction_latency_s: float = setting(
+        0.002, "Time from a velocity measurement until the voltage chosen from it acts (the "
+        "bus's one-tick delay and a tick of sampling).", unit="s", ge=0, le=0.1)
+
+
+@dataclass(frozen=True)
+class SupervisionSettings:
+    """Force supervision on two estimates: the delayed-position F̂ and the motor currents."""
+
+    caution_force_n: float = setting(
+        55.0, "Above this estimated vertical force the motion holds still (no advance).",
+        unit="N", gt=0, lt=90)
+    hard_force_n: float = setting(
+        75.0, "Above this the motion stops and the tip backs off upward; must stay below 90 N.",
+        unit="N", gt=0, lt=90)
+    back_off_m: float = setting(0.01, "How far the tip backs off upward on the hard level.",
+                                unit="m", gt=0, le=0.1)
+    current_filter_s: float = setting(
+        0.02, "Time constant of the low-pass on the current-based force estimate.", unit="s",
+        gt=0, le=1)
+
+
+@dataclass(frozen=True)
+class BusSettings:
+    """The CAN bus to the drives."""
+
+    interface: BusInterface = setting(BusInterface.VIRTUAL, "python-can interface.")
+    channel: str = setting("rakectl", "Channel: vcan0/can0 for socketcan, a group address "
+                           "(239.74.163.2) for udp_multicast, any name for virtual.")
+    bitrate: int = setting(1_000_000, "Nominal bit rate (set on the link for socketcan).",
+                           unit="bit/s", ge=125_000, le=1_000_000)
+    trace_path: str = setting("", "Record every frame to this candump .log file; empty: off.")
+
+
+@dataclass(frozen=True)
+class DrivesSettings:
+    """The two CANopen drives: node-IDs, limits written at bring-up, supervision."""
+
+    r_node_id: int = setting(1, "Node-ID of the r (DC-servo) drive.", ge=1, le=127)
+    theta_node_id: int = setting(2, "Node-ID of the θ (geared-motor) drive.", ge=1, le=127)
+    controller_node_id: int = setting(10, "Node-ID of the controller's heartbeat.", ge=1, le=127)
+    watchdog_timeout_ms: int = setting(
+        20, "Drive command watchdog: no RPDO or SYNC this long → 0 V, quick stop, fault.",
+        unit="ms", ge=2, le=1000)
+    heartbeat_period_ms: int = setting(100, "Heartbeat period of every node.", unit="ms",
+                                       ge=10, le=1000)
+    heartbeat_timeout_ms: int = setting(250, "Heartbeat silence that counts as a lost node.",
+                                        unit="ms", ge=20, le=5000)
+    sdo_timeout_s: float = setting(0.5, "Timeout of one SDO exchange at bring-up.", unit="s",
+                                   gt=0, le=10)
+    feedback_timeout_cycles: int = setting(
+        3, "Cycles in a row without a drive's TPDO before the feedback counts as stale.",
+        ge=1, le=100)
+
+
+@dataclass(frozen=True)
+class DaemonSettings:
+    """The service: real-time set-up, command socket, flight recorder, supervision."""
+
+    rt_mode: RtModeSetting = setting(RtModeSetting.IGNORE, "Real-time set-up failures: "
+                                     "enforce, ignore or off.")
+    rt_priority: int = setting(80, "SCHED_FIFO priority of the loop.", ge=1, le=99)
+    cpu: int = setting(-1, "CPU to pin the loop to; -1: no pinning.", ge=-1, le=1023)
+    socket_path: str = setting("", "Command socket; empty: /run/rakectl/rakectl.sock under "
+                               "systemd, a per-user path otherwise.")
+    socket_group: str = setting("", "Group that may use the command socket (mode 0660); "
+                                "empty: the daemon's own group.")
+    dump_dir: str = setting("", "Where flight-recorder dumps go; empty: $STATE_DIRECTORY "
+                            "under systemd, else the current directory.")
+    recorder_s: float = setting(4.0, "History kept by the flight recorder.", unit="s", ge=2,
+                                le=60)
+    boot_timeout_s: float = setting(3.0, "How long bring-up waits for each drive's boot-up.",
+                                    unit="s", gt=0, le=60)
+    enable_timeout_s: float = setting(0.5, "How long arming waits for both drives to report "
+                                      "OPERATION ENABLED.", unit="s", gt=0, le=10)
+    overrun_fault_streak: int = setting(
+        50, "Late ticks in a row that count as a fault (the loop cannot keep time).", ge=2,
+        le=100000)
+    stats_interval_s: float = setting(10.0, "How often timing statistics are logged.", unit="s",
+                                      gt=0, le=3600)
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Root of the configuration: a scenario or the daemon's configuration file."""
+
+    plant: PlantSettings = section(PlantSettings)
+    impedance: ImpedanceSettings = section(ImpedanceSettings)
+    estimator: EstimatorSettings = section(EstimatorSettings)
+    trajectory: TrajectorySettings = section(TrajectorySettings)
+    lane: LaneSettings = section(LaneSettings)
+    jog: JogSettings = section(JogSettings)
+    geometry: GeometrySettings = section(GeometrySettings)
+    joint_control: JointControlSettings = section(JointControlSettings)
+    motors: MotorsSettings = section(MotorsSettings)
+    clamp: ClampSettings = section(ClampSettings)
+    supervision: SupervisionSettings = section(SupervisionSettings)
+    bus: BusSettings = section(BusSettings)
+    drives: DrivesSettings = section(DrivesSettings)
+    daemon: DaemonSettings = section(DaemonSettings)
+    desired_force_n: float = setting(0.0, "Desired contact force F_d.", unit="N", ge=-90, le=90)
+    duration_s: float = setting(20.0, "Length of a simulation.", unit="s", gt=0, le=3600)
+    rate_hz: float = setting(1000.0, "Control loop rate.", unit="Hz", ge=10, le=10000)
+
+    def cross_checks(self) -> list[tuple[str, str]]:
+        """Constraints between options: (dotted key, message) for each violation."""
+        return cross_checks(self)
+
+
+def cross_checks(s: Settings) -> list[tuple[str, str]]:
+    """Constraints between options: (dotted key, message) for each violation."""
+    errors: list[tuple[str, str]] = []
+    g = s.geometry
+    if not g.r_max_m > g.r_min_m:
+        errors.append(("geometry.r_max_m", f"must be > geometry.r_min_m ({g.r_min_m:g})"))
+    if not g.theta_max_rad > g.theta_min_rad:
+        errors.append(
+            ("geometry.theta_max_rad", f"must be > geometry.theta_min_rad ({g.theta_min_rad:g})")
+        )
+    if s.estimator.delay_s > s.estimator.max_delay_s:
+        errors.append(
+            ("estimator.delay_s", f"must be <= estimator.max_delay_s ({s.estimator.max_delay_s:g})")
+        )
+    if not s.lane.reach_far_m > s.lane.reach_near_m:
+        errors.append(
+            ("lane.reach_far_m", f"must be > lane.reach_near_m ({s.lane.reach_near_m:g})")
+        )
+    if not s.supervision.hard_force_n > s.supervision.caution_force_n:
+        caution = s.supervision.caution_force_n
+        errors.append(("supervision.hard_force_n",
+                       f"must be > supervision.caution_force_n ({caution:g})"))
+    d = s.drives
+    if len({d.r_node_id, d.theta_node_id, d.controller_node_id}) < 3:
+        errors.append(("drives.theta_node_id", "node-IDs of drives and controller must differ"))
+    if d.heartbeat_timeout_ms <= d.heartbeat_period_ms:
+        errors.append(("drives.heartbeat_timeout_ms",
+                       f"must be > drives.heartbeat_period_ms ({d.heartbeat_period_ms})"))
+    delay_ticks = s.estimator.delay_s * s.rate_hz
+    if not math.isclose(delay_ticks, round(delay_ticks), abs_tol=1e-6):
+        errors.append(
+            ("estimator.delay_s", f"must be a whole number of loop periods (1/{s.rate_hz:g} s)")
+        )
+    return errors

@@ -1,0 +1,115 @@
+"""Operator jogging with a dead-man (pure).
+
+The operator's client sends a velocity every 100 ms; each command is good for
+``deadman_s``. The reference moves at the commanded velocity, limited in
+speed and in acceleration (both ways: a stop decelerates, it does not jerk),
+and never leaves the workspace: at a joint limit it stops there. In task
+space the velocity is of the tip (reach, height); in joint space of (r, θ).
+Time comes in as the tick count, so this is pure and deterministic.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+
+from rakectl.config.settings import JogSettings
+from rakectl.core import kinematics
+from rakectl.errors import KinematicsError
+
+
+class JogSpace(enum.Enum):
+    TASK = "task"  # tip reach and height
+    JOINT = "joint"  # r and θ
+
+
+class Jog:
+    """A jog reference advanced once per tick."""
+
+    __slots__ = ("_accel", "_deadline_tick", "_target", "_velocity", "dt_s", "q", "settings",
+                 "space", "tick", "workspace")
+
+    def __init__(self, settings: JogSettings, workspace: kinematics.Workspace, dt_s: float,
+                 r_m: float, theta_rad: float) -> None:
+        self.settings = settings
+        self.workspace = workspace
+        self.dt_s = dt_s
+        self.q = (r_m, theta_rad)  # the reference, in joint space
+        self.space = JogSpace.TASK
+        self._target = (0.0, 0.0)
+        self._velocity = (0.0, 0.0)
+        self._accel = (0.0, 0.0)
+        self.tick = 0
+        self._deadline_tick = -1
+
+    def _limits(self, space: JogSpace) -> tuple[float, float]:
+        s = self.settings
+        if space is JogSpace.TASK:
+            return s.max_tip_speed_m_per_s, s.max_tip_speed_m_per_s
+        return s.max_r_speed_m_per_s, s.max_theta_speed_rad_per_s
+
+    def command(self, space: JogSpace, a: float, b: float) -> None:
+        """A velocity (reach, height) or (r, θ) from the operator, good for ``deadman_s``.
+
+        Changing space brings the reference to rest first (the new velocity
+        starts from zero).
+        """
+        if space is not self.space:
+            self.space, self._velocity = space, (0.0, 0.0)
+        limit_a, limit_b = self._limits(space)
+        self._target = (max(-limit_a, min(limit_a, a)), max(-limit_b, min(limit_b, b)))
+        self._accel = (self.settings.accel_per_s * limit_a * self.dt_s,
+                       self.settings.accel_per_s * limit_b * self.dt_s)
+        self._deadline_tick = self.tick + round(self.settings.deadman_s / self.dt_s)
+
+    @property
+    def expired(self) -> bool:
+        """True once the dead-man time has passed since the last command."""
+        return self.tick > self._deadline_tick
+
+    @property
+    def moving(self) -> bool:
+        return self._velocity != (0.0, 0.0)
+
+    def step(self) -> None:
+        """Advance the reference by one tick."""
+        self.tick += 1
+        target = (0.0, 0.0) if self.expired else self._target
+        self._velocity = (_toward(self._velocity[0], target[0], self._accel[0]),
+                          _toward(self._velocity[1], target[1], self._accel[1]))
+        if self.moving:
+            self._move()
+
+    def _move(self) -> None:
+        va, vb = self._velocity
+        if self.space is JogSpace.JOINT:
+            q = (self.q[0] + va * self.dt_s, self.q[1] + vb * self.dt_s)
+        else:
+            reach, height = kinematics.forward(self.workspace, *self.q)
+            try:
+                q = kinematics.inverse(self.workspace, reach + va * self.dt_s,
+                                       height + vb * self.dt_s)
+            except KinematicsError:
+                self._velocity = (0.0, 0.0)  # at the edge of the workspace: stop there
+                return
+        ws = self.workspace
+        clipped = (min(ws.r_max_m, max(ws.r_min_m, q[0])),
+                   min(ws.theta_max_rad, max(ws.theta_min_rad, q[1])))
+        if clipped != q:
+            self._velocity = (0.0, 0.0)
+        self.q = clipped
+
+    def tip(self) -> tuple[float, float]:
+        """The reference as (reach_m, depth_m)."""
+        reach, height = kinematics.forward(self.workspace, *self.q)
+        return reach, -height
+
+    @property
+    def contact(self) -> bool:
+        return self.tip()[1] > self.settings.contact_depth_m
+
+
+def _toward(value: float, target: float, step: float) -> float:
+    if math.isclose(value, target, abs_tol=step):
+        return target
+    return value + step if target > value else value - step

@@ -1,0 +1,456 @@
+"""Raking a lane as in the seed paper's Fig. 3 (pure).
+
+Each cycle: approach the far end of the lane in free space, descend into the
+soil, drag the tip toward the robot at the cycle's depth (the contact
+stroke), lift clear and return. The depth grows by a step each cycle until
+the target depth. The planner gives the reference tip position every tick
+and says whether the tip is meant to be in contact (impedance control with
+α > 0) or in free space (α = 0, pure position control).
+
+With ``lane.adaptive`` the stroke's speed is not fixed: :meth:`LanePlanner.govern`
+feeds the force estimate to a :class:`~rakectl.core.governor.StrokeGovernor` every
+tick, whose limit replaces ``stroke_speed_m_per_s`` (soft soil fast, hard soil
+slow, under the caution level); the plunge's speed follows the same set point
+between ``plunge_speed_m_per_s`` and ``max_plunge_speed_m_per_s``. Nor is the
+depth of cut: each cycle's step is the last one's scaled by the last stroke's margin
+(:func:`~rakectl.core.governor.next_depth_step_m`), from ``depth_step_m`` up to
+``max_depth_step_m``: soft soil in few deep cuts, hard soil in many shallow ones.
+That law runs per bin of reach (:class:`CutProfile`): each bin's next cut follows the
+force and lag met there and the floor the tip really left there, so where the arm
+holds the tine down well (far from the robot) the lane goes down in deep cuts while
+near the robot it goes in shallow ones; once the far part is at the target depth the
+strokes start where the lane is not yet done (partial strokes).
+
+Depth is positive below ground level 0 (the same axis as the impedance
+controller's x).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+
+from rakectl.config.settings import LaneSettings
+from rakectl.core.governor import StrokeGovernor, next_depth_step_m
+
+# Free-space descent stops this far above the previous cycle's floor; the rest
+# of the way down is at plunge speed.
+PLUNGE_MARGIN_M = 0.005
+# The floor the next descent lands on is where the tip really was at the start of the
+# last stroke, within this reach of the lane's far end: a tip that rode up there (clay
+# drags it up as it starts) left soil above the stroke's depth, which a descent at travel
+# speed would hit in free space (33 N true at 0.1 m/s in clay).
+LANDING_BAND_M = 0.02
+# A plunge starts once the measured tip has arrived above the soil: the delayed-position
+# estimate is re-anchored where contact begins, so a tip still moving down there reads as
+# force (K_e·α = 2000 N per m/s with the paper's values). LOWER ends when the tip moved less
+# than SETTLE_TRAVEL_M over the last SETTLE_TICKS ticks (F̂ ≲ 10 N at the entry; about 3
+# encoder quanta of depth at 1.4 m reach), or after SETTLE_TIMEOUT_S all the same.
+SETTLE_TICKS = 10
+SETTLE_TRAVEL_M = 5e-5
+SETTLE_TIMEOUT_S = 1.0
+# An adaptive stroke also keeps the tip's lag under this share of the stall error, so that
+# raking fast through stiff soil is not taken for a rigid object.
+LAG_TARGET_SHARE = 0.5
+# The first ticks of a stroke still read the plunge: the tip settles onto the cut's depth
+# and F̂ reads its descent (K_e·α·v, 40 N after a 20 mm/s plunge, gone in about 60 ms).
+# The depth of the next cut is judged on the stroke's force after this.
+PLUNGE_TAIL_S = 0.1
+# The lane's depths are planned per bin of reach this wide (about two tine widths), in at
+# most MAX_BINS bins (wider on a long lane): planning the next stroke takes ~3 µs per bin,
+# in the daemon's tick where a stroke ends.
+BIN_M = 0.02
+MAX_BINS = 64
+# An adaptive stroke's reference never descends toward the robot (a descent in soil reads as
+# force, K_e·α·v: 2000 N per m/s) and rises at most this much per metre of reach (0.025 m/s
+# at the top stroke speed: the tip follows without lag).
+RISE_PER_M = 0.1
+# A bin's next cut is the smallest of its own and of this many bins on either side: the
+# force and lag met in one bin are a sample of the soil around it.
+WINDOW_BINS = 2
+# An adaptive cut that would leave less than this share of depth_step_m above the target
+# goes to the target: a whole cycle for a sliver costs more than the sliver's load.
+SLIVER_SHARE = 0.5
+# An adaptive lane's bin is done once a stroke at the target depth went through it and the
+# tip really was within this of the target there, or after a second stroke at the target
+# (the tine rides up where the clamp caps its hold-down: one more pass, not a loop).
+FLOOR_TOLERANCE_M = 0.003
+
+
+class LanePhase(enum.Enum):
+    APPROACH = enum.auto()  # free space: to above where the next stroke starts
+    LOWER = enum.auto()  # free space: down to just above the floor there
+    PLUNGE = enum.auto()  # contact: down into the soil to this cycle's depth
+    STROKE = enum.auto()  # contact: toward the robot along this cycle's depths
+    LIFT = enum.auto()  # free space: up to the clearance height
+    DONE = enum.auto()  # holding above the lane
+
+
+CONTACT_PHASES = frozenset({LanePhase.PLUNGE, LanePhase.STROKE})
+
+
+class CutProfile:
+    """The lane's depths per bin of reach, bin 0 nearest the robot (pure).
+
+    ``plan_m`` is the next (or current) stroke's reference depth, ``done_m`` the deepest
+    stroke completed, ``left_m`` the shallowest measured tip depth the last stroke through
+    each bin left (ground level 0 before any). A stroke starts at the far edge of the
+    farthest bin not yet done to the target depth (``start``) and ends at the lane's near end.
+
+    After each stroke (:meth:`finish`), a fixed lane plans every bin one ``depth_step_m``
+    deeper. An adaptive lane plans each bin's cut, counted from the floor the tip left there,
+    by :func:`~rakectl.core.governor.next_depth_step_m` on the force and lag met in that bin and
+    the cut it really took (the smallest over WINDOW_BINS on either side), and never less
+    than ``depth_step_m`` below what was done. The plan is then shaped: not deeper than
+    the target, not descending toward the robot, rising at most RISE_PER_M; a bin that
+    would be left less than SLIVER_SHARE of a step short of the target goes to it; on an
+    adaptive lane a bin at the target whose measured floor is more than FLOOR_TOLERANCE_M
+    short gets one more stroke. The shaping keeps every bin not yet done at least
+    ``min(target, done + depth_step_m)`` deep (the done depths are themselves
+    non-descending and within the rise: each plan was), so every stroke makes progress.
+    """
+
+    __slots__ = ("_adaptive", "_at_target", "_force_n", "_lag_m", "_max_step_m", "_min_step_m",
+                 "_target_m", "_tip_m", "done_m", "left_m", "n_bins", "near_m", "plan_m",
+                 "start", "width_m")
+
+    def __init__(self, lane: LaneSettings) -> None:
+        span_m = lane.reach_far_m - lane.reach_near_m
+        if not span_m > 0.0:
+            raise ValueError("lane: reach_far_m must be > reach_near_m")
+        self.n_bins = min(MAX_BINS, max(1, math.ceil(span_m / BIN_M - 1e-9)))
+        self.width_m = span_m / self.n_bins
+        self.near_m = lane.reach_near_m
+        self._adaptive = lane.adaptive
+        self._target_m = lane.target_depth_m
+        self._min_step_m, self._max_step_m = lane.depth_step_m, lane.max_depth_step_m
+        n = self.n_bins
+        self.plan_m = [min(lane.depth_step_m, lane.target_depth_m)] * n
+        self.done_m = [0.0] * n
+        self.left_m = [0.0] * n
+        self.start = n - 1
+        self._at_target = [0] * n  # strokes at the target depth through each bin
+        self._tip_m = [math.inf] * n  # this stroke's shallowest measured tip per bin
+        self._force_n = [-math.inf] * n  # this stroke's peak force estimate per bin
+        self._lag_m = [0.0] * n  # this stroke's peak lag per bin
+
+    def bin_of(self, reach_m: float) -> int:
+        b = int((reach_m - self.near_m) / self.width_m)
+        return 0 if b < 0 else (self.n_bins - 1 if b >= self.n_bins else b)
+
+    @property
+    def complete(self) -> bool:
+        return self.start < 0
+
+    @property
+    def start_reach_m(self) -> float:
+        return self.near_m + (self.start + 1) * self.width_m
+
+    @property
+    def start_depth_m(self) -> float:
+        return self.plan_m[self.start]
+
+    def depth_and_slope_at(self, reach_m: float) -> tuple[float, float]:
+        """The stroke's reference depth at ``reach_m`` and its slope d(depth)/d(reach) (≥ 0:
+        the plan never descends toward the robot): linear between the bins' centres, the
+        start bin's depth beyond its centre."""
+        x = (reach_m - self.near_m) / self.width_m - 0.5
+        plan = self.plan_m
+        if x >= self.start:
+            return plan[self.start], 0.0
+        if x <= 0.0:
+            return plan[0], 0.0
+        b = int(x)
+        rise_m = plan[b + 1] - plan[b]
+        return plan[b] + (x - b) * rise_m, rise_m / self.width_m
+
+    def landing_m(self, band_m: float) -> float:
+        """Shallowest floor a descent at the start meets: done there, and what the tip left
+        within ``band_m`` on the robot's side of the start."""
+        start = self.start
+        lowest = self.bin_of(self.start_reach_m - band_m + 1e-9)
+        return min(self.done_m[start], min(self.left_m[lowest:start + 1]))
+
+    def record(self, reach_m: float, depth_m: float, lag_m: float) -> None:
+        """The measured tip and its lag, each tick of a stroke."""
+        b = self.bin_of(reach_m)
+        if depth_m < self._tip_m[b]:
+            self._tip_m[b] = depth_m
+        if lag_m > self._lag_m[b]:
+            self._lag_m[b] = lag_m
+
+    def record_force(self, reach_m: float, force_n: float) -> None:
+        """A stroke's force estimate where the tip is (a non-finite one sticks as nan)."""
+        b = self.bin_of(reach_m)
+        if not math.isfinite(force_n):
+            self._force_n[b] = math.nan
+        elif force_n > self._force_n[b]:
+            self._force_n[b] = force_n
+
+    def finish(self, force_target_n: float, lag_target_m: float) -> None:
+        """A stroke ended at the lane's near end: plan the next one (see the class)."""
+        n, target = self.n_bins, self._target_m
+        seen = list(range(self.start + 1))  # the stroke ran from the start to the near end
+        for b in seen:
+            self.done_m[b] = max(self.done_m[b], self.plan_m[b])
+            self._at_target[b] += self.plan_m[b] >= target - 1e-9
+            if self._tip_m[b] == math.inf:  # not observed: taken to be on its reference
+                self._tip_m[b] = self.plan_m[b]
+        want = [target] * n
+        if self._adaptive and math.isfinite(force_target_n):
+            cut = self._next_cuts(seen, force_target_n, lag_target_m)
+            sliver_m = SLIVER_SHARE * self._min_step_m
+            for b in seen:
+                want[b] = max(self.done_m[b] + self._min_step_m, self._tip_m[b] + cut[b])
+                if want[b] > target - sliver_m:  # not a cycle for what is left
+                    want[b] = target
+        else:
+            for b in range(n):
+                want[b] = self.done_m[b] + self._min_step_m
+        for b in seen:
+            self.left_m[b] = self._tip_m[b]
+        plan = [min(target, w) for w in want]
+        rise_m = RISE_PER_M * self.width_m
+        for b in range(1, n):  # rising at most RISE_PER_M away from the robot
+            plan[b] = min(plan[b], plan[b - 1] + rise_m)
+        for b in range(n - 2, -1, -1):  # never descending toward it
+            plan[b] = min(plan[b], plan[b + 1])
+        self.plan_m = plan
+        start = n - 1
+        while start >= 0 and self._finished(start):
+            start -= 1
+        self.start = start
+        self._tip_m = [math.inf] * n
+        self._force_n = [-math.inf] * n
+        self._lag_m = [0.0] * n
+
+    def _finished(self, b: int) -> bool:
+        if self.done_m[b] < self._target_m - 1e-9:
+            return False
+        return (not self._adaptive or self._at_target[b] >= 2
+                or self.left_m[b] >= self._target_m - FLOOR_TOLERANCE_M)
+
+    @property
+    def depth_reached_m(self) -> float:
+        """The lane's depth where it is least deep: the depth done, except that a bin an
+        adaptive lane has not finished counts where the tip really left it."""
+        return min(d if self._finished(b) else min(d, self.left_m[b])
+                   for b, d in enumerate(self.done_m))
+
+    def _next_cuts(self, seen: list[int], force_target_n: float,
+                   lag_target_m: float) -> list[float]:
+        """Each seen bin's next cut (adaptive): the depth law on the cut it took."""
+        n = self.n_bins
+        force = list(self._force_n)
+        carried = -math.inf  # a bin with no sample (the plunge's tail) takes its neighbour's
+        for b in seen:
+            if force[b] == -math.inf:
+                force[b] = carried
+            else:
+                carried = force[b]
+        for b in reversed(seen):
+            if force[b] == -math.inf:
+                force[b] = carried
+            else:
+                carried = force[b]
+        own = [math.inf] * n
+        for b in seen:
+            took_m = max(self.plan_m[b] - self.left_m[b], self._min_step_m)
+            peak_n = force[b] if force[b] != -math.inf else math.nan  # none: the least cut
+            own[b] = next_depth_step_m(took_m, peak_n, force_target_n, self._lag_m[b],
+                                       lag_target_m, self._min_step_m, self._max_step_m)
+        return [min(own[max(0, b - WINDOW_BINS):b + WINDOW_BINS + 1]) for b in range(n)]
+
+
+class LanePlanner:
+    """Reference tip position for raking a lane, advanced one tick at a time."""
+
+    def __init__(self, lane: LaneSettings, dt_s: float, reach_m: float, depth_m: float) -> None:
+        self.lane = lane
+        self.dt_s = dt_s
+        self.reach_m = reach_m
+        self.depth_m = depth_m
+        self.phase = LanePhase.APPROACH
+        self.cycle = 1
+        self.profile = CutProfile(lane)
+        self.floor_m = 0.0  # shallowest depth the strokes have been along the whole lane
+        self.found_at: tuple[float, float] | None = None  # (reach, depth) of a rigid object
+        self.stopped_by_force = False
+        self.speed_m_per_s = 0.0  # along the path; trapezoidal, zero at every corner
+        self.lag_m = 0.0  # how far the tip is from its reference on a stroke (check_stall)
+        self._tip_depths = [math.nan] * SETTLE_TICKS  # measured, the last ticks (a ring)
+        self._tip_index = 0
+        self._tip_reach_m = reach_m  # measured, the last tick
+        self._settling_ticks = 0
+        self._stroke_ticks = 0
+        self._caution_n = math.inf  # supervision's caution level, from govern()
+        self.governor: StrokeGovernor | None = None
+        self.plunge_governor: StrokeGovernor | None = None
+        if lane.adaptive:
+            self.governor = StrokeGovernor(lane.min_stroke_speed_m_per_s,
+                                           lane.max_stroke_speed_m_per_s,
+                                           lane.governor_gain_per_s, dt_s,
+                                           lane.stroke_speed_m_per_s)
+            self.plunge_governor = StrokeGovernor(lane.plunge_speed_m_per_s,
+                                                  lane.max_plunge_speed_m_per_s,
+                                                  lane.governor_gain_per_s, dt_s,
+                                                  lane.plunge_speed_m_per_s)
+
+    @property
+    def contact(self) -> bool:
+        return self.phase in CONTACT_PHASES
+
+    @property
+    def done(self) -> bool:
+        return self.phase is LanePhase.DONE
+
+    def observe(self, reach_m: float, depth_m: float) -> None:
+        """The measured tip, once per tick (see :meth:`check_stall`)."""
+        self.check_stall(reach_m, depth_m)
+
+    def check_stall(self, reach_m: float, depth_m: float) -> bool:
+        """During a contact stroke, a tip lagging its reference by more than the stall error
+        has met something rigid: remember where, lift clear from where the tip IS (so the
+        reference stops pushing), and finish after the lift. Returns True on the find.
+        Every tick's measured depth is also kept to see the tip settle before a plunge."""
+        self._tip_index = (self._tip_index + 1) % SETTLE_TICKS
+        self._tip_depths[self._tip_index] = depth_m
+        self._tip_reach_m = reach_m
+        if self.phase is not LanePhase.STROKE or self.found_at is not None:
+            self.lag_m = 0.0
+            return False
+        self.lag_m = math.hypot(self.reach_m - reach_m, self.depth_m - depth_m)
+        self.profile.record(reach_m, depth_m, self.lag_m)
+        if self.lag_m <= self.lane.stall_error_m:
+            return False
+        self.found_at = (reach_m, depth_m)
+        self.reach_m, self.depth_m = reach_m, depth_m
+        self.speed_m_per_s = 0.0
+        self.phase = LanePhase.LIFT
+        return True
+
+    def govern(self, force_n: float, caution_n: float) -> None:
+        """The conservative force estimate of this tick (the larger of F̂ and the
+        current-based one) and supervision's caution level: during a contact stroke of an
+        adaptive lane, the stroke's speed limit follows it and the tip's lag (from the last
+        :meth:`check_stall`; rakectl.core.governor). During a plunge, the plunge's limit follows
+        the same force set point (no lag: the stall detector does not watch plunges). The
+        stroke's limit carries over from one stroke to the next; each plunge starts at
+        ``plunge_speed_m_per_s``. Outside them, or on a fixed-speed lane, this does nothing."""
+        if self.plunge_governor is not None and self.phase is LanePhase.PLUNGE:
+            self.plunge_governor.update(force_n, self.lane.force_target_share * caution_n,
+                                        0.0, self.lane.stall_error_m, self.speed_m_per_s)
+        if self.governor is not None and self.phase is LanePhase.STROKE:
+            lane = self.lane
+            self.governor.update(force_n, lane.force_target_share * caution_n, self.lag_m,
+                                 LAG_TARGET_SHARE * lane.stall_error_m, self.speed_m_per_s)
+            self._stroke_ticks += 1
+            if self._stroke_ticks * self.dt_s > PLUNGE_TAIL_S or not math.isfinite(force_n):
+                self.profile.record_force(self._tip_reach_m, force_n)
+            self._caution_n = caution_n
+
+    @property
+    def cycle_depth_m(self) -> float:
+        """Where this cycle's stroke starts (during LIFT: the next one's)."""
+        return self.profile.start_depth_m
+
+    @property
+    def plunge_speed_m_per_s(self) -> float:
+        """The plunge's speed limit now: the governor's, or the lane's fixed one."""
+        if self.plunge_governor is not None:
+            return self.plunge_governor.speed_m_per_s
+        return self.lane.plunge_speed_m_per_s
+
+    @property
+    def stroke_speed_m_per_s(self) -> float:
+        """The stroke's speed limit now: the governor's, or the lane's fixed one."""
+        if self.governor is not None:
+            return self.governor.speed_m_per_s
+        return self.lane.stroke_speed_m_per_s
+
+    def force_stop(self, reach_m: float, depth_m: float) -> None:
+        """The force supervision's hard level: lift clear from where the tip is, then end."""
+        if self.phase in (LanePhase.LIFT, LanePhase.DONE):
+            return
+        self.stopped_by_force = True
+        self.reach_m, self.depth_m = reach_m, depth_m
+        self.speed_m_per_s = 0.0
+        self.phase = LanePhase.LIFT
+
+    def _target(self) -> tuple[float, float, float]:
+        """(reach, depth, speed) the current phase moves toward."""
+        lane, above = self.lane, -self.lane.clearance_m
+        profile = self.profile
+        if self.phase is LanePhase.APPROACH:
+            return profile.start_reach_m, above, lane.travel_speed_m_per_s
+        if self.phase is LanePhase.LOWER:
+            landing_m = profile.landing_m(LANDING_BAND_M)
+            return profile.start_reach_m, landing_m - PLUNGE_MARGIN_M, lane.travel_speed_m_per_s
+        if self.phase is LanePhase.PLUNGE:
+            return profile.start_reach_m, profile.start_depth_m, self.plunge_speed_m_per_s
+        if self.phase is LanePhase.STROKE:
+            return lane.reach_near_m, profile.plan_m[0], self.stroke_speed_m_per_s
+        return self.reach_m, above, lane.travel_speed_m_per_s  # LIFT, DONE
+
+    def _tip_settled(self) -> bool:
+        """Whether the measured tip has stopped (True when the tip is not observed)."""
+        depths = self._tip_depths
+        unknown = sum(math.isnan(d) for d in depths)
+        if unknown:
+            return unknown == SETTLE_TICKS  # never observed: nothing to wait for
+        return max(depths) - min(depths) <= SETTLE_TRAVEL_M
+
+    def _next_phase(self) -> LanePhase:
+        if self.phase is LanePhase.LIFT:
+            if self.found_at is not None or self.stopped_by_force or self.profile.complete:
+                return LanePhase.DONE
+            self.cycle += 1
+            return LanePhase.APPROACH
+        if self.phase is LanePhase.STROKE:
+            self._finish_stroke()
+        if self.phase is LanePhase.LOWER and self.plunge_governor is not None:
+            # each plunge starts at the lane's own speed: the tip meets the soil there
+            self.plunge_governor.speed_m_per_s = self.lane.plunge_speed_m_per_s
+        order = (LanePhase.APPROACH, LanePhase.LOWER, LanePhase.PLUNGE, LanePhase.STROKE,
+                 LanePhase.LIFT)
+        return order[order.index(self.phase) + 1]
+
+    def _finish_stroke(self) -> None:
+        """At a stroke's end: the next cycle's depths (:class:`CutProfile`; an adaptive lane
+        that was not governed, told no caution level, cuts like a fixed one)."""
+        lane = self.lane
+        self.profile.finish(lane.force_target_share * self._caution_n,
+                            LAG_TARGET_SHARE * lane.stall_error_m)
+        self.floor_m = self.profile.depth_reached_m
+        self._stroke_ticks = 0
+        self._caution_n = math.inf
+
+    def step(self) -> None:
+        """Advance the reference by one tick."""
+        if self.phase is LanePhase.DONE:
+            return
+        reach, depth, top_speed = self._target()
+        d_reach, d_depth = reach - self.reach_m, depth - self.depth_m
+        stroke = self.phase is LanePhase.STROKE  # along the profile: distance in reach
+        distance = -d_reach if stroke else math.hypot(d_reach, d_depth)
+        accel = self.lane.accel_m_per_s2
+        self.speed_m_per_s = min(top_speed, self.speed_m_per_s + accel * self.dt_s,
+                                 math.sqrt(2.0 * accel * distance))
+        travel = max(self.speed_m_per_s, accel * self.dt_s) * self.dt_s
+        if distance <= travel:
+            self.reach_m, self.depth_m = reach, depth
+            self.speed_m_per_s = 0.0
+            if (self.phase is LanePhase.LOWER and not self._tip_settled()
+                    and self._settling_ticks * self.dt_s < SETTLE_TIMEOUT_S):
+                self._settling_ticks += 1  # hold above the soil until the tip has arrived
+                return
+            self._settling_ticks = 0
+            self.phase = self._next_phase()
+            return
+        if stroke:  # the path's speed, not the reach's, is the limit
+            _, slope = self.profile.depth_and_slope_at(self.reach_m)
+            self.reach_m -= travel / math.hypot(1.0, slope)
+            self.depth_m, _ = self.profile.depth_and_slope_at(self.reach_m)
+            return
+        self.reach_m += d_reach * travel / distance
+        self.depth_m += d_depth * travel / distance

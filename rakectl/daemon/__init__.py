@@ -1,0 +1,1 @@
+"""The 1 kHz control daemon: its loop, states, command handlers, timing and service glue."""

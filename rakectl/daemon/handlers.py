@@ -1,0 +1,164 @@
+"""What each command of the API does to the running daemon (runs in the loop's slack).
+
+A request that the state table does not allow, or that cannot be carried
+out, is refused with one sentence naming why; nothing changes then.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+from rakectl.api.server import Command, JogSpace, Request
+from rakectl.core import kinematics
+from rakectl.core.jog import Jog
+from rakectl.core.jog import JogSpace as JogFrame
+from rakectl.core.lane import LanePlanner
+from rakectl.daemon.loop import Daemon
+from rakectl.daemon.states import ARMED_STATES, Event, State, next_state
+from rakectl.errors import CommandRejected, KinematicsError
+
+Reply = Mapping[str, Any]
+
+
+def _require(daemon: Daemon, event: Event, what: str) -> None:
+    if next_state(daemon.state, event) is None:
+        raise CommandRejected(f"cannot {what} while {daemon.state.name.lower()}"
+                              + (f" ({daemon.fault_reason})" if daemon.fault_reason else ""))
+
+
+def _finite(value: float) -> float | None:
+    return value if math.isfinite(value) else None
+
+
+def _tip(daemon: Daemon) -> dict[str, float | None]:
+    fb = daemon.client.feedback
+    if not (math.isfinite(fb.r_m) and math.isfinite(fb.theta_rad)):
+        return {"reach_m": None, "depth_m": None}
+    reach_m, depth_m = daemon.tip_now()
+    return {"reach_m": reach_m, "depth_m": depth_m}
+
+
+def status(daemon: Daemon) -> dict[str, Any]:
+    fb, c, client = daemon.client.feedback, daemon.controller, daemon.client
+    reply: dict[str, Any] = {
+        "state": daemon.state.name.lower(),
+        "fault": daemon.fault_reason or None,
+        "pid": os.getpid(),
+        "ticks": daemon.ticks,
+        "joints": {"r_m": _finite(fb.r_m), "theta_rad": _finite(fb.theta_rad),
+                   "current_r_a": _finite(fb.current_r_a),
+                   "current_theta_a": _finite(fb.current_theta_a)},
+        "tip": _tip(daemon),
+        "force": {"f_hat_n": c.f_hat_n, "f_hat_max_n": daemon.f_hat_max_n,
+                  "f_current_n": daemon.supervisor.f_current_n,
+                  "level": daemon.supervisor.level.name.lower(),
+                  "clamp_worst_case_n": c.clamp.worst_case_n,
+                  "clamp_limit_n": c.clamp.limit_n, "clamped_ticks": c.clamp.clamped},
+        "drives": [{"state": s.name.lower() if s is not None else None,
+                    "stale_cycles": fb.stale_cycles[j]} for j, s in enumerate(fb.state)],
+        "bus": client.stats.as_dict(),
+        "timing": daemon.timing_summary(),
+    }
+    planner = daemon.planner
+    if planner is not None:
+        reply["excavation"] = {
+            "phase": planner.phase.name.lower(), "cycle": planner.cycle,
+            "depth_m": planner.floor_m, "target_depth_m": planner.lane.target_depth_m,
+            "done": planner.done,
+            "object_found": ({"reach_m": planner.found_at[0], "depth_m": planner.found_at[1]}
+                             if planner.found_at else None),
+        }
+    return reply
+
+
+def _jog(daemon: Daemon, request: Request) -> Reply:
+    if daemon.state is not State.JOG:
+        _require(daemon, Event.JOG, "jog")
+        r_m, theta_rad = daemon.controller.servo.q_ref
+        daemon.jog = Jog(daemon.settings.jog, daemon.workspace, daemon.dt_s, r_m, theta_rad)
+        daemon._transition(Event.JOG, "operator jog")
+    assert daemon.jog is not None
+    if request.args.get("space") == JogSpace.TASK:
+        daemon.jog.command(JogFrame.TASK, request.number("reach_m_per_s") or 0.0,
+                           request.number("height_m_per_s") or 0.0)
+    else:
+        daemon.jog.command(JogFrame.JOINT, request.number("r_m_per_s") or 0.0,
+                           request.number("theta_rad_per_s") or 0.0)
+    return {"state": daemon.state.name.lower()}
+
+
+def _excavate(daemon: Daemon, request: Request) -> Reply:
+    _require(daemon, Event.EXCAVATE, "excavate")
+    given: dict[str, Any] = {k: v for k, v in request.args.items() if isinstance(v, float)}
+    lane = dataclasses.replace(daemon.settings.lane, **given)
+    ws = daemon.workspace
+    for reach, depth in ((lane.reach_far_m, -lane.clearance_m),
+                         (lane.reach_near_m, lane.target_depth_m),
+                         (lane.reach_far_m, lane.target_depth_m),
+                         (lane.reach_near_m, -lane.clearance_m)):
+        try:
+            kinematics.inverse(ws, reach, -depth)
+        except KinematicsError as exc:
+            raise CommandRejected(f"the lane leaves the workspace: {exc}") from None
+    c = daemon.controller
+    daemon.planner = LanePlanner(lane, daemon.dt_s, c.reach_m, c.depth_m)
+    daemon.f_hat_max_n = 0.0
+    daemon._transition(Event.EXCAVATE, "operator excavate")
+    return {"state": daemon.state.name.lower()}
+
+
+def _dump(daemon: Daemon, request: Request) -> Reply:
+    given = request.text("path")
+    path = daemon.dump_to(Path(given)) if given else daemon._dump("request")
+    return {"path": str(path)}
+
+
+def _simple(daemon: Daemon, event: Event, what: str, action: Callable[[], None]) -> Reply:
+    _require(daemon, event, what)
+    action()
+    return {"state": daemon.state.name.lower()}
+
+
+def make_handler(daemon: Daemon) -> Callable[[Request], Reply]:
+    """The API's handler: validated requests in, reply fields out (CommandRejected refuses)."""
+
+    def handle(request: Request) -> Reply:
+        cmd = request.cmd
+        if cmd is Command.STATUS:
+            return status(daemon)
+        if cmd is Command.ARM:
+            if daemon.client.stale_feedback(daemon.settings.drives.feedback_timeout_cycles):
+                raise CommandRejected("cannot arm: the drives' feedback is stale")
+            return _simple(daemon, Event.ARM, "arm", daemon.arm)
+        if cmd is Command.DISARM:
+            return _simple(daemon, Event.DISARM, "disarm", daemon.disarm)
+        if cmd is Command.STOP:
+            return _simple(daemon, Event.STOP, "stop", daemon.hold_here)
+        if cmd is Command.ESTOP:
+            daemon.estop()
+            return {"state": daemon.state.name.lower()}
+        if cmd is Command.RESET:
+            return _simple(daemon, Event.RESET, "reset", daemon.start_reset)
+        if cmd is Command.DUMP:
+            return _dump(daemon, request)
+        if cmd is Command.JOG:
+            return _jog(daemon, request)
+        if cmd is Command.EXCAVATE:
+            return _excavate(daemon, request)
+        if cmd is Command.TIMING_RESET:
+            daemon.reset_timing()
+            return {"state": daemon.state.name.lower()}
+        if cmd is Command.SHUTDOWN:
+            daemon.request_stop()
+            return {"state": daemon.state.name.lower(), "stopping": True}
+        raise CommandRejected(f"{cmd} is not implemented")  # pragma: no cover
+
+    return handle
+
+
+__all__ = ["ARMED_STATES", "make_handler", "status"]

@@ -1,0 +1,486 @@
+"""The 1 kHz control daemon: one thread, a fixed step, the drives and the operator.
+
+Each tick, on an absolute deadline (rakectl.daemon.timing)::
+
+    receive the drives' TPDOs ─▶ supervise ─▶ reference (hold, jog, lane) ─▶
+    TipController (impedance, IK, joint loops, CLAMP) ─▶ RPDOs + SYNC ─▶ recorder
+
+Only this thread touches the bus. What is not the tick (the command socket,
+flight-recorder dumps, bus traces, log lines, systemd's watchdog) runs in the
+tick's slack with a hard time budget, so it can delay nothing but itself.
+
+Every voltage that reaches the bus comes from ``TipController.step``, whose
+last stage is the voltage clamp; outside the armed states the loop sends 0 V
+with the drives disabled. Any fault (a drive's EMCY or FAULT state, stale
+feedback, lost heartbeats, failed sends, a non-finite number, a clamp that
+cannot meet its bound, a streak of late ticks) sends 0 V, disables the drives,
+dumps the recorder and latches FAULT until ``reset`` finds the cause gone. A
+controller that dies leaves the arm to the drives' own command watchdogs.
+"""
+
+from __future__ import annotations
+
+import collections
+import gc
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import structlog
+
+from rakectl.config.settings import Settings
+from rakectl.core import kinematics
+from rakectl.core.control import TipController
+from rakectl.core.jog import Jog
+from rakectl.core.lane import LanePlanner
+from rakectl.core.supervision import ForceLevel, ForceSupervisor
+from rakectl.daemon.histogram import Histogram
+from rakectl.daemon.recorder import DumpWriter, FlightRecorder
+from rakectl.daemon.sdnotify import Notifier
+from rakectl.daemon.states import ARMED_STATES, Event, State, next_state
+from rakectl.daemon.timing import TickTimer
+from rakectl.drive.canbus import TraceRecorder
+from rakectl.drive.client import DriveClient, Joint
+from rakectl.errors import CommsTimeout
+from rakectl.protocol.cia402 import Command as DriveCommand
+from rakectl.protocol.cia402 import State as DriveState
+from rakectl.protocol.cia402 import path_to_enabled
+from rakectl.protocol.codec import NmtState
+
+RECORDER_COLUMNS = (
+    "t_s", "state", "reach_ref_m", "depth_ref_m", "reach_m", "depth_m", "x_ref_m", "f_hat_n",
+    "voltage_r_req_v", "voltage_theta_req_v", "voltage_r_v", "voltage_theta_v",
+    "clamp_worst_case_n", "r_m", "theta_rad", "current_r_a", "current_theta_a",
+    "f_current_n", "force_level", "latency_us", "exec_us",
+)
+SLACK_GUARD_S = 250e-6  # slack work stops this long before the next deadline
+SEND_FAILURE_STREAK = 3  # ticks in a row with a failed send: fault
+HEARTBEAT_CHECK_TICKS = 10
+NMT_RETRY_TICKS = 300  # in INIT, NMT start is repeated this often to a drive not OPERATIONAL
+LOG_EVERY_S = 1.0  # a repeated loop event is logged at most this often
+
+log = structlog.get_logger("rakectl")
+
+
+class Daemon:
+    """The control loop and its state; ``handle`` (rakectl.daemon.handlers) serves requests."""
+
+    def __init__(self, settings: Settings, client: DriveClient, notifier: Notifier,
+                 dump_dir: Path, clock_ns: Callable[[], int] = time.monotonic_ns) -> None:
+        self.settings = settings
+        self.client = client
+        self.notifier = notifier
+        self.dump_dir = dump_dir
+        self.dt_s = 1.0 / settings.rate_hz
+        self.timer = TickTimer(self.dt_s, clock_ns)
+        self.latency = Histogram()  # wake-up latency: actual wake − deadline
+        self.execution = Histogram()  # the tick's own work
+        self.period = Histogram()  # wake to wake
+        self.oversleep = Histogram()  # the OS's wake-up late of the sleep, before the spin
+        self.longest_gap_ns = 0
+        self._last_wake_ns = 0
+        self._overruns_at_reset = 0
+        self.controller = TipController(settings)
+        self.supervisor = ForceSupervisor(settings.supervision, settings.clamp, settings.motors.r,
+                                          settings.motors.theta, self.dt_s)
+        self.workspace = self.controller.servo.workspace
+        capacity = round(settings.daemon.recorder_s * settings.rate_hz)
+        self.recorder = FlightRecorder(RECORDER_COLUMNS, capacity)
+        self.state = State.INIT
+        self.fault_reason = ""
+        self.ticks = 0
+        self.hold = (0.0, 0.0)  # (reach, depth) held in ARMED and HOLD
+        self.jog: Jog | None = None
+        self.planner: LanePlanner | None = None
+        self.f_hat_max_n = 0.0
+        self._enabled = False
+        self._enable_deadline = 0
+        self._reset_deadline = -1
+        self._send_failures = 0
+        self._overrun_streak = 0
+        self._stop_requested = False
+        self._dumps: collections.deque[DumpWriter] = collections.deque()
+        self._events: collections.deque[tuple[str, dict[str, Any]]] = collections.deque(
+            maxlen=256)
+        self._last_logged: dict[str, float] = {}
+        self._clock_ns = clock_ns
+        self._next_stats_tick = 0
+        self._next_watchdog_tick = 0
+        self._ref = (0.0, 0.0)
+        self.slack_hook: Callable[[float], object] | None = None  # the command server's poll
+        self.trace: TraceRecorder | None = None  # bus trace, drained in the slack
+        self._exec_us = 0.0
+
+    # ------------------------------------------------------------------ life cycle
+
+    def request_stop(self) -> None:
+        """Ask the loop to end (signal handlers and the shutdown command only set this)."""
+        self._stop_requested = True
+
+    def bring_up(self) -> None:
+        """Configure the drives, then cycle until both report valid feedback: READY."""
+        infos = self.client.bring_up(self.settings.daemon.boot_timeout_s)
+        self.event("drives_configured", drives=[
+            {"node": i.node_id, "serial": i.identity.serial,
+             "max_voltage_mv": i.limits.max_voltage_mv} for i in infos])
+
+    def run(self) -> None:
+        """The loop, until a stop is requested. Ends with 0 V, drives disabled, a dump."""
+        timeout_ticks = round(self.settings.daemon.boot_timeout_s * self.settings.rate_hz)
+        self.timer.start()
+        try:
+            while not self._stop_requested:
+                skipped = self.timer.wait()
+                started_ns = self._clock_ns()
+                self.tick(skipped)
+                exec_ns = self._clock_ns() - started_ns
+                self._exec_us = exec_ns * 1e-3
+                self._record_timing(exec_ns)
+                self._overrun_streak = self._overrun_streak + 1 if skipped else 0
+                if self.state is State.INIT and self.ticks > timeout_ticks:
+                    raise CommsTimeout("no valid feedback from both drives within "
+                                       f"{self.settings.daemon.boot_timeout_s:g} s of bring-up")
+                self.slack()
+        finally:
+            self.finish()
+
+    def _record_timing(self, exec_ns: int) -> None:
+        timer = self.timer
+        self.latency.add(timer.latency_ns)
+        self.oversleep.add(timer.sleep_overshoot_ns)
+        self.execution.add(exec_ns)
+        if self._last_wake_ns:
+            gap_ns = timer.wake_ns - self._last_wake_ns
+            self.period.add(gap_ns)
+            if gap_ns > self.longest_gap_ns:
+                self.longest_gap_ns = gap_ns
+        self._last_wake_ns = timer.wake_ns
+
+    def reset_timing(self) -> None:
+        """Start the timing statistics afresh (benchmark phases)."""
+        for histogram in (self.latency, self.execution, self.period, self.oversleep):
+            histogram.reset()
+        self.longest_gap_ns = 0
+        self._overruns_at_reset = self.timer.overruns
+
+    def finish(self) -> None:
+        """0 V, drives disabled, the recorder dumped: the end of every run."""
+        self.notifier.stopping()
+        self.client.stop_all()
+        self._dump("shutdown")
+        self.event("bus_latency", **self.bus_latency())
+        while self._dumps:
+            self._dumps[0].work(1.0)
+            if self._dumps[0].done:
+                self._dumps.popleft()
+        self._flush_events(len(self._events))
+
+    # ------------------------------------------------------------------ one tick
+
+    def tick(self, skipped: int = 0) -> None:
+        """One control period: feedback in, voltages out (0 V unless armed and healthy)."""
+        self.ticks += 1 + skipped
+        client = self.client
+        client.receive()
+        voltages = (0.0, 0.0)
+        state = self.state
+        if state is State.INIT:
+            self._check_ready()
+        elif state is not State.FAULT and state is not State.ESTOP:
+            problem = self._supervise(armed=state in ARMED_STATES)
+            if problem:
+                self.fault(problem)
+            elif state in ARMED_STATES:
+                voltages = self._control()
+        elif self._reset_deadline >= 0:
+            self._try_reset()
+        client.send(*voltages)
+        client.sync()
+        self._send_failures = self._send_failures + 1 if client.send_failed() else 0
+        self._record(voltages)
+
+    def _check_ready(self) -> None:
+        fb = self.client.feedback
+        fresh = fb.stale_cycles[0] == 0 and fb.stale_cycles[1] == 0
+        if fresh and math.isfinite(fb.r_m) and math.isfinite(fb.theta_rad):
+            self._transition(Event.READY)
+            self.notifier.ready("disarmed: drives configured, feedback valid")
+        elif self.ticks % NMT_RETRY_TICKS == 0:
+            for joint in (Joint.R, Joint.THETA):
+                if fb.nmt_state[joint] is not NmtState.OPERATIONAL:
+                    self.client.start_node(joint)  # the bring-up's NMT start may be lost
+
+    def _supervise(self, armed: bool) -> str:
+        """Why the loop must fault now, or "" (cheap: strings only when something is wrong).
+
+        Disarmed, only drive faults and lost heartbeats count: stale feedback
+        matters once voltages depend on it (arming requires it fresh).
+        """
+        client, fb = self.client, self.client.feedback
+        limit = self.settings.drives.feedback_timeout_cycles
+        heartbeat_check = self.ticks % HEARTBEAT_CHECK_TICKS == 0
+        if client.drive_faults() or (armed and client.stale_feedback(limit)) or (
+                heartbeat_check and client.heartbeat_lost(time.monotonic())):
+            return "; ".join(client.describe_problems(time.monotonic(), limit)) or "drive problem"
+        if not armed:
+            return ""
+        if not (math.isfinite(fb.r_m) and math.isfinite(fb.theta_rad)
+                and math.isfinite(fb.r_vel_m_per_s) and math.isfinite(fb.theta_vel_rad_per_s)):
+            return "non-finite joint feedback"
+        if self._send_failures >= SEND_FAILURE_STREAK:
+            return f"CAN send failed {self._send_failures} ticks in a row: {client.last_send_error}"
+        if self._overrun_streak >= self.settings.daemon.overrun_fault_streak:
+            return f"{self._overrun_streak} late ticks in a row: the loop cannot keep time"
+        return ""
+
+    def _control(self) -> tuple[float, float]:
+        if not self._enabled and not self._enable_drives():
+            return 0.0, 0.0
+        reach, depth, contact = self._reference()
+        self._ref = (reach, depth)
+        fb, c = self.client.feedback, self.controller
+        c.set_contact(contact)
+        voltages = c.step(reach, depth, fb.r_m, fb.theta_rad, fb.r_vel_m_per_s,
+                          fb.theta_vel_rad_per_s)
+        if c.fault or c.clamp.infeasible:
+            self.fault(c.fault or "the voltage clamp cannot meet its bound: "
+                       f"worst case {c.clamp.worst_case_n:.1f} N")
+            return 0.0, 0.0
+        if c.f_hat_n > self.f_hat_max_n:
+            self.f_hat_max_n = c.f_hat_n
+        previous = self.supervisor.level
+        level = self.supervisor.step(c.f_hat_n, fb.r_m, fb.theta_rad, fb.current_r_a,
+                                     fb.current_theta_a)
+        if level is ForceLevel.HARD and previous is not ForceLevel.HARD:
+            self._back_off()
+        planner = self.planner
+        if planner is not None and self.state is State.EXCAVATE:
+            if planner.check_stall(c.reach_m, c.depth_m):
+                self.event("object_found", reach_m=c.reach_m, depth_m=c.depth_m)
+            sup = self.supervisor  # an adaptive stroke follows the larger estimate
+            planner.govern(max(c.f_hat_n, sup.f_current_n), sup.caution_n)
+        return voltages
+
+    def _back_off(self) -> None:
+        """Hard force level: stop where the tip is and back off upward; report it."""
+        c, sup = self.controller, self.supervisor
+        reach, depth = c.reach_m, c.depth_m - self.settings.supervision.back_off_m
+        self.event("force_limit", f_hat_n=c.f_hat_n, f_current_n=sup.f_current_n,
+                   reach_m=c.reach_m, depth_m=c.depth_m)
+        if self.state is State.EXCAVATE and self.planner is not None:
+            self.planner.force_stop(c.reach_m, c.depth_m)
+            return
+        self.hold = (reach, depth)
+        if self.state is State.JOG:
+            self._transition(Event.STOP, "force limit: backing off")
+
+    def _reference(self) -> tuple[float, float, bool]:
+        """Tip reference (reach, depth) and contact flag of the current mode, one tick on.
+
+        At the caution level the reference holds still (jog and lane do not advance).
+        """
+        state = self.state
+        if self.supervisor.level is ForceLevel.CAUTION and state in (State.JOG, State.EXCAVATE):
+            return self._ref[0], self._ref[1], True
+        if state is State.JOG and self.jog is not None:
+            self.jog.step()
+            if self.jog.expired and not self.jog.moving:
+                self.hold = self.jog.tip()
+                self._transition(Event.STOP, "dead-man: no jog command")
+            reach, depth = self.jog.tip()
+            return reach, depth, self.jog.contact
+        if state is State.EXCAVATE and self.planner is not None:
+            planner = self.planner
+            planner.step()
+            if planner.done:
+                self.hold = (planner.reach_m, planner.depth_m)
+                self._transition(Event.DONE, "object found" if planner.found_at else
+                                 "target depth reached")
+            return planner.reach_m, planner.depth_m, planner.contact
+        return self.hold[0], self.hold[1], False
+
+    def _enable_drives(self) -> bool:
+        """Step both drives through CiA 402 to OPERATION ENABLED; True once both are."""
+        states = self.client.feedback.state
+        if states[0] is DriveState.OPERATION_ENABLED and states[1] is DriveState.OPERATION_ENABLED:
+            self._enabled = True
+            self.event("drives_enabled")
+            return True
+        if self.ticks > self._enable_deadline:
+            self.fault(f"drives did not enable within {self.settings.daemon.enable_timeout_s:g} s"
+                       f" (r: {states[0]}, θ: {states[1]})")
+            return False
+        for joint in (Joint.R, Joint.THETA):
+            state = states[joint]
+            if state is not None and state is not DriveState.OPERATION_ENABLED:
+                steps = path_to_enabled(state)
+                if steps:
+                    self.client.command(joint, steps[0])
+        return False
+
+    def _record(self, voltages: tuple[float, float]) -> None:
+        fb, c = self.client.feedback, self.controller
+        self.recorder.record_row((
+            self.ticks * self.dt_s, self.state.value, self._ref[0], self._ref[1], c.reach_m,
+            c.depth_m, c.x_ref_m, c.f_hat_n, c.requested_v[0], c.requested_v[1], voltages[0],
+            voltages[1], c.clamp.worst_case_n, fb.r_m, fb.theta_rad, fb.current_r_a,
+            fb.current_theta_a, self.supervisor.f_current_n, float(self.supervisor.level),
+            self.timer.latency_ns * 1e-3, self._exec_us,
+        ))
+
+    # ------------------------------------------------------------------ states
+
+    def _transition(self, event: Event, reason: str = "") -> bool:
+        new = next_state(self.state, event)
+        if new is None:
+            return False
+        old, self.state = self.state, new
+        if old in ARMED_STATES and new not in ARMED_STATES:
+            self._enabled = False
+            self.client.command(None, DriveCommand.QUICK_STOP if new is State.ESTOP
+                                else DriveCommand.DISABLE_VOLTAGE)
+        self.event("state", old=old.name, new=new.name, reason=reason)
+        self.notifier.status(f"{new.name.lower()}{': ' + reason if reason else ''}")
+        return True
+
+    def fault(self, reason: str) -> None:
+        """0 V from this tick on, drives disabled, the recorder dumped; latched until reset."""
+        if self._transition(Event.FAULT, reason):
+            self.fault_reason = reason
+            self.client.command(None, DriveCommand.DISABLE_VOLTAGE)
+            self._dump("fault")
+
+    def estop(self) -> None:
+        self._transition(Event.ESTOP, "operator e-stop")
+        self.fault_reason = "operator e-stop"
+        self.client.command(None, DriveCommand.QUICK_STOP)
+        self._dump("estop")
+
+    def arm(self) -> None:
+        """Hold the present pose and step the drives to OPERATION ENABLED."""
+        fb = self.client.feedback
+        self.controller.reset(fb.r_m, fb.theta_rad)
+        self.supervisor.reset()
+        self.hold = (self.controller.reach_m, self.controller.depth_m)
+        self._ref = self.hold
+        self._enabled = False
+        self._enable_deadline = self.ticks + round(self.settings.daemon.enable_timeout_s
+                                                   * self.settings.rate_hz)
+        self._transition(Event.ARM)
+
+    def start_reset(self) -> None:
+        """Fault-reset the drives; FAULT/ESTOP → DISARMED once no problem is left (≤ 1 s)."""
+        self.client.command(None, DriveCommand.FAULT_RESET)
+        self._reset_deadline = self.ticks + round(self.settings.rate_hz)
+
+    def _try_reset(self) -> None:
+        limit = self.settings.drives.feedback_timeout_cycles
+        client = self.client
+        if not (client.drive_faults() or client.stale_feedback(limit)
+                or client.heartbeat_lost(time.monotonic())):
+            self._reset_deadline = -1
+            self.client.command(None, DriveCommand.DISABLE_VOLTAGE)
+            self.fault_reason = ""
+            self._transition(Event.RESET, "reset")
+        elif self.ticks > self._reset_deadline:
+            self._reset_deadline = -1
+            problems = client.describe_problems(time.monotonic(), limit)
+            self.event("reset_failed", problems=problems)
+
+    def disarm(self) -> None:
+        self._transition(Event.DISARM, "operator disarm")
+
+    def hold_here(self) -> None:
+        """Stop a jog or excavation where the reference is now."""
+        self.hold = self._ref
+        self._transition(Event.STOP, "operator stop")
+
+    # ------------------------------------------------------------------ slack
+
+    def slack(self) -> None:
+        """Work that is not the tick, within the time left before the next deadline."""
+        deadline_ns = self.timer.deadline_of(self.timer.tick_index + 1)
+        budget_s = (deadline_ns - self._clock_ns()) * 1e-9 - SLACK_GUARD_S
+        if budget_s <= 0.0:
+            return
+        started = time.perf_counter()
+        if self.slack_hook is not None:
+            self.slack_hook(budget_s * 0.5)
+        if self._dumps:
+            left = budget_s - (time.perf_counter() - started)
+            if left > 0 and self._dumps[0].work(left):
+                writer = self._dumps.popleft()
+                self.event("recorder_dumped", path=str(writer.path))
+        if self.trace is not None:
+            self.trace.drain(32)
+        self._flush_events(1)
+        self._periodic()
+
+    def _periodic(self) -> None:
+        if self.ticks >= self._next_watchdog_tick:
+            self.notifier.watchdog(self.ticks)  # only sent if the tick counter advanced
+            self._next_watchdog_tick = self.ticks + round(0.1 * self.settings.rate_hz)
+        if self.ticks >= self._next_stats_tick:
+            self._next_stats_tick = self.ticks + round(self.settings.daemon.stats_interval_s
+                                                       * self.settings.rate_hz)
+            if self.ticks > 1:
+                self.event("timing", **self.timing_summary())
+        if self.state not in ARMED_STATES and self.ticks % 1000 == 0:
+            gc.collect(1)  # never while armed: the collector is off then (see cli)
+
+    def bus_latency(self) -> dict[str, Any]:
+        """SYNC → TPDO1 arrival percentiles (µs) and the bus counters (off the hot path)."""
+        samples = self.client.sync_to_tpdo_s()
+        out: dict[str, Any] = {"samples": len(samples), **self.client.stats.as_dict()}
+        if samples:
+            values = np.array(samples) * 1e6
+            for name, q in (("p50", 50), ("p99", 99), ("p99.9", 99.9)):
+                out[f"sync_to_tpdo_{name}_us"] = round(float(np.percentile(values, q)), 1)
+            out["sync_to_tpdo_max_us"] = round(float(values.max()), 1)
+        return out
+
+    def timing_summary(self) -> dict[str, Any]:
+        """Percentiles (ns) since the start or the last reset; cheap enough for the slack."""
+        return {
+            "latency_ns": self.latency.percentiles_ns(),
+            "exec_ns": self.execution.percentiles_ns(),
+            "period_ns": self.period.percentiles_ns(),
+            "oversleep_ns": self.oversleep.percentiles_ns(),
+            "longest_gap_ns": self.longest_gap_ns,
+            "overruns": self.timer.overruns - self._overruns_at_reset,
+            "skipped": self.timer.skipped_total,
+            "gc_collections": [g["collections"] for g in gc.get_stats()],
+        }
+
+    # ------------------------------------------------------------------ events and dumps
+
+    def event(self, name: str, **fields: Any) -> None:
+        """Queue a log line; it is written in the slack, never in the tick."""
+        self._events.append((name, fields))
+
+    def _flush_events(self, count: int) -> None:
+        now = time.monotonic()
+        for _ in range(min(count, len(self._events))):
+            name, fields = self._events.popleft()
+            rate_limited = name in ("timing",)
+            if rate_limited and now - self._last_logged.get(name, -math.inf) < LOG_EVERY_S:
+                continue
+            self._last_logged[name] = now
+            log.info(name, state=self.state.name, **fields)
+
+    def _dump(self, reason: str) -> Path:
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        path = self.dump_dir / f"rakectl-{stamp}-{self.ticks}-{reason}.csv"
+        return self.dump_to(path)
+
+    def dump_to(self, path: Path) -> Path:
+        self._dumps.append(self.recorder.start_dump(path))
+        return path
+
+    def tip_now(self) -> tuple[float, float]:
+        fb = self.client.feedback
+        reach, height = kinematics.forward(self.workspace, fb.r_m, fb.theta_rad)
+        return reach, -height

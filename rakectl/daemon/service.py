@@ -1,0 +1,100 @@
+"""``rakectl run``: the daemon's composition root.
+
+The only place that reads the configuration and the environment, opens the
+CAN bus, installs signal handlers, sets up real time and talks to systemd.
+SIGTERM and SIGINT only record the request; the loop ends its tick, sends
+0 V with the drives disabled, dumps the flight recorder and returns 0.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import gc
+import logging
+import os
+import signal
+import sys
+from pathlib import Path
+from types import FrameType
+
+import structlog
+
+from rakectl.api.server import CommandServer, socket_path
+from rakectl.config.loader import load_settings
+from rakectl.config.settings import Settings
+from rakectl.daemon.handlers import make_handler
+from rakectl.daemon.loop import Daemon
+from rakectl.daemon.rt import RtMode, RtRequest, apply_rt, freeze_gc
+from rakectl.daemon.sdnotify import Notifier
+from rakectl.drive.canbus import open_bus, open_trace
+from rakectl.drive.client import DriveClient, receive_ids
+
+
+def configure_logging() -> None:
+    """structlog: JSON lines when stderr is not a terminal (journald), readable on one."""
+    renderer: structlog.typing.Processor = (
+        structlog.dev.ConsoleRenderer() if sys.stderr.isatty()
+        else structlog.processors.JSONRenderer())
+    structlog.configure(
+        processors=[structlog.processors.add_log_level,
+                    structlog.processors.TimeStamper(fmt="iso", utc=True), renderer],
+        wrapper_class=structlog.make_filtering_bound_logger(logging.INFO),
+        logger_factory=structlog.PrintLoggerFactory(sys.stderr),
+        cache_logger_on_first_use=True,
+    )
+
+
+def _dump_dir(settings: Settings) -> Path:
+    configured = settings.daemon.dump_dir or os.environ.get("STATE_DIRECTORY", "").split(":")[0]
+    path = Path(configured) if configured else Path.cwd()
+    path.mkdir(parents=True, exist_ok=True)
+    return path
+
+
+def _rt_request(settings: Settings) -> RtRequest:
+    d = settings.daemon
+    return RtRequest(priority=d.rt_priority, cpus=frozenset({d.cpu}) if d.cpu >= 0 else None)
+
+
+def run(config: Path | None, overrides: list[str]) -> int:
+    """Run the daemon until SIGTERM/SIGINT or the shutdown command; 0 on a clean stop."""
+    settings = load_settings(config, overrides, root=Settings)
+    configure_logging()
+    log = structlog.get_logger("rakectl")
+    bus = open_bus(settings.bus, receive_ids(settings.drives))
+    trace = open_trace(settings.bus)
+    client = DriveClient(bus, settings.drives, settings.motors, settings.rate_hz, trace)
+    notifier = Notifier.from_environ(os.environ)
+    daemon = Daemon(settings, client, notifier, _dump_dir(settings))
+    daemon.trace = trace
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        daemon.request_stop()
+
+    signal.signal(signal.SIGTERM, on_signal)
+    signal.signal(signal.SIGINT, on_signal)
+    server: CommandServer | None = None
+    try:
+        notifier.status("bringing up the drives")
+        daemon.bring_up()
+        report = apply_rt(RtMode(settings.daemon.rt_mode.value), _rt_request(settings))
+        for warning in report.warnings:
+            log.warning("realtime", problem=warning)
+        path = socket_path(settings.daemon.socket_path or None)
+        server = CommandServer(path, settings.daemon.socket_group or None, make_handler(daemon))
+        daemon.slack_hook = server.poll
+        log.info("started", socket=str(path), rt=str(report.mode.value),
+                 bus=f"{settings.bus.interface}:{settings.bus.channel}", priority=report.priority)
+        freeze_gc()
+        gc.disable()  # no collection in the loop: the slack collects young generations
+        daemon.run()
+    finally:
+        gc.enable()
+        if server is not None:
+            server.close()
+        if trace is not None:
+            trace.close()
+        with contextlib.suppress(Exception):
+            bus.shutdown()
+    log.info("stopped", **{**daemon.timing_summary(), "ticks": daemon.ticks})
+    return 0

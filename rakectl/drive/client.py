@@ -1,0 +1,845 @@
+"""The controller's client of the two CANopen drives: blocking bring-up, then a 1 kHz hot path.
+
+The protocol is the one of :mod:`rakectl.protocol.codec`; the bus is injected (only
+:func:`rakectl.drive.canbus.open_bus` calls ``can.Bus``), and
+:func:`receive_ids` names the frames the controller listens to.
+
+Bring-up (:meth:`DriveClient.bring_up`, blocking, run once before the loop):
+a ``canopen.Network`` on the injected bus whose listeners are fed by a
+*temporary* ``can.Notifier``, stopped and joined before bring-up returns: no
+thread survives it. :class:`BringUp` does the work through the network alone,
+so a test can run it on a bus-less network without any thread. For each drive
+in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.settings.DrivesSettings`:
+
+1. wait for a heartbeat or boot-up of the node (``boot_timeout_s``;
+   :class:`~rakectl.errors.CommsTimeout` naming the node);
+2. NMT reset communication, and wait for its boot-up (the node is then
+   PRE-OPERATIONAL with the EDS defaults of its communication objects);
+3. SDO read the identity 0x1018: vendor-ID and product code must be those of
+   the drive type's EDS (``rakectl/protocol/eds/*.eds``, read with ``importlib.resources``),
+   revision and serial number are recorded;
+4. SDO write the limits: 0x2001 max voltage [mV] (``motors.<joint>.supply_voltage_v``),
+   0x2002 current limit [mA] (``motors.<joint>.current_limit_a``), 0x2003 command
+   watchdog [ms] (``drives.watchdog_timeout_ms``), 0x2004 encoder counts per turn,
+   0x1017 producer heartbeat [ms] (``drives.heartbeat_period_ms``) and 0x1016:1
+   consumer heartbeat of the controller (``controller_node_id << 16 | heartbeat_timeout_ms``);
+   a value outside the EDS's data type or limits is a ConfigError before anything is sent;
+5. SDO read every one of them back and compare.
+
+Then the statusword 0x6041 of each (the CiA 402 state the hot path starts
+from: the TPDO2 a drive sends on entering OPERATIONAL may reach the bring-up
+Notifier instead), and NMT start for each node (OPERATIONAL). Start ticking right away: an
+enabled drive faults when RPDO1 or SYNC stop for 0x2003 ms, and every drive
+once the controller's heartbeat (first sent with the first SYNC) stops.
+
+Every failure is one line naming the drive, e.g.
+``DriveFault("r drive (node 1): wrong identity: product code 2, expected 1 (dc_servo_drive.eds)")``,
+``DriveFault("θ drive (node 2): read-back mismatch: 0x2003 watchdog timeout: wrote 20 ms,
+read 15 ms")``, ``DriveFault("r drive (node 1): SDO abort 0x06090030 writing 0x2003
+watchdog timeout = 20 ms: Value range of parameter exceeded")``
+(raised ``from`` the canopen error), ``CommsTimeout`` when a node or an SDO
+answer does not come. The power stage is NOT enabled here: that is the
+controlword sent cyclically in RPDO1 (:meth:`DriveClient.command`), and the
+daemon enables the drives only while it is armed.
+
+Hot path (single thread, once per tick, no allocation of tracked objects, no
+logging, no exception for normal control flow). Each tick::
+
+    receive()  →  (controller computes)  →  send(voltage_r_v, voltage_theta_v)  →  sync()
+
+A drive answers SYNC k with the TPDO1 sampled at SYNC k and applies the RPDO1
+it received before SYNC k from SYNC k on; the controller reads that TPDO1 at
+the start of tick k+1. There is no round trip inside a tick.
+
+- :meth:`DriveClient.receive` drains the bus (``recv(timeout=0)`` until None)
+  and updates :attr:`DriveClient.feedback` in place: TPDO1 → joint position,
+  velocity (motor model of :mod:`rakectl.core.motor_model`; encoder counts are zero
+  at joint position 0) and current; TPDO2 → CiA 402 state and error register;
+  EMCY → last EMCY and a fault flag (cleared by EMCY NO_ERROR); heartbeat → NMT
+  state and the time it was seen (a BOOT_UP after bring-up latches a fault: the
+  drive lost its configuration). A frame of the wrong length, undecodable
+  content, an unknown ID, an echo of the controller's own frames (udp_multicast),
+  an error frame (socketcan) or a receive error is counted in :class:`Stats`,
+  never raised. A drive whose TPDO1 did not arrive after a SYNC gets one more
+  stale cycle; TPDO1 carries no SYNC counter, so the counter recorded with it is
+  the last SYNC sent before the drain (right while TPDO1 latency < one period).
+- :meth:`DriveClient.send` converts the voltages with
+  :func:`rakectl.protocol.codec.voltage_v_to_mv` (rounds, saturates at ±32.767 V) and
+  packs both RPDO1s into preallocated messages with each drive's controlword.
+  A non-finite voltage raises :class:`~rakectl.errors.NonFiniteError` before
+  anything is sent; the daemon turns that into a fault (:meth:`stop_all`).
+  The drive refuses a voltage beyond its 0x2001 with EMCY INVALID_COMMAND,
+  which this client counts as a fault until the drive's EMCY NO_ERROR: the
+  safety clamp upstream bounds voltages to ``DriveInfo.limits.max_voltage_mv``.
+- :meth:`DriveClient.sync` sends SYNC with the next counter (1…240) and, every
+  heartbeat period, the controller's heartbeat (the first one with the first SYNC).
+- A ``can.CanError`` from ``bus.send`` is counted (``stats.send_errors``) and
+  flagged (:meth:`DriveClient.send_failed`, :attr:`DriveClient.last_send_error`),
+  never raised in the hot path. socketcan raises ``CanOperationError`` (ENOBUFS
+  "No buffer space available" or "Transmit buffer full" while the controller is
+  bus-off or the queue is full, ENETDOWN when the link is down) and reports
+  bus-off as a received error frame with class CAN_ERR_BUSOFF (its ``bus.state``
+  always says ACTIVE); virtual raises only for a closed bus or a full bounded
+  queue; udp_multicast raises ``CanOperationError``/``CanTimeoutError`` for socket errors.
+
+Supervision, cheap, each tick: :meth:`drive_faults`, :meth:`stale_feedback`,
+:meth:`heartbeat_lost`; :meth:`describe_problems` words them off the hot path.
+:meth:`command` sets the controlword sent from then on; a fault reset sends 0,
+then 0x80 (the rising edge of bit 7). :meth:`stop_all` sends 0 V with
+DISABLE_VOLTAGE to both drives and a SYNC at once (fault, SIGTERM);
+:meth:`shutdown` does that and stops the nodes.
+"""
+
+from __future__ import annotations
+
+import array
+import enum
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TypeVar
+
+import can
+import canopen
+from canopen.objectdictionary import ObjectDictionary, ODVariable, datatypes
+from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+from rakectl.config.settings import DrivesSettings, MotorsSettings
+from rakectl.core.motor_model import MotorParams, joint_per_motor_rad, joint_resolution
+from rakectl.drive.canbus import BusError, TraceRecorder
+from rakectl.errors import CommsTimeout, ConfigError, DriveFault, FrameError
+from rakectl.protocol.cia402 import FAULT_RESET_BIT, Command, State, decode_statusword
+from rakectl.protocol.codec import (
+    EMCY_SIZE,
+    NMT_COB_ID,
+    RPDO1_SIZE,
+    SYNC_COB_ID,
+    TPDO1_SIZE,
+    TPDO2_SIZE,
+    Emcy,
+    EmcyCode,
+    FunctionCode,
+    NmtCommand,
+    NmtState,
+    cob_id,
+    current_ma_to_a,
+    decode_emcy,
+    decode_heartbeat,
+    decode_tpdo1,
+    decode_tpdo2,
+    emcy_code,
+    encode_heartbeat,
+    encode_nmt,
+    next_sync_counter,
+    pack_rpdo_into,
+    rpm_to_rad_per_s,
+    voltage_v_to_mv,
+)
+from rakectl.protocol.files import EDS_DIR
+
+CAN_ERR_BUSOFF = 0x040  # error class of a socketcan error frame (linux/can/error.h)
+_NOTIFIER_POLL_S = 0.02  # bring-up Notifier's recv timeout: how fast it stops
+_NOTIFIER_JOIN_S = 2.0
+_T = TypeVar("_T")
+
+
+LATENCY_RING = 65536  # SYNC → TPDO1 latencies kept for the benchmark
+SDO_RETRIES = 3  # canopen repeats an unanswered SDO request this often at bring-up
+
+
+class Joint(enum.IntEnum):
+    """The two joints, each driven by one drive; the value indexes per-drive lists."""
+
+    R = 0
+    THETA = 1
+
+
+JOINTS = (Joint.R, Joint.THETA)
+EDS_FILES = {Joint.R: "dc_servo_drive.eds", Joint.THETA: "geared_motor_drive.eds"}
+_LABEL = {Joint.R: "r", Joint.THETA: "θ"}
+
+
+def node_ids(drives: DrivesSettings) -> tuple[int, int]:
+    """(r drive, θ drive) node-IDs."""
+    return drives.r_node_id, drives.theta_node_id
+
+
+def drive_label(joint: Joint, node_id: int) -> str:
+    """How messages name a drive: ``r drive (node 1)``."""
+    return f"{_LABEL[joint]} drive (node {node_id})"
+
+
+def receive_ids(drives: DrivesSettings) -> tuple[int, ...]:
+    """COB-IDs the controller receives: TPDO1, TPDO2, EMCY, heartbeat and SDO response per drive."""
+    functions = (FunctionCode.TPDO1, FunctionCode.TPDO2, FunctionCode.EMCY,
+                 FunctionCode.HEARTBEAT, FunctionCode.SDO_RESPONSE)
+    return tuple(cob_id(f, node) for node in node_ids(drives) for f in functions)
+
+
+def own_ids(drives: DrivesSettings) -> tuple[int, ...]:
+    """COB-IDs the controller sends (udp_multicast echoes them back)."""
+    per_node = [cob_id(f, node) for node in node_ids(drives)
+                for f in (FunctionCode.RPDO1, FunctionCode.SDO_REQUEST)]
+    controller = cob_id(FunctionCode.HEARTBEAT, drives.controller_node_id)
+    return (NMT_COB_ID, SYNC_COB_ID, controller, *per_node)
+
+
+# =========================================================================== bring-up
+
+
+@dataclass(frozen=True)
+class Identity:
+    """Identity object 0x1018 of a drive."""
+
+    vendor_id: int
+    product_code: int
+    revision: int
+    serial: int
+
+
+@dataclass(frozen=True)
+class DriveLimits:
+    """The configuration written at bring-up, as read back from the drive."""
+
+    max_voltage_mv: int  # 0x2001
+    current_limit_ma: int  # 0x2002
+    watchdog_timeout_ms: int  # 0x2003
+    encoder_counts_per_rev: int  # 0x2004
+    heartbeat_period_ms: int  # 0x1017
+    consumer_heartbeat: int  # 0x1016:1, controller node-ID << 16 | timeout ms
+
+
+@dataclass(frozen=True)
+class DriveInfo:
+    """A drive after bring-up: who it is and the limits it verifiably holds."""
+
+    joint: Joint
+    node_id: int
+    identity: Identity
+    limits: DriveLimits
+    statusword: int  # 0x6041 read just before NMT start
+    state: State
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One object written at bring-up, with the setting it comes from."""
+
+    index: int
+    subindex: int
+    name: str
+    unit: str
+    value: int
+    setting: str
+
+    def where(self) -> str:
+        return f"0x{self.index:04X}" + (f":{self.subindex}" if self.subindex else "")
+
+
+def motor_of(motors: MotorsSettings, joint: Joint) -> MotorParams:
+    return motors.r if joint is Joint.R else motors.theta
+
+
+def drive_parameters(joint: Joint, drives: DrivesSettings,
+                     motors: MotorsSettings) -> tuple[Parameter, ...]:
+    """What bring-up writes to the drive of ``joint``, in :class:`DriveLimits` order."""
+    motor, key = motor_of(motors, joint), f"motors.{joint.name.lower()}"
+    consumer = drives.controller_node_id << 16 | drives.heartbeat_timeout_ms
+    return (
+        Parameter(0x2001, 0, "max voltage", "mV", round(motor.supply_voltage_v * 1000),
+                  f"{key}.supply_voltage_v"),
+        Parameter(0x2002, 0, "current limit", "mA", round(motor.current_limit_a * 1000),
+                  f"{key}.current_limit_a"),
+        Parameter(0x2003, 0, "watchdog timeout", "ms", drives.watchdog_timeout_ms,
+                  "drives.watchdog_timeout_ms"),
+        Parameter(0x2004, 0, "encoder counts/rev", "", motor.encoder_counts_per_rev,
+                  f"{key}.encoder_counts_per_rev"),
+        Parameter(0x1017, 0, "producer heartbeat", "ms", drives.heartbeat_period_ms,
+                  "drives.heartbeat_period_ms"),
+        Parameter(0x1016, 1, "consumer heartbeat", "", consumer,
+                  "drives.controller_node_id/heartbeat_timeout_ms"),
+    )
+
+
+def load_drive_od(joint: Joint, node_id: int) -> ObjectDictionary:
+    """The object dictionary of the drive type of ``joint``, from its EDS file."""
+    return canopen.import_od(str(EDS_DIR / EDS_FILES[joint]), node_id)
+
+
+def _od_variable(od: ObjectDictionary, index: int, subindex: int) -> ODVariable:
+    var = od.get_variable(index, subindex)
+    if var is None:
+        raise ConfigError(f"0x{index:04X}:{subindex} is not in the drive's EDS")
+    return var
+
+
+def _allowed_range(var: ODVariable) -> tuple[int, int]:
+    bits = len(var)
+    signed = var.data_type in (datatypes.INTEGER8, datatypes.INTEGER16, datatypes.INTEGER32)
+    low, high = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if signed else (0, (1 << bits) - 1)
+    return (low if var.min is None else max(low, var.min),
+            high if var.max is None else min(high, var.max))
+
+
+class BringUp:
+    """The bring-up sequence of the module docstring, over any ``canopen.Network``.
+
+    Subscribes to the drives' heartbeats on construction (heartbeats that arrive
+    from then on count), so a test can let its fake drives announce themselves
+    before :meth:`run`. It sends through ``network.send_message`` and waits on
+    events that the network's callbacks set, so it works with a Notifier thread
+    and with a network that delivers synchronously.
+    """
+
+    def __init__(self, network: canopen.Network, drives: DrivesSettings,
+                 motors: MotorsSettings, boot_timeout_s: float) -> None:
+        self._network = network
+        self._drives = drives
+        self._motors = motors
+        self._boot_timeout_s = boot_timeout_s
+        self._joint_of_node = {node: joint for joint, node in zip(JOINTS, node_ids(drives),
+                                                                  strict=True)}
+        self._heard = {joint: threading.Event() for joint in JOINTS}
+        self._booted = {joint: threading.Event() for joint in JOINTS}
+        self._nodes: dict[Joint, canopen.RemoteNode] = {}
+        self._node_id = dict(zip(JOINTS, node_ids(drives), strict=True))
+        for joint, node_id in self._node_id.items():
+            node = canopen.RemoteNode(node_id, load_drive_od(joint, node_id))
+            node.sdo.RESPONSE_TIMEOUT = drives.sdo_timeout_s
+            node.sdo.MAX_RETRIES = SDO_RETRIES  # a lossy bus loses the odd request
+            network.add_node(node)
+            network.subscribe(cob_id(FunctionCode.HEARTBEAT, node_id), self._on_heartbeat)
+            self._nodes[joint] = node
+
+    def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        joint = self._joint_of_node[can_id & 0x7F]
+        self._heard[joint].set()
+        if len(data) == 1 and data[0] == NmtState.BOOT_UP:
+            self._booted[joint].set()
+
+    def close(self) -> None:
+        """Unsubscribe from the network."""
+        for node_id in self._node_id.values():
+            self._network.unsubscribe(cob_id(FunctionCode.HEARTBEAT, node_id), self._on_heartbeat)
+            del self._network[node_id]
+
+    def run(self) -> tuple[DriveInfo, DriveInfo]:
+        """Configure and verify both drives, read their statusword, start them (OPERATIONAL)."""
+        configured = [self._configure(joint) for joint in JOINTS]
+        statuswords = [self._read(joint, 0x6041, 0, "statusword") for joint in JOINTS]
+        for joint in JOINTS:
+            self._nmt(joint, NmtCommand.START)
+        r_info, theta_info = (
+            DriveInfo(joint, self._node_id[joint], identity, limits, statusword,
+                      self._state_of(joint, statusword))
+            for joint, (identity, limits), statusword in zip(JOINTS, configured, statuswords,
+                                                             strict=True))
+        return r_info, theta_info
+
+    def _label(self, joint: Joint) -> str:
+        return drive_label(joint, self._node_id[joint])
+
+    def _state_of(self, joint: Joint, statusword: int) -> State:
+        try:
+            return decode_statusword(statusword)
+        except FrameError as error:
+            raise DriveFault(f"{self._label(joint)}: {error}") from error
+
+    def _configure(self, joint: Joint) -> tuple[Identity, DriveLimits]:
+        self._wait(self._heard[joint], joint, "no heartbeat or boot-up")
+        self._booted[joint].clear()
+        self._nmt(joint, NmtCommand.RESET_COMMUNICATION)
+        self._wait(self._booted[joint], joint, "no boot-up after NMT reset communication")
+        identity = self._check_identity(joint)
+        parameters = drive_parameters(joint, self._drives, self._motors)
+        for p in parameters:
+            self._check_range(joint, p)
+        for p in parameters:
+            self._write(joint, p)
+        read_back = [self._read(joint, p.index, p.subindex, p.name) for p in parameters]
+        for p, value in zip(parameters, read_back, strict=True):
+            if value != p.value:
+                unit = f" {p.unit}" if p.unit else ""
+                raise DriveFault(f"{self._label(joint)}: read-back mismatch: {p.where()} {p.name}: "
+                                 f"wrote {p.value}{unit}, read {value}{unit}")
+        return identity, DriveLimits(*read_back)
+
+    def _wait(self, event: threading.Event, joint: Joint, what: str) -> None:
+        if not event.wait(self._boot_timeout_s):
+            raise CommsTimeout(f"{self._label(joint)}: {what} within {self._boot_timeout_s:g} s")
+
+    def _nmt(self, joint: Joint, command: NmtCommand) -> None:
+        try:
+            self._network.send_message(NMT_COB_ID, encode_nmt(command, self._node_id[joint]))
+        except can.CanError as error:
+            raise BusError(f"{self._label(joint)}: cannot send NMT {command.name}: "
+                           f"{error}") from error
+
+    def _check_identity(self, joint: Joint) -> Identity:
+        info = self._nodes[joint].object_dictionary.device_information
+        identity = Identity(*(self._read(joint, 0x1018, sub, "identity") for sub in (1, 2, 3, 4)))
+        expected = {"vendor-ID": info.vendor_number, "product code": info.product_number}
+        found = {"vendor-ID": identity.vendor_id, "product code": identity.product_code}
+        for name, value in found.items():
+            if expected[name] is not None and value != expected[name]:
+                raise DriveFault(f"{self._label(joint)}: wrong identity: {name} {value}, "
+                                 f"expected {expected[name]} ({EDS_FILES[joint]})")
+        return identity
+
+    def _check_range(self, joint: Joint, p: Parameter) -> None:
+        var = _od_variable(self._nodes[joint].object_dictionary, p.index, p.subindex)
+        low, high = _allowed_range(var)
+        if not low <= p.value <= high:
+            raise ConfigError(f"{p.setting}: {self._label(joint)} {p.where()} {p.name} = "
+                              f"{p.value} {p.unit} is outside {low}..{high} of {EDS_FILES[joint]}")
+
+    def _read(self, joint: Joint, index: int, subindex: int, name: str) -> int:
+        node = self._nodes[joint]
+        what = f"reading 0x{index:04X}:{subindex} {name}"
+        data = self._sdo(joint, what, lambda: node.sdo.upload(index, subindex))
+        value = _od_variable(node.object_dictionary, index, subindex).decode_raw(data)
+        if not isinstance(value, int):
+            raise DriveFault(f"{self._label(joint)}: {what}: not an integer: {value!r}")
+        return value
+
+    def _write(self, joint: Joint, p: Parameter) -> None:
+        node = self._nodes[joint]
+        data = _od_variable(node.object_dictionary, p.index, p.subindex).encode_raw(p.value)
+        what = f"writing {p.where()} {p.name} = {p.value}{' ' + p.unit if p.unit else ''}"
+        self._sdo(joint, what, lambda: node.sdo.download(p.index, p.subindex, data))
+
+    def _sdo(self, joint: Joint, what: str, transfer: Callable[[], _T]) -> _T:
+        label = self._label(joint)
+        try:
+            return transfer()
+        except SdoAbortedError as error:
+            text = SdoAbortedError.CODES.get(error.code, "unknown abort code")
+            raise DriveFault(f"{label}: SDO abort 0x{error.code:08X} {what}: {text}") from error
+        except SdoCommunicationError as error:
+            if "No SDO response" in str(error):
+                raise CommsTimeout(f"{label}: no SDO response {what} within "
+                                   f"{self._drives.sdo_timeout_s:g} s") from error
+            raise DriveFault(f"{label}: SDO error {what}: {error}") from error
+        except can.CanError as error:
+            raise BusError(f"{label}: bus error {what}: {error}") from error
+
+
+# =========================================================================== hot path
+
+
+class Feedback:
+    """What the drives reported, updated in place by :meth:`DriveClient.receive`.
+
+    Joint values are NaN until the first TPDO1; per-drive lists are indexed by
+    :class:`Joint`. ``sync_counter`` is the SYNC the last TPDO1 answered (see the
+    module docstring), 0 before the first.
+    """
+
+    __slots__ = ("current_r_a", "current_theta_a", "error_register", "last_emcy", "nmt_state",
+                 "r_m", "r_vel_m_per_s", "stale_cycles", "state", "statusword", "sync_counter",
+                 "theta_rad", "theta_vel_rad_per_s")
+
+    def __init__(self) -> None:
+        self.r_m = math.nan
+        self.theta_rad = math.nan
+        self.r_vel_m_per_s = math.nan
+        self.theta_vel_rad_per_s = math.nan
+        self.current_r_a = math.nan
+        self.current_theta_a = math.nan
+        self.state: list[State | None] = [None, None]
+        self.statusword = [0, 0]
+        self.error_register = [0, 0]
+        self.stale_cycles = [0, 0]
+        self.sync_counter = [0, 0]
+        self.last_emcy: list[Emcy | None] = [None, None]
+        self.nmt_state: list[NmtState | None] = [None, None]
+
+
+class Stats:
+    """Counters of the hot path; per-drive lists are indexed by :class:`Joint`."""
+
+    __slots__ = ("bus_off_frames", "emcy_received", "error_frames", "frames_bad_length",
+                 "frames_invalid", "frames_own", "frames_unknown", "heartbeats_received",
+                 "receive_errors", "send_errors", "sends", "syncs", "ticks", "tpdo2_received",
+                 "tpdo_late", "tpdo_missed", "tpdo_received")
+
+    def __init__(self) -> None:
+        self.ticks = 0  # receive() calls
+        self.syncs = 0
+        self.tpdo_received = [0, 0]  # TPDO1
+        self.tpdo_missed = [0, 0]  # SYNC cycles without a TPDO1
+        self.tpdo_late = [0, 0]  # extra TPDO1s in one drain: one came a cycle late
+        self.tpdo2_received = [0, 0]
+        self.frames_bad_length = 0
+        self.frames_invalid = 0  # right length, undecodable content (FrameError)
+        self.frames_unknown = 0
+        self.frames_own = 0  # echoes of the controller's own frames (udp_multicast)
+        self.error_frames = 0
+        self.bus_off_frames = 0
+        self.emcy_received = 0
+        self.heartbeats_received = 0
+        self.receive_errors = 0
+        self.sends = 0  # frames sent successfully
+        self.send_errors = 0
+
+    def as_dict(self) -> dict[str, int]:
+        """Flat copy for a summary log line (off the hot path)."""
+        flat: dict[str, int] = {}
+        for name in sorted(self.__slots__):
+            value = getattr(self, name)
+            if isinstance(value, list):
+                flat |= {f"{name}_{joint.name.lower()}": value[joint] for joint in JOINTS}
+            else:
+                flat[name] = value
+        return flat
+
+
+_TPDO1, _TPDO2, _EMCY, _HEARTBEAT, _OWN = range(5)
+
+
+def _new_message(can_id: int, size: int) -> can.Message:
+    return can.Message(arbitration_id=can_id, is_extended_id=False, data=bytearray(size))
+
+
+class DriveClient:
+    """Both drives over one injected bus; see the module docstring for the tick protocol."""
+
+    def __init__(self, bus: can.BusABC, drives: DrivesSettings, motors: MotorsSettings,
+                 rate_hz: float, trace: TraceRecorder | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        """``clock`` stamps heartbeats; :meth:`heartbeat_lost` needs times of the same clock."""
+        self._bus = bus
+        self._drives = drives
+        self._motors = motors
+        self._trace = trace
+        self._clock = clock
+        self.feedback = Feedback()
+        self.stats = Stats()
+        self.last_send_error: can.CanError | None = None
+        self.last_receive_error: can.CanError | None = None
+        self.infos: tuple[DriveInfo, DriveInfo] | None = None
+        nodes = node_ids(drives)
+        self._position_per_count = [joint_resolution(motor_of(motors, j)) for j in JOINTS]
+        self._velocity_per_rpm = [rpm_to_rad_per_s(1.0) * joint_per_motor_rad(motor_of(motors, j))
+                                  for j in JOINTS]
+        self._route: dict[int, tuple[int, int]] = {can_id: (_OWN, 0) for can_id in own_ids(drives)}
+        for j, node in zip(JOINTS, nodes, strict=True):
+            self._route |= {cob_id(FunctionCode.TPDO1, node): (_TPDO1, j),
+                            cob_id(FunctionCode.TPDO2, node): (_TPDO2, j),
+                            cob_id(FunctionCode.EMCY, node): (_EMCY, j),
+                            cob_id(FunctionCode.HEARTBEAT, node): (_HEARTBEAT, j)}
+        self._rpdo = [_new_message(cob_id(FunctionCode.RPDO1, node), RPDO1_SIZE) for node in nodes]
+        self._sync_msg = _new_message(SYNC_COB_ID, 1)
+        self._heartbeat_msg = _new_message(cob_id(FunctionCode.HEARTBEAT,
+                                                  drives.controller_node_id), 1)
+        self._heartbeat_msg.data[:] = encode_heartbeat(NmtState.OPERATIONAL)
+        self._heartbeat_ticks = max(1, round(drives.heartbeat_period_ms * rate_hz / 1000.0))
+        self._heartbeat_countdown = 0  # the first SYNC goes out with a heartbeat
+        self._heartbeat_timeout_s = drives.heartbeat_timeout_ms / 1000.0
+        self._sync_counter = 0
+        self._syncs_pending = 0  # SYNCs sent since the last receive()
+        self._sync_sent_s = 0.0  # wall clock (python-can's receive timestamps) of the last SYNC
+        self._latency_s = array.array("d", bytes(8 * LATENCY_RING))  # SYNC → TPDO1 arrival
+        self._latency_index = 0
+        self.latency_samples = 0
+        self._fresh = [0, 0]  # TPDO1s per drive in this drain
+        self._send_failed = False
+        self._command: list[Command] = [Command.DISABLE_VOLTAGE, Command.DISABLE_VOLTAGE]
+        self._controlword = [0, 0]  # goes out with the next send()
+        self._controlword_after = [0, 0]  # ... and from the one after on
+        self._controlword_sent = [0, 0]
+        self._heard_s = [clock(), clock()]
+        self._state_fault = [False, False]
+        self._emcy_fault = [False, False]
+        self._rebooted = [False, False]
+        self._fault = [False, False]
+
+    # ------------------------------------------------------------------- bring-up
+
+    def bring_up(self, boot_timeout_s: float = 2.0) -> tuple[DriveInfo, DriveInfo]:
+        """Configure, verify and start both drives (blocking; see the module docstring)."""
+        network = canopen.Network(self._bus)
+        session = BringUp(network, self._drives, self._motors, boot_timeout_s)
+        notifier = can.Notifier(self._bus, network.listeners, timeout=_NOTIFIER_POLL_S)
+        try:
+            infos = session.run()
+        finally:
+            notifier.stop(_NOTIFIER_JOIN_S)
+            session.close()
+        self.infos = infos
+        self._heard_s = [self._clock(), self._clock()]
+        self._rebooted = [False, False]
+        for info in infos:
+            self.feedback.statusword[info.joint] = info.statusword
+            self.feedback.state[info.joint] = info.state
+            self._state_fault[info.joint] = info.state in (State.FAULT,
+                                                            State.FAULT_REACTION_ACTIVE)
+            self._update_fault(info.joint)
+        return infos
+
+    # ------------------------------------------------------------------- receive
+
+    def receive(self) -> int:
+        """Drain the bus without blocking and update :attr:`feedback`; returns frames read."""
+        recv = self._bus.recv
+        route = self._route
+        stats = self.stats
+        trace = self._trace
+        fresh = self._fresh
+        fresh[0] = fresh[1] = 0
+        count = 0
+        while True:
+            try:
+                msg = recv(0.0)
+            except can.CanError as error:
+                stats.receive_errors += 1
+                self.last_receive_error = error
+                break
+            if msg is None:
+                break
+            count += 1
+            if trace is not None:
+                trace.record(msg, True)
+            if msg.is_error_frame or msg.is_extended_id or msg.is_remote_frame:
+                self._on_odd_frame(msg)
+                continue
+            kind_joint = route.get(msg.arbitration_id)
+            if kind_joint is None:
+                stats.frames_unknown += 1
+                continue
+            kind, j = kind_joint
+            try:
+                if kind == _TPDO1:
+                    self._on_tpdo1(j, msg.data)
+                    self._latency(msg.timestamp)
+                elif kind == _TPDO2:
+                    self._on_tpdo2(j, msg.data)
+                elif kind == _EMCY:
+                    self._on_emcy(j, msg.data)
+                elif kind == _HEARTBEAT:
+                    self._on_heartbeat(j, msg.data)
+                else:
+                    stats.frames_own += 1
+            except FrameError:
+                stats.frames_invalid += 1
+        self._count_stale()
+        stats.ticks += 1
+        return count
+
+    def _count_stale(self) -> None:
+        fresh, stale, stats = self._fresh, self.feedback.stale_cycles, self.stats
+        for j in (0, 1):
+            if fresh[j]:
+                stale[j] = 0
+                if fresh[j] > 1:
+                    stats.tpdo_late[j] += fresh[j] - 1
+            elif self._syncs_pending:
+                stale[j] += 1
+                stats.tpdo_missed[j] += 1
+        self._syncs_pending = 0
+
+    def _on_tpdo1(self, j: int, data: bytearray) -> None:
+        if len(data) != TPDO1_SIZE:
+            self.stats.frames_bad_length += 1
+            return
+        counts, rpm, current_ma = decode_tpdo1(data)
+        fb = self.feedback
+        position = counts * self._position_per_count[j]
+        velocity = rpm * self._velocity_per_rpm[j]
+        if j == 0:
+            fb.r_m, fb.r_vel_m_per_s = position, velocity
+            fb.current_r_a = current_ma_to_a(current_ma)
+        else:
+            fb.theta_rad, fb.theta_vel_rad_per_s = position, velocity
+            fb.current_theta_a = current_ma_to_a(current_ma)
+        fb.sync_counter[j] = self._sync_counter
+        self._fresh[j] += 1
+        self.stats.tpdo_received[j] += 1
+
+    def _on_tpdo2(self, j: int, data: bytearray) -> None:
+        if len(data) != TPDO2_SIZE:
+            self.stats.frames_bad_length += 1
+            return
+        statusword, error_register = decode_tpdo2(data)
+        state = decode_statusword(statusword)
+        fb = self.feedback
+        fb.statusword[j], fb.error_register[j], fb.state[j] = statusword, error_register, state
+        self._state_fault[j] = state is State.FAULT or state is State.FAULT_REACTION_ACTIVE
+        self._update_fault(j)
+        self.stats.tpdo2_received[j] += 1
+
+    def _on_emcy(self, j: int, data: bytearray) -> None:
+        if len(data) != EMCY_SIZE:
+            self.stats.frames_bad_length += 1
+            return
+        emcy = decode_emcy(data)
+        self.feedback.last_emcy[j] = emcy
+        self._emcy_fault[j] = emcy.code != EmcyCode.NO_ERROR
+        self._update_fault(j)
+        self.stats.emcy_received += 1
+
+    def _on_heartbeat(self, j: int, data: bytearray) -> None:
+        if len(data) != 1:
+            self.stats.frames_bad_length += 1
+            return
+        state = decode_heartbeat(data)
+        self.feedback.nmt_state[j] = state
+        self._heard_s[j] = self._clock()
+        if state is NmtState.BOOT_UP:
+            self._rebooted[j] = True
+            self._update_fault(j)
+        self.stats.heartbeats_received += 1
+
+    def _on_odd_frame(self, msg: can.Message) -> None:
+        if msg.is_error_frame:
+            self.stats.error_frames += 1
+            if msg.arbitration_id & CAN_ERR_BUSOFF:
+                self.stats.bus_off_frames += 1
+        else:
+            self.stats.frames_unknown += 1
+
+    def _update_fault(self, j: int) -> None:
+        self._fault[j] = self._state_fault[j] or self._emcy_fault[j] or self._rebooted[j]
+
+    # ------------------------------------------------------------------- send
+
+    def command(self, joint: Joint | None, command: Command) -> None:
+        """Send ``command``'s controlword to one drive (None: both) from the next send() on.
+
+        Repeating the current command changes nothing. FAULT_RESET sends 0, then
+        0x80 (held); asked again once 0x80 went out, it makes a new edge.
+        """
+        for j in JOINTS if joint is None else (joint,):
+            if command is Command.FAULT_RESET:
+                self._fault_reset(j)
+            elif command is not self._command[j]:
+                self._controlword[j] = self._controlword_after[j] = command.value
+            self._command[j] = command
+
+    def _fault_reset(self, j: int) -> None:
+        in_progress = (self._command[j] is Command.FAULT_RESET
+                       and self._controlword_sent[j] != FAULT_RESET_BIT)
+        if not in_progress:
+            self._controlword[j], self._controlword_after[j] = 0, FAULT_RESET_BIT
+
+    def send(self, voltage_r_v: float, voltage_theta_v: float) -> None:
+        """Pack and send both RPDO1s: the voltages and each drive's controlword.
+
+        NonFiniteError for a NaN or infinite voltage, before anything is sent.
+        """
+        voltage_r_mv = voltage_v_to_mv(voltage_r_v)
+        voltage_theta_mv = voltage_v_to_mv(voltage_theta_v)
+        rpdo, controlword, sent = self._rpdo, self._controlword, self._controlword_sent
+        pack_rpdo_into(rpdo[0].data, voltage_r_mv, controlword[0])
+        pack_rpdo_into(rpdo[1].data, voltage_theta_mv, controlword[1])
+        self._send_failed = False
+        self._transmit(rpdo[0])
+        self._transmit(rpdo[1])
+        sent[0], sent[1] = controlword
+        controlword[0], controlword[1] = self._controlword_after
+
+    def _latency(self, received_s: float) -> None:
+        """SYNC → TPDO1 arrival, when the drain answers exactly one SYNC (ring, no allocation)."""
+        if self._syncs_pending == 1 and received_s > self._sync_sent_s:
+            i = self._latency_index
+            self._latency_s[i] = received_s - self._sync_sent_s
+            self._latency_index = 0 if i + 1 == LATENCY_RING else i + 1
+            self.latency_samples += 1
+
+    def sync_to_tpdo_s(self) -> list[float]:
+        """The recorded SYNC → TPDO1 latencies (s), most recent ring's worth (off the hot path)."""
+        return list(self._latency_s[:min(self.latency_samples, LATENCY_RING)])
+
+    def sync(self) -> None:
+        """Send SYNC with the next counter and, once per heartbeat period, the heartbeat."""
+        counter = next_sync_counter(self._sync_counter)
+        self._sync_counter = counter
+        self._sync_msg.data[0] = counter
+        self._sync_sent_s = time.time()
+        self._transmit(self._sync_msg)
+        self._syncs_pending += 1
+        self.stats.syncs += 1
+        self._heartbeat_countdown -= 1
+        if self._heartbeat_countdown <= 0:
+            self._heartbeat_countdown = self._heartbeat_ticks
+            self._transmit(self._heartbeat_msg)
+
+    def _transmit(self, msg: can.Message) -> None:
+        try:
+            self._bus.send(msg)
+        except can.CanError as error:
+            self.stats.send_errors += 1
+            self.last_send_error = error
+            self._send_failed = True
+            return
+        self.stats.sends += 1
+        if self._trace is not None:
+            self._trace.record(msg, False)
+
+    def send_failed(self) -> bool:
+        """Whether a send of this tick (send() and sync() since the last send()) failed."""
+        return self._send_failed
+
+    def start_node(self, joint: Joint) -> None:
+        """NMT start to one drive now (the daemon repeats it while a drive is not yet
+        OPERATIONAL: on a lossy bus the bring-up's NMT start can be lost)."""
+        node = node_ids(self._drives)[joint]
+        self._transmit(can.Message(arbitration_id=NMT_COB_ID, is_extended_id=False,
+                                   data=encode_nmt(NmtCommand.START, node)))
+
+    def stop_all(self) -> None:
+        """0 V and DISABLE_VOLTAGE to both drives, applied now (RPDO1s, then a SYNC)."""
+        self.command(None, Command.DISABLE_VOLTAGE)
+        self.send(0.0, 0.0)
+        self.sync()
+
+    def shutdown(self, stop_nodes: bool = True) -> None:
+        """End of operation: :meth:`stop_all`, then NMT stop to each drive. The bus stays open."""
+        self.stop_all()
+        if stop_nodes:
+            for node in node_ids(self._drives):
+                msg = can.Message(arbitration_id=NMT_COB_ID, is_extended_id=False,
+                                  data=encode_nmt(NmtCommand.STOP, node))
+                self._transmit(msg)
+
+    # ------------------------------------------------------------------- supervision
+
+    def drive_faults(self) -> bool:
+        """A drive is in FAULT (or its reaction), has an active EMCY, or rebooted."""
+        return self._fault[0] or self._fault[1]
+
+    def stale_feedback(self, limit_cycles: int) -> bool:
+        """A drive's TPDO1 has been missing for ``limit_cycles`` SYNC cycles or more."""
+        stale = self.feedback.stale_cycles
+        return stale[0] >= limit_cycles or stale[1] >= limit_cycles
+
+    def heartbeat_lost(self, now_s: float) -> bool:
+        """A drive's heartbeat is older than the heartbeat timeout at ``now_s`` (same clock).
+
+        Before the first heartbeat the reference is construction, or the end of bring-up.
+        """
+        heard, timeout = self._heard_s, self._heartbeat_timeout_s
+        return now_s - heard[0] > timeout or now_s - heard[1] > timeout
+
+    def describe_problems(self, now_s: float, limit_cycles: int) -> list[str]:
+        """One line per problem the supervision helpers see (off the hot path)."""
+        problems = []
+        fb = self.feedback
+        for joint, node in zip(JOINTS, node_ids(self._drives), strict=True):
+            label = drive_label(joint, node)
+            if self._state_fault[joint]:
+                problems.append(f"{label}: state {fb.state[joint]}")
+            emcy = fb.last_emcy[joint]
+            if self._emcy_fault[joint] and emcy is not None:
+                known = emcy_code(emcy.code)
+                problems.append(f"{label}: EMCY 0x{emcy.code:04X} {known.name if known else '?'}, "
+                                f"error register 0x{emcy.error_register:02X}")
+            if self._rebooted[joint]:
+                problems.append(f"{label}: rebooted (boot-up heartbeat): bring-up needed")
+            if fb.stale_cycles[joint] >= limit_cycles:
+                problems.append(f"{label}: no TPDO1 for {fb.stale_cycles[joint]} cycles")
+            if now_s - self._heard_s[joint] > self._heartbeat_timeout_s:
+                problems.append(f"{label}: no heartbeat for {now_s - self._heard_s[joint]:.3f} s")
+        return problems

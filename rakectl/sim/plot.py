@@ -1,0 +1,174 @@
+"""Plots of simulation telemetry (matplotlib, imported only when a plot is asked for)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from rakectl.errors import RakeError
+from rakectl.sim.simulate import SimulationResult
+
+if TYPE_CHECKING:
+    from rakectl.bench.excavation import ExcavationReport
+
+
+def pyplot() -> Any:
+    """matplotlib.pyplot on the Agg backend, or a RakeError saying how to install it."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise RakeError(
+            "plotting needs matplotlib: pip install 'rakectl[plot]' (or drop --plot)"
+        ) from None
+    return plt
+
+
+def plot_paper_panels(result: SimulationResult, path: Path, title: str = "") -> None:
+    """The seed paper's Fig. 5: position, position error and estimated force against time."""
+    plt = pyplot()
+    t = result.column("t_s")
+    x_d_mm = 1e3 * result.column("x_d_m")
+    x_mm = 1e3 * result.column("x_m")
+    fig, (ax_x, ax_e, ax_f) = plt.subplots(3, 1, figsize=(8, 9), sharex=True)
+    ax_x.plot(t, x_d_mm, "--", label="desired $x_d$")
+    ax_x.plot(t, x_mm, label="actual $x$")
+    ax_x.plot(t, 1e3 * result.column("x_e_hat_m"), ":", label=r"soil estimate $\hat{x}_e$")
+    ax_x.set_ylabel("position [mm]")
+    ax_x.legend(loc="upper left")
+    ax_x.set_title("(a) actual position x(t)")
+    if title:
+        fig.suptitle(title)
+    ax_e.plot(t, x_d_mm - x_mm, color="tab:red")
+    ax_e.set_ylabel("error $x_d - x$ [mm]")
+    ax_e.set_title("(b) position error")
+    f_hat = result.column("f_hat_n")
+    ax_f.plot(t, f_hat, color="tab:green", label=r"estimated $\hat{F}_e$")
+    if "f_true_z_n" in result.columns:
+        ax_f.plot(t, result.column("f_true_z_n"), color="0.5", lw=0.6, label="true $F_z$")
+    ax_f.axhline(f_hat[-1], color="0.6", lw=0.8, ls=":")
+    ax_f.annotate(f"{f_hat[-1]:.2f} N", (t[-1], f_hat[-1]), ha="right", va="bottom")
+    ax_f.set_ylabel("force [N]")
+    ax_f.set_xlabel("time [s]")
+    ax_f.set_title("(c) estimated interaction force")
+    ax_f.legend(loc="lower right")
+    for ax in (ax_x, ax_e, ax_f):
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _tip_path(plt: Any, ax: Any, reach_m: Any, depth_m: Any,
+              mines: list[tuple[float, float, float, float]], label: str, title: str) -> None:
+    """The tip's path in the vertical plane, with the ground level and the mines drawn."""
+    ax.plot(reach_m, 1e3 * depth_m, lw=0.8, label=label)
+    ax.axhline(0.0, color="saddlebrown", lw=1, label="ground level")
+    for reach, depth, width, thickness in mines:
+        ax.add_patch(plt.Rectangle((reach - width / 2, 1e3 * depth), width, 1e3 * thickness,
+                                   color="tab:red", alpha=0.4, label="mine"))
+    ax.invert_yaxis()
+    ax.set_xlabel("reach from the pivot [m]")
+    ax.set_ylabel("depth below ground [mm]")
+    ax.set_title(title)
+    ax.legend(loc="lower left")
+
+
+def plot_lane(result: SimulationResult, path: Path, mines: list[tuple[float, float, float, float]],
+              title: str = "") -> None:
+    """A raked lane: the tip's path in the vertical plane, depth and forces against time.
+
+    ``mines`` are (reach_m, top_depth_m, width_m, thickness_m) rectangles to draw.
+    """
+    plt = pyplot()
+    t = result.column("t_s")
+    fig, (ax_path, ax_depth, ax_f) = plt.subplots(3, 1, figsize=(9, 10))
+    _tip_path(plt, ax_path, result.column("tip_reach_m"), result.column("tip_depth_m"), mines,
+              "tip path", "(a) tip path (the robot is to the left)")
+    ax_depth.plot(t, 1e3 * result.column("x_d_m"), "--", lw=0.8, label="desired depth $x_d$")
+    ax_depth.plot(t, 1e3 * result.column("tip_depth_m"), lw=0.8, label="tip depth")
+    ax_depth.invert_yaxis()
+    ax_depth.set_ylabel("depth [mm]")
+    ax_depth.set_title("(b) depth against time")
+    ax_depth.legend(loc="lower left")
+    ax_f.plot(t, result.column("f_true_x_n"), color="0.6", lw=0.6, label="true drag $F_x$")
+    ax_f.plot(t, result.column("f_true_z_n"), color="tab:blue", lw=0.6,
+              label="true vertical $F_z$")
+    ax_f.plot(t, result.column("f_hat_n"), color="tab:green", lw=0.6,
+              label=r"estimated $\hat{F}_e$")
+    ax_f.axhline(90.0, color="tab:red", ls="--", lw=1, label="90 N limit (vertical)")
+    ax_f.set_ylabel("force [N]")
+    ax_f.set_xlabel("time [s]")
+    ax_f.set_title("(c) forces of the tip on the ground")
+    ax_f.legend(loc="upper left", fontsize="small")
+    for ax in (ax_path, ax_depth, ax_f):
+        ax.grid(True, alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_bench_run(truth_csv: Path, path: Path,
+                   mines: list[tuple[float, float, float, float]]) -> None:
+    """A run on the emulated bench from the emulator's ground truth: tip path and forces."""
+    import numpy as np
+
+    plt = pyplot()
+    data = np.genfromtxt(truth_csv, delimiter=",", names=True, usecols=range(14))
+    t, reach, depth = data["t_s"], data["tip_reach_m"], -data["tip_height_m"]
+    fig, (ax_path, ax_f) = plt.subplots(2, 1, figsize=(9, 8))
+    _tip_path(plt, ax_path, reach, depth, mines, "tip path (true)",
+              "(a) the rake's tip (the robot is to the left)")
+    ax_f.plot(t, data["force_drag_n"], color="0.6", lw=0.6, label="true drag")
+    ax_f.plot(t, data["force_down_n"], color="tab:blue", lw=0.6, label="true vertical")
+    ax_f.axhline(90.0, color="tab:red", ls="--", lw=1, label="90 N limit (vertical)")
+    ax_f.set_xlabel("time [s]")
+    ax_f.set_ylabel("force of the tip on the ground [N]")
+    ax_f.set_title("(b) forces, from the emulator's ground truth")
+    ax_f.legend(loc="upper left", fontsize="small")
+    for ax in (ax_path, ax_f):
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_excavation(report: ExcavationReport, soil: str, path: Path) -> None:
+    """One soil of the excavation benchmark: depth raked and true vertical force against
+    time, for each controller."""
+    from rakectl.bench.excavation import Controller
+
+    plt = pyplot()
+    styles = {Controller.ADAPTIVE: ("tab:green", "-", 3.0),  # drawn first, widest: lines
+              Controller.POSITION: ("tab:purple", "--", 1.6),  # that coincide stay visible
+              Controller.FIXED_SAFE: ("tab:blue", ":", 1.6)}
+    fig, (ax_d, ax_f) = plt.subplots(2, 1, figsize=(9, 8), sharex=True)
+    for controller, (colour, style, width) in styles.items():
+        r = report.result(soil, controller)
+        s = r.series
+        if s is None:
+            continue
+        done = f"{r.time_s:.0f} s" if r.reached else "not reached"
+        label = f"{controller} ({done})"
+        ax_d.plot(s.t_s, 1e3 * s.tip_depth_m, color=colour, lw=0.4, alpha=0.35)
+        ax_d.plot(s.t_s, 1e3 * s.floor_m, color=colour, ls=style, lw=width, label=label)
+        ax_f.plot(s.t_s, s.f_true_z_n, color=colour, lw=0.6, alpha=0.8,
+                  label=f"{controller}: max {r.f_true_z_max_n:.0f} N")
+    ax_d.invert_yaxis()
+    ax_d.set_ylabel("depth [mm]")
+    ax_d.set_title(f"(a) {soil}: depth raked (thick) and tip depth (thin) against time")
+    ax_d.legend(loc="lower left")
+    ax_f.axhline(90.0, color="tab:red", ls="--", lw=1, label="90 N limit")
+    ax_f.set_ylabel("true vertical force on the ground [N]")
+    ax_f.set_xlabel("time [s]")
+    ax_f.set_title("(b) the tip's true vertical force (peak per 10 ms)")
+    ax_f.legend(loc="upper right", fontsize="small")
+    for ax in (ax_d, ax_f):
+        ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

@@ -1,0 +1,113 @@
+"""The benchmark's machinery on small inputs: structure and finite figures, never timing."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from rakectl.bench.excavation import SOILS, Controller, LaneShape, run_excavation
+from rakectl.bench.loop import BUS_BITS_PER_CYCLE, LoopFigures, format_loop
+from rakectl.bench.report import BenchOptions, format_excavation, machine_facts, markdown
+from rakectl.bench.tick import STAGES, bench_tick, format_tick
+
+TINY = LaneShape(reach_far_m=1.3, reach_near_m=1.15, target_depth_m=0.01)
+
+
+def _timing(p50_ns: int) -> dict[str, Any]:
+    p = {"p50": p50_ns, "p99": 2 * p50_ns, "p99.9": 3 * p50_ns, "max": 4 * p50_ns}
+    return {"oversleep_ns": p, "latency_ns": p, "exec_ns": p, "overruns": 1,
+            "longest_gap_ns": 5 * p50_ns}
+
+
+def _loop_figures(cyclictest: bool) -> LoopFigures:
+    ticks = 10_000
+    bus = {"syncs": ticks, "sends": 3 * ticks + ticks // 100, "tpdo_received_r": ticks - 3,
+           "tpdo_received_theta": ticks, "tpdo_missed_r": 3, "tpdo_missed_theta": 0,
+           "tpdo2_received_r": ticks // 100, "tpdo2_received_theta": ticks // 100,
+           "heartbeats_received": ticks // 50, "sync_to_tpdo_p50_us": 55.0}
+    ct = ({"label": "cyclictest -m -p 80 -i 1000", "samples": 5000,
+           "latency_ns": {"p50": 10_000, "p99": 40_000, "p99.9": 80_000, "max": 90_000}}
+          if cyclictest else None)
+    phase = {"status": {"timing": _timing(20_000)}, "gc_gen2": 0}
+    reasons = () if cyclictest else ("cyclictest not found: apt-get install -y rt-tests",)
+    return LoopFigures(5.0, ct, reasons, phase, phase, bus)
+
+
+def test_loop_figures_bus_load_and_ratio() -> None:
+    figures = _loop_figures(cyclictest=True)
+    assert figures.tpdo_missed() == (3, 20_000)
+    # the design's 435 bits, plus heartbeats and TPDO2 refreshes, less 3 missed TPDO1s
+    assert BUS_BITS_PER_CYCLE < figures.bits_per_cycle() < BUS_BITS_PER_CYCLE + 5
+    assert figures.wakeup_ratio(figures.idle) == pytest.approx(1.0)
+    assert "p99 OS wake-up / cyclictest p99: 1.00×" in format_loop(figures)
+
+
+def test_a_missing_cyclictest_says_how_to_install_it() -> None:
+    figures = _loop_figures(cyclictest=False)
+    assert math.isnan(figures.wakeup_ratio(figures.idle))
+    assert "apt-get install -y rt-tests" in format_loop(figures)
+
+
+@pytest.fixture(scope="module")
+def excavation() -> Any:
+    return run_excavation(TINY, workers=2, sweep_speeds=(0.25, 0.1))
+
+
+@pytest.mark.slow
+def test_excavation_report_has_every_soil_and_controller_with_finite_figures(
+        excavation: Any) -> None:
+    assert [(r.job.soil, r.job.controller) for r in excavation.results] == [
+        (soil, controller) for soil in SOILS for controller in Controller]
+    assert excavation.sweep.tried and math.isfinite(excavation.sweep.speed_m_per_s)
+    for r in excavation.results:
+        assert r.reached, (r.job, r.fault)
+        assert r.depth_reached_m == pytest.approx(0.01)
+        for value in (r.time_s, r.f_true_z_max_n, r.f_estimate_max_n,
+                      r.stroke_speed_mean_m_per_s, *r.phase_s.values()):
+            assert math.isfinite(value) and value >= 0.0
+        assert r.series is not None and len(r.series.t_s) == len(r.series.f_true_z_n) > 10
+        # the tiny lane is one 10 mm cut; an adaptive lane gives a place where the tine rode
+        # more than 3 mm high one more stroke
+        assert r.cycles == 1 or (r.job.controller == Controller.ADAPTIVE and r.cycles == 2)
+        assert 0.0 < r.floor_true_m <= 0.0105  # the soil's own floor, at most about that deep
+    for soil in SOILS:
+        assert math.isfinite(excavation.speedup(soil)) and excavation.stroke_bound(soil) >= 1.0
+    text = format_excavation(excavation)
+    assert "fixed-safe stroke speed" in text and "Goal" in text
+    assert "adaptive time by phase: sand (1 cycle): approach" in text
+    assert len(text.splitlines()) >= 9 + 4
+
+
+@pytest.mark.slow
+def test_position_control_has_no_force_estimate_from_the_delay(excavation: Any) -> None:
+    """α = 0: F̂ ≡ 0, so its supervised estimate is the current-based one alone."""
+    for soil in SOILS:
+        position = excavation.result(soil, Controller.POSITION)
+        assert "estimator.delay_s=0" in position.job.overrides
+
+
+@pytest.mark.slow
+def test_plots_and_the_report_file(excavation: Any, tmp_path: Path) -> None:
+    from rakectl.sim.plot import plot_excavation
+
+    plot_excavation(excavation, "clay", tmp_path / "clay.png")
+    assert (tmp_path / "clay.png").stat().st_size > 10_000
+    tick = bench_tick(300)
+    assert set(tick.stages_us) == {name for name, _ in STAGES}
+    assert all(math.isfinite(v) for pair in tick.stages_us.values() for v in pair)
+    assert "whole Daemon.tick" in format_tick(tick)
+    options = BenchOptions("rakectl bench --all --quick", 5.0, 300, True, 2, tmp_path,
+                           tmp_path)
+    text = markdown(options, "today", _loop_figures(True), "loop text", tick, excavation)
+    assert text.startswith("# Benchmarks\n\nGenerated by `rakectl bench --all --quick`")
+    for heading in ("## (a)", "## (b)", "## (c)", "## (d)"):
+        assert heading in text
+    for fact in machine_facts():
+        assert f"- **{fact}**:" in text
+    assert "![clay](excavation-clay.png)" in text
+    missing = markdown(options, "today", None, "loop benchmark not run: no namespace", tick,
+                       excavation)
+    assert "loop benchmark not run: no namespace" in missing

@@ -1,0 +1,104 @@
+"""The rakectl command run as a real process, as an operator would run it."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+PAPER = ROOT / "config" / "scenarios" / "paper-fig5.yaml"
+
+
+def _rakectl(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "rakectl", *args], capture_output=True,
+                          text=True, timeout=120, cwd=ROOT)
+
+
+def test_simulate_the_paper_writes_telemetry_summary_and_plot(tmp_path: Path) -> None:
+    done = _rakectl("simulate", str(PAPER), "--out", str(tmp_path), "--plot", "--json")
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout.strip().splitlines()[-1])
+    assert summary["f_hat_final_n"] == pytest.approx(14.00, abs=0.05)
+    assert summary["tracking_error_final_m"] == pytest.approx(2.80e-3, abs=0.02e-3)
+    assert json.loads((tmp_path / "summary.json").read_text()) == summary
+    with open(tmp_path / "telemetry.csv") as f:
+        reader = csv.reader(f)
+        header = next(reader)
+        rows = sum(1 for _ in reader)
+    assert {"t_s", "x_d_m", "x_m", "x_e_hat_m", "f_hat_n"} <= set(header)
+    assert rows == summary["ticks"] == 20_000
+    png = (tmp_path / "plot.png").read_bytes()
+    assert png.startswith(b"\x89PNG") and len(png) > 20_000
+
+
+def test_set_changes_the_result(tmp_path: Path) -> None:
+    done = _rakectl("simulate", str(PAPER), "--out", str(tmp_path), "--json",
+                    "--set", "estimator.delay_s=0.02", "--set", "duration_s=10")
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout.splitlines()[-1])
+    assert summary["f_hat_final_n"] == pytest.approx(28.0, abs=0.1)  # K_e v α
+    assert summary["ticks"] == 10_000
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (("--set", "impedance.damping_ns_per_m=-3"),
+         "rakectl: error: --set impedance.damping_ns_per_m=-3: "
+         "impedance.damping_ns_per_m must be > 0, got -3"),
+        (("--set", "trajectory.sped_m_per_s=1"), "did you mean speed_m_per_s?"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2_and_writes_nothing(
+    tmp_path: Path, args: tuple[str, ...], expected: str
+) -> None:
+    out = tmp_path / "out"
+    done = _rakectl("simulate", str(PAPER), "--out", str(out), *args)
+    assert done.returncode == 2
+    assert done.stderr.strip() == expected or expected in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_bad_scenario_file_names_file_and_line(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("impedance:\n  mass_kg: 1\n  damping_ns_per_m: -3\n")
+    done = _rakectl("simulate", str(bad), "--out", str(tmp_path / "o"))
+    assert done.returncode == 2
+    assert done.stderr.strip() == (
+        f"rakectl: error: {bad}:3: impedance.damping_ns_per_m must be > 0, got -3"
+    )
+
+
+def test_usage_errors_are_one_line() -> None:
+    done = _rakectl("simulate")
+    assert done.returncode == 2
+    assert len(done.stderr.strip().splitlines()) == 1
+    assert "required" in done.stderr
+
+
+def test_config_docs_and_bench_print_figures() -> None:
+    docs = _rakectl("config-docs")
+    assert docs.returncode == 0 and "impedance.mass_kg" in docs.stdout
+    bench = _rakectl("bench", "--ticks", "20000")
+    assert bench.returncode == 0, bench.stderr
+    assert "median" in bench.stdout and "µs" in bench.stdout
+
+
+@pytest.mark.parametrize("command", ["emulator", "fuzz"])
+def test_pass_through_commands_read_their_own_options(command: str) -> None:
+    done = _rakectl(command, "--help")
+    assert done.returncode == 0, done.stderr
+    assert "usage" in done.stdout.lower()
+
+
+def test_unknown_options_elsewhere_are_one_line_errors() -> None:
+    done = _rakectl("status", "--bogus")
+    assert done.returncode == 2
+    assert "unrecognized arguments: --bogus" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1

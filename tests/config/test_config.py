@@ -1,0 +1,139 @@
+"""Configuration: every bad input gives one line naming file, line and key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from rakectl.config.loader import load_settings
+from rakectl.config.reference import settings_reference
+from rakectl.config.settings import PlantKind, Settings
+from rakectl.errors import ConfigError
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "rakectl.yaml"
+    path.write_text(text)
+    return path
+
+
+def _error(path: Path | None, overrides: tuple[str, ...] = ()) -> str:
+    with pytest.raises(ConfigError) as info:
+        load_settings(path, overrides)
+    message = str(info.value)
+    assert "\n" not in message
+    return message
+
+
+def test_defaults_load_and_are_frozen() -> None:
+    settings = load_settings()
+    assert settings == Settings()
+    with pytest.raises(AttributeError):
+        settings.rate_hz = 5.0  # type: ignore[misc]
+
+
+def test_scenario_file_loads(tmp_path: Path) -> None:
+    path = _write(tmp_path, "plant:\n  kind: first_order\n  time_constant_s: 0.1\nrate_hz: 500\n")
+    settings = load_settings(path)
+    assert settings.plant.kind is PlantKind.FIRST_ORDER
+    assert settings.plant.time_constant_s == 0.1
+    assert settings.rate_hz == 500.0
+
+
+def test_number_literals_yaml_1_1_would_read_as_strings(tmp_path: Path) -> None:
+    assert load_settings(_write(tmp_path, "impedance:\n  damping_ns_per_m: 1.33e4\n")) \
+        .impedance.damping_ns_per_m == 13300.0
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("impedance:\n  mass_kg: 1\n  damping_ns_per_m: -3\n",
+         ":3: impedance.damping_ns_per_m must be > 0, got -3"),
+        ("impedance:\n  dampin_ns_per_m: 3\n",
+         ":2: impedance.dampin_ns_per_m is not a known option (did you mean damping_ns_per_m?)"),
+        ("bogus: 1\n", ":1: bogus is not a known option"),
+        ("impedance:\n  mass_kg: heavy\n", ":2: impedance.mass_kg must be a number, got 'heavy'"),
+        ("impedance:\n  mass_kg: true\n", ":2: impedance.mass_kg must be a number, got True"),
+        ("impedance:\n  mass_kg: .nan\n", ":2: impedance.mass_kg must be finite, got nan"),
+        ("impedance: 3\n", ":1: impedance must be a section"),
+        ("rate_hz:\n  a: 1\n", ":1: rate_hz must be a single value"),
+        ("plant:\n  kind: cubic\n", ":2: plant.kind must be one of first_order, rake, got 'cubic'"),
+        ("impedance:\n  mass_kg: [1\n", ": malformed YAML: expected ',' or ']'"),
+        ("- 1\n- 2\n", ":1: the top level must be a mapping"),
+        ("rate_hz: 100\nrate_hz: 200\n", ":2: rate_hz is given twice"),
+        ("estimator:\n  delay_s: 0.6\n",
+         ":2: estimator.delay_s must be <= estimator.max_delay_s (0.5)"),
+        ("estimator:\n  delay_s: 0.0105\n",
+         ":2: estimator.delay_s must be a whole number of loop periods"),
+        ("geometry:\n  r_min_m: 1.0\n  r_max_m: 0.5\n",
+         ":3: geometry.r_max_m must be > geometry.r_min_m (1)"),
+    ],
+)
+def test_bad_files_name_file_line_and_key(tmp_path: Path, text: str, expected: str) -> None:
+    path = _write(tmp_path, text)
+    message = _error(path)
+    assert message.startswith(str(path))
+    assert expected in message
+
+
+def test_missing_file_is_one_line(tmp_path: Path) -> None:
+    message = _error(tmp_path / "absent.yaml")
+    assert "absent.yaml: cannot read" in message
+
+
+@pytest.mark.parametrize(
+    ("override", "expected"),
+    [
+        ("impedance.damping_ns_per_m=-3",
+         "--set impedance.damping_ns_per_m=-3: impedance.damping_ns_per_m must be > 0, got -3"),
+        ("impedance.nope=1", "impedance.nope is not a known option"),
+        ("nothing", "--set nothing: expected dotted.key=value"),
+        ("=3", "expected dotted.key=value"),
+        ("rate_hz=fast", "rate_hz must be a number, got 'fast'"),
+        ("impedance=3", "impedance must be a section"),
+        ("desired_force_n=120", "desired_force_n must be <= 90, got 120"),
+    ],
+)
+def test_bad_overrides_are_named(override: str, expected: str) -> None:
+    assert expected in _error(None, (override,))
+
+
+def test_overrides_can_give_lists_of_sections() -> None:
+    from rakectl.sim.scenario import Scenario
+
+    settings = load_settings(
+        None, ["emulator.ground.objects.mines=[{reach_m: 1.0, depth_m: 0.06}]"], root=Scenario
+    )
+    assert isinstance(settings, Scenario)
+    (mine,) = settings.emulator.ground.objects.mines
+    assert (mine.reach_m, mine.depth_m) == (1.0, 0.06)
+    message = _error_root("emulator.ground.objects.mines=[{reach_m: -1}]")
+    assert "emulator.ground.objects.mines[0].reach_m must be" in message
+
+
+def _error_root(override: str) -> str:
+    from rakectl.sim.scenario import Scenario
+
+    with pytest.raises(ConfigError) as info:
+        load_settings(None, [override], root=Scenario)
+    return str(info.value)
+
+
+def test_yaml_1_1_booleans_map_back_to_enum_words(tmp_path: Path) -> None:
+    settings = load_settings(_write(tmp_path, "daemon:\n  rt_mode: off\n"))
+    assert settings.daemon.rt_mode.value == "off"
+    assert load_settings(None, ["daemon.rt_mode=off"]).daemon.rt_mode.value == "off"
+
+
+def test_overrides_apply_on_top_of_the_file(tmp_path: Path) -> None:
+    path = _write(tmp_path, "estimator:\n  delay_s: 0.02\n")
+    settings = load_settings(path, ["estimator.delay_s=0.03", "plant.kind=first_order"])
+    assert settings.estimator.delay_s == 0.03
+
+
+def test_reference_lists_every_option_with_unit_and_bounds() -> None:
+    text = settings_reference()
+    assert "| impedance.damping_ns_per_m | float | `13300` | N·s/m | > 0, ≤ 1e+08 |" in text
+    assert "| plant.kind | first_order \\| rake | `first_order` |" in text

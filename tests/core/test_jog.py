@@ -1,0 +1,84 @@
+"""Jogging: limits, dead-man, workspace edges."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rakectl.config.settings import JogSettings
+from rakectl.core import kinematics
+from rakectl.core.jog import Jog, JogSpace
+
+WS = kinematics.Workspace(0.6, 0.35, 1.6, -0.2, 1.3)
+DT = 1e-3
+JOG = JogSettings()
+
+
+def _jog(r: float = 1.0, theta: float = 0.5) -> Jog:
+    return Jog(JOG, WS, DT, r, theta)
+
+
+def test_dead_man_stops_the_motion_after_the_timeout() -> None:
+    jog = _jog()
+    jog.command(JogSpace.TASK, 0.05, 0.0)
+    for _ in range(200):
+        jog.step()
+    assert jog.moving
+    for _ in range(round(JOG.deadman_s / DT) + round(1 / JOG.accel_per_s / DT) + 10):
+        jog.step()
+    assert jog.expired and not jog.moving
+
+
+def test_commands_repeated_in_time_keep_it_moving() -> None:
+    jog = _jog()
+    start = jog.tip()
+    for _ in range(30):  # 3 s of commands every 100 ms
+        jog.command(JogSpace.TASK, -0.05, 0.0)
+        for _ in range(100):
+            jog.step()
+    assert jog.moving
+    assert jog.tip()[0] == pytest.approx(start[0] - 0.05 * 3.0, abs=0.005)
+    assert jog.tip()[1] == pytest.approx(start[1], abs=1e-6)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.sampled_from(list(JogSpace)), st.floats(-10, 10), st.floats(-10, 10))
+def test_speed_and_acceleration_are_limited(space: JogSpace, a: float, b: float) -> None:
+    jog = _jog()
+    limit_a, limit_b = ((JOG.max_tip_speed_m_per_s,) * 2 if space is JogSpace.TASK
+                        else (JOG.max_r_speed_m_per_s, JOG.max_theta_speed_rad_per_s))
+    previous = (0.0, 0.0)
+    for k in range(400):
+        if k % 100 == 0:
+            jog.command(space, a, b)
+        before = jog.q if space is JogSpace.JOINT else jog.tip()
+        jog.step()
+        after = jog.q if space is JogSpace.JOINT else jog.tip()
+        velocity = ((after[0] - before[0]) / DT, (after[1] - before[1]) / DT)
+        if space is JogSpace.TASK:
+            velocity = (velocity[0], -velocity[1])  # tip() gives depth; commands give height
+        assert abs(velocity[0]) <= limit_a * 1.001 + 1e-9
+        assert abs(velocity[1]) <= limit_b * 1.001 + 1e-9
+        assert abs(velocity[0] - previous[0]) <= JOG.accel_per_s * limit_a * DT * 1.01 + 1e-6
+        previous = velocity
+
+
+def test_stops_at_the_workspace_edge() -> None:
+    jog = _jog(r=1.55, theta=0.5)
+    for _ in range(50):
+        jog.command(JogSpace.JOINT, 0.1, 0.0)
+        for _ in range(100):
+            jog.step()
+    assert jog.q[0] == WS.r_max_m
+    assert not jog.moving
+    assert math.isfinite(jog.q[1])
+
+
+def test_contact_flag_follows_depth() -> None:
+    jog = _jog(r=1.0, theta=0.3)  # tip above ground
+    assert not jog.contact
+    jog = _jog(r=1.0, theta=0.7)  # tip ~4 cm below ground
+    assert jog.contact

@@ -1,0 +1,378 @@
+"""Tier 3: the emulator on a python-can ``virtual`` bus, driven by a scripted controller.
+
+The controller is this test, in the same thread: it sends frames on its own
+bus object, lets the emulator service them (:meth:`Emulator.service`) and
+reads the answers. No threads; every bus is shut down.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import itertools
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import can
+import pytest
+
+from drivers.cli import load_config, main
+from drivers.emulator import TRUTH_COLUMNS, Emulator
+from drivers.node import BadInput
+from drivers.settings import EmulatorConfig, TimingMode
+from rakectl.core.motor_model import MotorParams, joint_per_motor_rad, joint_resolution
+from rakectl.errors import ConfigError
+from rakectl.protocol import codec
+from rakectl.protocol.cia402 import Command, State, decode_statusword
+from rakectl.protocol.codec import EmcyCode, NmtCommand
+from tests.drivers.test_node import sdo_download, sdo_reply, sdo_upload
+
+ROOT = Path(__file__).resolve().parents[2]
+NODES = (1, 2)
+_channels = itertools.count()
+
+Frames = list[tuple[int, bytes]]
+
+
+class RecordingLog:
+    """A structlog-like logger that keeps its events."""
+
+    def __init__(self) -> None:
+        self.events: list[tuple[str, dict[str, Any]]] = []
+
+    def info(self, event: str, **fields: Any) -> None:
+        self.events.append((event, fields))
+
+    warning = info
+
+
+class Controller:
+    """The scripted controller: its own bus on the emulator's channel."""
+
+    def __init__(self, bus: can.BusABC, emulator: Emulator) -> None:
+        self.bus, self.emulator, self.counter = bus, emulator, 0
+
+    def send(self, can_id: int, data: bytes, **flags: bool) -> None:
+        self.bus.send(can.Message(arbitration_id=can_id, data=data,
+                                  is_extended_id=flags.pop("is_extended_id", False), **flags))
+
+    def receive(self) -> Frames:
+        frames = []
+        while (msg := self.bus.recv(0.0)) is not None:
+            frames.append((msg.arbitration_id, bytes(msg.data)))
+        return frames
+
+    def exchange(self, timeout_s: float = 0.0) -> Frames:
+        self.emulator.service(timeout_s)
+        return self.receive()
+
+    def sdo(self, node_id: int, request: bytes) -> tuple[str, int]:
+        self.send(0x600 + node_id, request)
+        return sdo_reply(self.exchange(), 0x580 + node_id)
+
+    def nmt(self, command: NmtCommand, node_id: int = 0) -> Frames:
+        self.send(codec.NMT_COB_ID, codec.encode_nmt(command, node_id))
+        return self.exchange()
+
+    def cycle(self, commands: dict[int, tuple[int, int]]) -> Frames:
+        """SYNC, the drives' answers, then one RPDO1 (voltage mV, controlword) per node."""
+        self.counter = codec.next_sync_counter(self.counter)
+        self.send(codec.SYNC_COB_ID, codec.encode_sync(self.counter))
+        frames = self.exchange()
+        for node_id, (voltage_mv, controlword) in commands.items():
+            self.send(0x200 + node_id, codec.encode_rpdo(voltage_mv, controlword))
+        return frames
+
+
+@pytest.fixture
+def rig(request: pytest.FixtureRequest) -> Iterator[tuple[Controller, Emulator, io.StringIO]]:
+    """Emulator + controller on a fresh virtual channel; ``config`` via indirect param."""
+    config = getattr(request, "param", EmulatorConfig())
+    channel = f"test-emulator-{os.getpid()}-{next(_channels)}"
+    controller_bus = can.Bus(interface="virtual", channel=channel)
+    emulator_bus = can.Bus(interface="virtual", channel=channel)
+    truth = io.StringIO()
+    try:
+        emulator = Emulator(config, emulator_bus, truth=truth, log=RecordingLog())
+        emulator.start()
+        yield Controller(controller_bus, emulator), emulator, truth
+        emulator.close()
+    finally:
+        controller_bus.shutdown()
+        emulator_bus.shutdown()
+
+
+def of(frames: Frames, can_id: int) -> list[bytes]:
+    return [data for i, data in frames if i == can_id]
+
+
+def emcy_codes(frames: Frames) -> dict[int, list[int]]:
+    return {n: [codec.decode_emcy(d).code for d in of(frames, 0x80 + n)] for n in NODES}
+
+
+def bring_up(ctl: Controller, watchdog_ms: int = 50) -> None:
+    """Identity by SDO, the watchdog set, NMT start, CiA 402 bring-up by RPDO1."""
+    for node_id in NODES:
+        assert ctl.sdo(node_id, sdo_download(0x2003, 0, watchdog_ms, 2)) == ("ok", 0)
+    assert of(ctl.nmt(NmtCommand.START), 0x281)  # TPDO2 on entering OPERATIONAL
+    for command in (Command.SHUTDOWN, Command.SWITCH_ON, Command.ENABLE_OPERATION):
+        ctl.cycle({n: (0, command.value) for n in NODES})
+    frames = ctl.cycle({n: (0, Command.ENABLE_OPERATION.value) for n in NODES})
+    for node_id in NODES:
+        (tpdo2,) = of(frames, 0x280 + node_id)
+        assert decode_statusword(codec.decode_tpdo2(tpdo2)[0]) is State.OPERATION_ENABLED
+
+
+def joint_state(tpdo1: bytes, motor: MotorParams) -> tuple[float, float, float]:
+    """(position, joint velocity, current A) from a TPDO1, with the shared motor model."""
+    counts, rpm, current_ma = codec.decode_tpdo1(tpdo1)
+    return (counts * joint_resolution(motor),
+            codec.rpm_to_rad_per_s(rpm) * joint_per_motor_rad(motor), current_ma / 1000)
+
+
+GAINS = {1: (2000.0, 40.0), 2: (1200.0, 40.0)}  # V per m or rad, V·s per m or rad
+
+
+def hold(ctl: Controller, emulator: Emulator, cycles: int) -> list[Frames]:
+    """A PD loop on the TPDO1 feedback holding the start pose."""
+    config = emulator.config
+    motors = {1: config.physics.motor_r, 2: config.physics.motor_theta}
+    targets = {1: config.drives.start_r_m, 2: config.drives.start_theta_rad}
+    commands = {n: (0, Command.ENABLE_OPERATION.value) for n in NODES}
+    history = []
+    for _ in range(cycles):
+        frames = ctl.cycle(commands)
+        history.append(frames)
+        for node_id in NODES:
+            (tpdo1,) = of(frames, 0x180 + node_id)
+            position, velocity, _ = joint_state(tpdo1, motors[node_id])
+            kp, kd = GAINS[node_id]
+            voltage_v = max(-24.0, min(24.0, kp * (targets[node_id] - position) - kd * velocity))
+            commands[node_id] = (codec.voltage_v_to_mv(voltage_v), Command.ENABLE_OPERATION.value)
+    return history
+
+
+# ----------------------------------------------------------------------------- closed loop
+
+
+def test_bring_up_by_sdo_nmt_and_rpdo_then_hold_the_arm(rig: Any) -> None:
+    ctl, emulator, truth = rig
+    assert sorted(ctl.receive()) == [(0x701, b"\x00"), (0x702, b"\x00")]  # boot-up
+    for node_id, product, serial in ((1, 1, 1001), (2, 2, 2001)):
+        assert ctl.sdo(node_id, sdo_upload(0x1018, 2)) == ("value", product)
+        assert ctl.sdo(node_id, sdo_upload(0x1018, 4)) == ("value", serial)
+        assert ctl.sdo(node_id, sdo_download(0x2001, 0, 30000, 2)) == ("abort", 0x06090031)
+    bring_up(ctl)
+    started_s = time.perf_counter()
+    history = hold(ctl, emulator, 400)
+    per_cycle_us = (time.perf_counter() - started_s) / 400 * 1e6
+    protocol_us, physics_us = emulator.stats.per_sync_us()
+    print(f"\nemulator on virtual, per SYNC: protocol {protocol_us:.1f} µs, physics "
+          f"{physics_us:.1f} µs; whole cycle with the test's controller {per_cycle_us:.1f} µs")
+
+    plant, config = emulator.plant, emulator.config
+    assert plant.r_m == pytest.approx(config.drives.start_r_m, abs=2e-3)
+    assert plant.theta_rad == pytest.approx(config.drives.start_theta_rad, abs=5e-3)
+    r_position, _, r_current_a = joint_state(of(history[-1], 0x181)[0], config.physics.motor_r)
+    theta_position, _, theta_current_a = joint_state(of(history[-1], 0x182)[0],
+                                                     config.physics.motor_theta)
+    assert r_position == pytest.approx(plant.r_m, abs=1e-4)
+    assert theta_position == pytest.approx(plant.theta_rad, abs=1e-3)
+    assert -5.0 < theta_current_a < -0.3  # holding the rake up against its weight
+    assert abs(r_current_a) < 3.0
+    assert all(len(of(frames, 0x181)) == len(of(frames, 0x182)) == 1 for frames in history)
+    assert emulator.stats.bad.total == 0 and emulator.r_node.stats.lost_syncs == 0
+    emulator.close()  # flushes the ground truth
+    lines = truth.getvalue().splitlines()
+    assert lines[0].split(",") == list(TRUTH_COLUMNS)
+    assert len(lines) == 1 + emulator.stats.physics_steps
+    assert lines[-1].endswith("OPERATION_ENABLED,OPERATIONAL,OPERATION_ENABLED,OPERATIONAL")
+
+
+def test_silence_faults_both_drives_within_the_watchdog_and_the_arm_brakes(rig: Any) -> None:
+    ctl, emulator, _ = rig
+    bring_up(ctl, watchdog_ms=50)
+    hold(ctl, emulator, 200)
+    last_command_s = time.monotonic()  # the controller dies here: no SYNC, no RPDO
+    time_before_s = emulator.time_s
+    frames: Frames = []
+    while not all(emcy_codes(frames).values()) and time.monotonic() - last_command_s < 2.0:
+        frames += ctl.exchange(timeout_s=0.005)
+    latency_s = time.monotonic() - last_command_s
+    print(f"\nwatchdog 50 ms: both EMCYs after {latency_s * 1e3:.1f} ms")
+    assert emcy_codes(frames) == {1: [EmcyCode.COMMAND_WATCHDOG_TIMEOUT],
+                                  2: [EmcyCode.COMMAND_WATCHDOG_TIMEOUT]}
+    assert latency_s < 0.050 + 0.050  # the watchdog, plus scheduling slack on a shared VM
+    for node in emulator.nodes:
+        assert node.state is State.FAULT and node.output_voltage_v == 0.0
+        (tpdo2,) = of(frames, 0x280 + node.node_id)
+        assert decode_statusword(codec.decode_tpdo2(tpdo2)[0]) is State.FAULT
+    # LOCKSTEP, no SYNC, communication lost: the physics follows the wall clock at 0 V.
+    theta_before = emulator.plant.theta_rad
+    until_s = time.monotonic() + 0.3
+    while time.monotonic() < until_s:
+        ctl.exchange(timeout_s=0.01)
+    assert emulator.time_s - time_before_s > 0.2
+    assert abs(emulator.plant.theta_vel_rad_per_s) < 0.1  # shorted motor: it brakes
+    assert abs(emulator.plant.theta_rad - theta_before) < 0.03
+
+
+def test_controller_heartbeat_loss_and_fault_reset(rig: Any) -> None:
+    ctl, emulator, _ = rig
+    ctl.nmt(NmtCommand.START)
+    ctl.send(0x70A, b"\x05")
+    frames: Frames = []
+    started_s = time.monotonic()
+    while not all(emcy_codes(frames).values()) and time.monotonic() - started_s < 1.0:
+        frames += ctl.exchange(timeout_s=0.01)
+    assert emcy_codes(frames) == {1: [EmcyCode.HEARTBEAT_LOST], 2: [EmcyCode.HEARTBEAT_LOST]}
+    assert time.monotonic() - started_s >= 0.25
+    ctl.send(0x70A, b"\x05")
+    ctl.cycle({n: (0, Command.FAULT_RESET.value) for n in NODES})
+    frames = ctl.cycle({})
+    assert emcy_codes(frames) == {1: [EmcyCode.NO_ERROR], 2: [EmcyCode.NO_ERROR]}
+    assert all(node.state is State.SWITCH_ON_DISABLED for node in emulator.nodes)
+
+
+def test_current_limit_write_rebuilds_the_physics_in_the_same_state(rig: Any) -> None:
+    ctl, emulator, _ = rig
+    plant, state = emulator.plant, emulator.plant.state()
+    assert ctl.sdo(2, sdo_download(0x2002, 0, 5000, 2)) == ("ok", 0)
+    assert emulator.plant is not plant
+    assert emulator.plant.state() == state
+    assert emulator.theta_node.motor_params.current_limit_a == 5.0
+    bring_up(ctl)
+    assert ctl.sdo(2, sdo_download(0x2002, 0, 4000, 2)) == ("abort", 0x08000022)
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+def test_bad_frames_are_counted_logged_at_most_once_a_second_and_ignored() -> None:
+    channel = f"test-emulator-bad-{os.getpid()}"
+    controller_bus = can.Bus(interface="virtual", channel=channel)
+    emulator_bus = can.Bus(interface="virtual", channel=channel)
+    now_s = [100.0]
+    log = RecordingLog()
+    try:
+        emulator = Emulator(EmulatorConfig(), emulator_bus, clock=lambda: now_s[0], log=log)
+        emulator.start()
+        ctl = Controller(controller_bus, emulator)
+        ctl.nmt(NmtCommand.START)
+        for _ in range(30):
+            ctl.send(codec.SYNC_COB_ID, b"\x01\x02")  # wrong length
+        ctl.send(0x123, b"\x00")  # filtered out by the bus
+        ctl.send(codec.SYNC_COB_ID, b"", is_remote_frame=True)
+        while emulator.service(0.0):
+            pass
+        emulator.handle(can.Message(arbitration_id=0x123, data=b"\x01", is_extended_id=False),
+                        now_s[0])
+        emulator.handle(can.Message(arbitration_id=0x080, data=b"\x01", is_extended_id=True),
+                        now_s[0])
+        assert emulator.r_node.stats.bad.counts[BadInput.WRONG_LENGTH] == 30
+        assert emulator.stats.bad.counts[BadInput.UNSUPPORTED] == 2
+        assert emulator.stats.bad.counts[BadInput.UNKNOWN_ID] == 1
+        assert emulator.stats.syncs == 0 and emulator.time_s == 0.0  # no physics step
+        now_s[0] += 0.3
+        emulator.service(0.0)
+        first = {(f["node_id"], f["kind"]): f["count"]
+                 for event, f in log.events if event == "bad_frame"}
+        assert first == {(1, "wrong_length"): 30, (2, "wrong_length"): 30,
+                         (None, "unknown_id"): 1, (None, "unsupported"): 2}
+        for _ in range(30):
+            ctl.send(0x201, b"\x00")  # wrong length
+        now_s[0] += 0.5
+        emulator.service(0.0)
+        assert len([e for e, _ in log.events if e == "bad_frame"]) == 4  # not within 1 s
+        now_s[0] += 0.6
+        emulator.service(0.0)
+        last = [f for e, f in log.events if e == "bad_frame"][4:]
+        assert [(f["node_id"], f["kind"], f["count"], f["new"]) for f in last] == [
+            (1, "wrong_length", 60, 30)]
+        assert emulator.r_node.state is State.SWITCH_ON_DISABLED
+        emulator.close()
+    finally:
+        controller_bus.shutdown()
+        emulator_bus.shutdown()
+
+
+# ----------------------------------------------------------------------------- faults, timing
+
+
+def _with(**sections: dict[str, Any]) -> EmulatorConfig:
+    config = EmulatorConfig()
+    return dataclasses.replace(config, **{
+        name: dataclasses.replace(getattr(config, name), **values)
+        for name, values in sections.items()})
+
+
+@pytest.mark.parametrize("rig", [_with(faults={"silence_node_id": 2, "silence_after_s": 0.0,
+                                                "tx_loss_probability": 0.5,
+                                                "loss_node_id": 1})], indirect=True)
+def test_injected_silence_and_tx_loss(rig: Any) -> None:
+    ctl, emulator, _ = rig
+    frames = ctl.receive() + ctl.nmt(NmtCommand.START)
+    tpdo1_r = 0
+    for _ in range(400):
+        cycle = ctl.cycle({})
+        tpdo1_r += len(of(cycle, 0x181))
+        frames += cycle
+    assert not [i for i, _ in frames if i & 0x7F == 2]  # node 2 silent from the start
+    assert 120 < tpdo1_r < 280  # node 1 loses half of what it sends
+    assert emulator.stats.tx_dropped >= 400 - tpdo1_r
+    assert emulator.theta_node.stats.syncs == 400  # it hears, it does not speak
+    assert emulator.stats.tx_silenced >= 400
+
+
+@pytest.mark.parametrize("rig", [_with(drives={"timing": TimingMode.WALLCLOCK})], indirect=True)
+def test_wallclock_physics_follows_the_wall_clock(rig: Any) -> None:
+    ctl, emulator, _ = rig
+    started_s = time.monotonic()
+    while time.monotonic() - started_s < 0.2:
+        ctl.exchange(timeout_s=0.01)
+    assert emulator.time_s == pytest.approx(time.monotonic() - started_s, abs=0.015)
+    ctl.nmt(NmtCommand.START)
+    time.sleep(0.01)
+    before_s = emulator.time_s
+    ctl.cycle({})
+    assert 0.009 <= emulator.time_s - before_s <= 0.05  # caught up at the SYNC
+
+
+# ----------------------------------------------------------------------------- the process
+
+
+def test_config_file_loads_and_errors_name_file_and_line(tmp_path: Path) -> None:
+    config = load_config(ROOT / "config" / "emulator.yaml", ["drives.timing=wallclock"])
+    assert config.drives.timing is TimingMode.WALLCLOCK
+    assert config.physics == EmulatorConfig().physics
+    bad = tmp_path / "emulator.yaml"
+    bad.write_text("drives:\n  start_r_m: 0.2\n")
+    with pytest.raises(ConfigError, match=r"emulator.yaml:2: drives.start_r_m must lie"):
+        load_config(bad)
+    assert main(["--config", str(bad)]) == 2
+
+
+def test_process_prints_ready_and_exits_cleanly_on_sigterm(tmp_path: Path) -> None:
+    truth = tmp_path / "truth.csv"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "drivers", "--config", str(ROOT / "config" / "emulator.yaml"),
+         "--interface", "virtual", "--channel", "proc", "--truth", str(truth)],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert process.stdout is not None
+        assert process.stdout.readline() == "emulator: ready node-ids 1,2 on virtual:proc\n"
+        process.send_signal(signal.SIGTERM)
+        _, stderr = process.communicate(timeout=10)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+    assert process.returncode == 0, stderr
+    assert '"event": "emulator_stopped"' in stderr
+    assert truth.read_text().splitlines() == [",".join(TRUTH_COLUMNS)]

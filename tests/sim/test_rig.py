@@ -1,0 +1,179 @@
+"""The daemon and the emulated drives as separate processes on one bus (tier 3).
+
+udp_multicast inside a private network namespace that each test creates
+(rakectl.sim.rig); the test talks to the daemon over its Unix socket and
+checks the emulator's ground truth afterwards. Behaviour is asserted; timing
+is printed, never asserted.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import socket
+import time
+from pathlib import Path
+
+import pytest
+
+from rakectl.sim.rig import Bench, emulated_bench, namespaces_unavailable
+
+CONFIG = Path(__file__).resolve().parents[2] / "config"
+EMULATOR = CONFIG / "emulator-demo.yaml"
+DAEMON = CONFIG / "rakectl-emulated.yaml"
+
+_reason = namespaces_unavailable()
+pytestmark = [pytest.mark.crossprocess,
+              pytest.mark.skipif(_reason is not None, reason=f"no network namespace: {_reason}")]
+
+
+def _truth(out: Path) -> list[dict[str, str]]:
+    with open(out / "truth.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _states(out: Path) -> list[str]:
+    states = []
+    for line in (out / "daemon.log").read_text().splitlines():
+        if line.startswith("{") and '"event": "state"' in line:
+            states.append(json.loads(line)["new"])
+    return states
+
+
+def _armed(bench: Bench) -> None:
+    bench.wait_for_state(["disarmed"], 60.0)
+    bench.request("arm")
+    bench.wait_for_state(["armed"], 10.0)
+    time.sleep(0.3)
+    assert all(d["state"] == "operation_enabled" for d in bench.request("status")["drives"])
+
+
+def test_arm_jog_excavate_stop_against_the_ground_truth(tmp_path: Path) -> None:
+    with emulated_bench(tmp_path, EMULATOR, DAEMON) as bench:
+        _armed(bench)
+        before = bench.request("status")["tip"]
+        for _ in range(10):  # 1 s of jog down at 3 cm/s, commands every 0.1 s
+            bench.request("jog", space="task", height_m_per_s=-0.03)
+            time.sleep(0.1)
+        time.sleep(0.6)  # silence: the dead-man stops the jog by itself
+        after = bench.request("status")
+        assert after["state"] == "hold"
+        assert after["tip"]["depth_m"] > before["depth_m"] + 0.01
+        bench.request("excavate", reach_far_m=1.25, reach_near_m=1.15, target_depth_m=0.01,
+                      depth_step_m=0.01, stroke_speed_m_per_s=0.05)
+        final = bench.wait_for_state(["hold", "fault"], 120.0)
+        assert final["state"] == "hold", final.get("fault")
+        assert final["excavation"]["done"] and final["excavation"]["object_found"] is None
+        bench.request("disarm")
+        bench.wait_for_state(["disarmed"], 5.0)
+    assert _states(tmp_path) == ["DISARMED", "ARMED", "JOG", "HOLD", "EXCAVATE", "HOLD",
+                                 "DISARMED"]
+    truth = _truth(tmp_path)
+    # while armed (drives enabled); disarmed, the rake sinks slowly under its own weight
+    heights = [float(row["tip_height_m"]) for row in truth
+               if row["r_state"] == "OPERATION_ENABLED"]
+    assert min(heights) == pytest.approx(-0.01, abs=0.004)  # the lane's depth, really reached
+    assert max(float(row["force_down_n"]) for row in truth) < 90.0
+    assert all(row["mine_activated"] == "0" for row in truth)
+    dumps = list(tmp_path.glob("rakectl-*-shutdown.csv"))
+    assert dumps and dumps[0].read_text().startswith("t_s,state,")
+
+
+def test_sigkill_of_the_controller_leaves_the_drives_at_0_v(tmp_path: Path) -> None:
+    with emulated_bench(tmp_path, EMULATOR, DAEMON) as bench:
+        _armed(bench)
+        pid = bench.request("status")["pid"]
+        killed_at = time.time()
+        os.kill(pid, signal.SIGKILL)
+        time.sleep(1.0)
+    faults = [json.loads(line) for line in (tmp_path / "emulator.log").read_text().splitlines()
+              if '"drive_fault"' in line]
+    watchdog = [f for f in faults if "WATCHDOG" in f.get("detail", "")]
+    assert {f["node_id"] for f in watchdog} == {1, 2}
+    truth = _truth(tmp_path)
+    last = truth[-1]
+    assert float(last["voltage_r_v"]) == 0.0 and float(last["voltage_theta_v"]) == 0.0
+    assert last["r_state"] == "FAULT" and last["theta_state"] == "FAULT"
+    first_s = min(_epoch(f["timestamp"]) for f in watchdog)
+    print(f"\nSIGKILL → first watchdog EMCY after {1e3 * (first_s - killed_at):.1f} ms "
+          "(configured watchdog 100 ms on the emulated bench; includes the kill's delivery)")
+
+
+def _epoch(stamp: str) -> float:
+    from datetime import datetime
+
+    return datetime.fromisoformat(stamp.replace("Z", "+00:00")).timestamp()
+
+
+def test_a_drive_that_goes_silent_faults_the_controller(tmp_path: Path) -> None:
+    emulator_args = ["--set", "faults.silence_node_id=2", "--set", "faults.silence_after_s=6"]
+    with emulated_bench(tmp_path, EMULATOR, DAEMON, emulator_args=emulator_args) as bench:
+        _armed(bench)
+        final = bench.wait_for_state(["fault"], 20.0)
+    assert "θ drive (node 2)" in final["fault"]
+    bus = final["bus"]
+    assert bus["tpdo_received_r"] > bus["tpdo_received_theta"]  # r kept answering
+    print(f"\nsilent drive → {final['fault']}")
+
+
+def test_five_percent_frame_loss_degrades_but_keeps_running(tmp_path: Path) -> None:
+    emulator_args = ["--set", "faults.rx_loss_probability=0.05",
+                     "--set", "faults.tx_loss_probability=0.05"]
+    with emulated_bench(tmp_path, EMULATOR, DAEMON, emulator_args=emulator_args) as bench:
+        _armed(bench)
+        time.sleep(5.0)
+        status = bench.request("status")
+    assert status["state"] == "armed", status.get("fault")
+    bus = status["bus"]
+    missed = bus["tpdo_missed_r"] + bus["tpdo_missed_theta"]
+    received = bus["tpdo_received_r"] + bus["tpdo_received_theta"]
+    assert missed > 0 and received > 0
+    print(f"\n5 % loss each way: TPDO1 missed {missed} of {missed + received} "
+          f"({100 * missed / (missed + received):.1f} %), state still armed")
+
+
+def test_systemd_notify_sequence_and_sigterm(tmp_path: Path,
+                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """Under a test-owned NOTIFY_SOCKET: READY=1 only after bring-up and valid feedback,
+    WATCHDOG=1 while the loop runs, STOPPING=1 on SIGTERM; then 0 V, drives disabled,
+    the recorder dumped and exit status 0."""
+    notify_path = tmp_path / "notify.sock"
+    listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    listener.bind(str(notify_path))
+    listener.settimeout(0.05)
+    monkeypatch.setenv("NOTIFY_SOCKET", str(notify_path))
+    monkeypatch.setenv("WATCHDOG_USEC", "1000000")
+    messages: list[str] = []
+
+    def drain() -> None:
+        while True:
+            try:
+                messages.append(listener.recv(4096).decode())
+            except TimeoutError:
+                return
+
+    try:
+        with emulated_bench(tmp_path, EMULATOR, DAEMON) as bench:
+            bench.wait_for_state(["disarmed"], 60.0)
+            bench.request("arm")
+            bench.wait_for_state(["armed"], 10.0)
+            time.sleep(1.0)
+            drain()
+            os.kill(bench.request("status")["pid"], signal.SIGTERM)
+            bench.process.wait(20.0)
+            assert bench.process.returncode == 0
+            drain()
+    finally:
+        listener.close()
+    kinds = [m.split("\n")[0].split("=")[0] for m in messages]
+    ready = kinds.index("READY")
+    assert any("bringing up" in m for m in messages[:ready])  # READY only after bring-up
+    assert "WATCHDOG" in kinds[ready:]
+    assert kinds.index("STOPPING") > ready
+    assert any("disarmed" in m for m in messages if m.startswith("READY"))
+    assert list(tmp_path.glob("rakectl-*-shutdown.csv"))
+    last = _truth(tmp_path)[-1]
+    assert float(last["voltage_r_v"]) == 0.0 and float(last["voltage_theta_v"]) == 0.0
+    assert last["r_state"] != "OPERATION_ENABLED" and last["theta_state"] != "OPERATION_ENABLED"
