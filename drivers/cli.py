@@ -39,7 +39,7 @@ from rakectl.config.loader import load_settings
 from rakectl.config.settings import BusInterface, BusSettings
 from rakectl.errors import ConfigError
 from rakectl.protocol import codec
-from rakectl.protocol.cia402 import Command
+from rakectl.protocol.cia402 import DriveCommand
 
 UDP_MULTICAST_OPTIONS = {"fd": False}  # CAN 2.0 frames; the IPv4 group is given as channel
 
@@ -150,7 +150,8 @@ def bench(config: EmulatorConfig, cycles: int) -> None:
 
         send(codec.NMT_COB_ID, codec.encode_nmt(codec.NmtCommand.START, 0))
         counter, started_s = 0, 0.0
-        bring_up = [Command.SHUTDOWN, Command.SWITCH_ON] + [Command.ENABLE_OPERATION] * cycles
+        bring_up = [DriveCommand.SHUTDOWN, DriveCommand.SWITCH_ON]
+        bring_up += [DriveCommand.ENABLE_OPERATION] * cycles
         for cycle, command in enumerate(bring_up):
             if cycle == 2:
                 started_s = time.perf_counter()

@@ -89,7 +89,7 @@ from canopen import SdoAbortedError
 from rakectl.core.motor_model import MotorParams, joint_resolution
 from rakectl.errors import FrameError
 from rakectl.protocol import cia402
-from rakectl.protocol.cia402 import Command, State, StatusFlag
+from rakectl.protocol.cia402 import DriveCommand, DriveState, StatusFlag
 from rakectl.protocol.codec import (
     EMCY_ERROR_REGISTER,
     INT32_LIMIT,
@@ -191,7 +191,7 @@ class NodeStats:
 
 
 _STATUS_FLAGS: Final = StatusFlag.VOLTAGE_ENABLED | StatusFlag.REMOTE  # supply on, CAN control
-_STATUSWORD: Final = {s: cia402.encode_statusword(s, _STATUS_FLAGS) for s in State}
+_STATUSWORD: Final = {s: cia402.encode_statusword(s, _STATUS_FLAGS) for s in DriveState}
 _CLAMP_FLAGS: Final = int(StatusFlag.WARNING | StatusFlag.INTERNAL_LIMIT_ACTIVE)
 _REGISTER: Final = {code: int(reg) for code, reg in EMCY_ERROR_REGISTER.items()}
 _NMT_TARGET: Final = {NmtCommand.START: NmtState.OPERATIONAL, NmtCommand.STOP: NmtState.STOPPED,
@@ -224,7 +224,7 @@ class DriveNode:
     """One drive's CiA 301/402 behaviour; see the module docstring."""
 
     nmt: NmtState
-    state: State
+    state: DriveState
     fault: EmcyCode | None  # the last fault, until a fault reset (0x603F)
     output_voltage_v: float  # what the bridge applies now
     motor_params: MotorParams  # the hardware with the current limit of 0x2002
@@ -338,7 +338,7 @@ class DriveNode:
         deadline = self._next_heartbeat_s if self._heartbeat_ms else math.inf
         if self._heartbeat_seen_s is not None and self._consumer & 0xFFFF:
             deadline = min(deadline, self._heartbeat_seen_s + (self._consumer & 0xFFFF) * 0.001)
-        if self.state is State.OPERATION_ENABLED:
+        if self.state is DriveState.OPERATION_ENABLED:
             oldest_s = min(self._last_rpdo_s, self._last_sync_s)
             deadline = min(deadline, oldest_s + self._watchdog_ms * 0.001)
         return deadline
@@ -350,7 +350,7 @@ class DriveNode:
         self._position, self._motor_vel = position, motor_velocity_rad_per_s
         self._current_a = current_a
         hit, self._at_stop = at_hard_stop and not self._at_stop, at_hard_stop
-        if self.state is not State.OPERATION_ENABLED:
+        if self.state is not DriveState.OPERATION_ENABLED:
             self._overcurrent_s = 0.0
             return NO_FRAMES
         at_limit = abs(current_a) >= OVERCURRENT_SHARE * self.motor_params.current_limit_a
@@ -492,7 +492,7 @@ class DriveNode:
             self.stats.emcys += 1
 
     def _check_watchdog(self, now_s: float, out: list[Frame]) -> None:
-        if self.state is State.OPERATION_ENABLED:
+        if self.state is DriveState.OPERATION_ENABLED:
             oldest_s = min(self._last_rpdo_s, self._last_sync_s)
             if now_s - oldest_s >= self._watchdog_ms * 0.001:
                 self._fault(EmcyCode.COMMAND_WATCHDOG_TIMEOUT, out)
@@ -500,13 +500,13 @@ class DriveNode:
     def _apply_controlword(self, controlword: int, now_s: float, out: list[Frame]) -> None:
         command = cia402.decode_controlword(controlword, self._controlword)
         self._controlword = controlword
-        if command is Command.FAULT_RESET:
+        if command is DriveCommand.FAULT_RESET:
             self._fault_reset(out)
             return
         state = cia402.next_state(self.state, command)
         if state is not self.state:
             self.state = state
-            if state is State.OPERATION_ENABLED:  # arm the watchdog from now
+            if state is DriveState.OPERATION_ENABLED:  # arm the watchdog from now
                 self._last_rpdo_s = self._last_sync_s = now_s
             self._update_output()
 
@@ -527,7 +527,7 @@ class DriveNode:
         self._update_output()
 
     def _update_output(self) -> None:
-        enabled = self.state is State.OPERATION_ENABLED
+        enabled = self.state is DriveState.OPERATION_ENABLED
         self.output_voltage_v = self._latched_mv * 0.001 if enabled else 0.0
 
     def _fault(self, code: EmcyCode, out: list[Frame]) -> None:
@@ -543,7 +543,7 @@ class DriveNode:
         self.notes.append(("drive_fault", code))
 
     def _fault_reset(self, out: list[Frame]) -> None:
-        if self.state is not State.FAULT:
+        if self.state is not DriveState.FAULT:
             return
         at_limit = abs(self._current_a) >= OVERCURRENT_SHARE * self.motor_params.current_limit_a
         if self._heartbeat_lost or (self.fault is EmcyCode.OVER_CURRENT and at_limit):
@@ -551,7 +551,7 @@ class DriveNode:
             return
         self.notes.append(("fault_reset", self.fault or EmcyCode.NO_ERROR))
         self.fault = None
-        self.state = cia402.next_state(self.state, Command.FAULT_RESET)
+        self.state = cia402.next_state(self.state, DriveCommand.FAULT_RESET)
         self._emcy(EmcyCode.NO_ERROR, out)
 
     def _set_nmt(self, state: NmtState) -> None:
@@ -600,7 +600,7 @@ class DriveNode:
         self._tpdo2_refresh = values[0x2005]
         self._set_current_limit_ma(values[0x2002])
         self._set_counts_per_rev(values[0x2004])
-        self.state = cia402.settle(State.NOT_READY_TO_SWITCH_ON)
+        self.state = cia402.settle(DriveState.NOT_READY_TO_SWITCH_ON)
         self.fault = None
         self._clamping, self._controlword, self._latched_mv = False, 0, 0
         self._rx_voltage_mv = self._rx_controlword = 0
@@ -683,7 +683,7 @@ class DriveNode:
             raise SdoAbortedError(SdoAbort.VALUE_RANGE)  # fixed in this drive
 
     def _require_not_enabled(self) -> None:
-        if self.state is State.OPERATION_ENABLED:
+        if self.state is DriveState.OPERATION_ENABLED:
             raise SdoAbortedError(SdoAbort.DEVICE_STATE)
 
     def _write_consumer(self, value: int) -> None:

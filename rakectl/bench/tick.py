@@ -39,7 +39,7 @@ from rakectl.core.lane import LanePhase
 from rakectl.daemon.handlers import make_handler
 from rakectl.daemon.loop import Daemon
 from rakectl.daemon.sdnotify import Notifier
-from rakectl.daemon.states import State
+from rakectl.daemon.states import DaemonState
 from rakectl.drive.canbus import open_bus
 from rakectl.drive.client import DriveClient, receive_ids
 from rakectl.errors import RakeError
@@ -163,7 +163,7 @@ class _Rig:
         self.now_s += self.daemon.dt_s
         self.emulator.service(0.0)
 
-    def until(self, state: State, limit: int) -> None:
+    def until(self, state: DaemonState, limit: int) -> None:
         for _ in range(limit):
             if self.daemon.state is state:
                 return
@@ -211,9 +211,9 @@ def bench_tick(ticks: int) -> TickFigures:
 def _measure(rig: _Rig, ticks: int) -> TickFigures:
     daemon, handle = rig.daemon, make_handler(rig.daemon)
     rig.bring_up()
-    rig.until(State.DISARMED, 3000)
+    rig.until(DaemonState.DISARMED, 3000)
     handle(_request(b'{"cmd": "arm"}'))
-    rig.until(State.ARMED, 1000)
+    rig.until(DaemonState.ARMED, 1000)
     for _ in range(500):  # the drives enable, the loops take the arm's weight
         rig.tick()
     handle(_request(EXCAVATE))
@@ -246,7 +246,7 @@ def _measure(rig: _Rig, ticks: int) -> TickFigures:
     finally:
         if gc_was_enabled:
             gc.enable()
-    if daemon.state not in (State.EXCAVATE, State.HOLD):
+    if daemon.state not in (DaemonState.EXCAVATE, DaemonState.HOLD):
         raise RakeError(f"tick benchmark: the daemon left the lane: {daemon.state.name} "
                         f"({daemon.fault_reason})")
     return _figures(ticks, samples, whole, bare, daemon.state.name)

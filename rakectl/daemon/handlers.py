@@ -19,7 +19,7 @@ from rakectl.core.jog import Jog
 from rakectl.core.jog import JogSpace as JogFrame
 from rakectl.core.lane import LanePlanner
 from rakectl.daemon.loop import Daemon
-from rakectl.daemon.states import ARMED_STATES, Event, State, next_state
+from rakectl.daemon.states import ARMED_STATES, DaemonState, Event, next_state
 from rakectl.errors import CommandRejected, KinematicsError
 
 Reply = Mapping[str, Any]
@@ -77,7 +77,7 @@ def status(daemon: Daemon) -> dict[str, Any]:
 
 
 def _jog(daemon: Daemon, request: Request) -> Reply:
-    if daemon.state is not State.JOG:
+    if daemon.state is not DaemonState.JOG:
         _require(daemon, Event.JOG, "jog")
         r_m, theta_rad = daemon.controller.servo.q_ref
         daemon.jog = Jog(daemon.settings.jog, daemon.workspace, daemon.dt_s, r_m, theta_rad)

@@ -40,14 +40,12 @@ from rakectl.core.supervision import ForceLevel, ForceSupervisor
 from rakectl.daemon.histogram import Histogram
 from rakectl.daemon.recorder import DumpWriter, FlightRecorder
 from rakectl.daemon.sdnotify import Notifier
-from rakectl.daemon.states import ARMED_STATES, Event, State, next_state
+from rakectl.daemon.states import ARMED_STATES, DaemonState, Event, next_state
 from rakectl.daemon.timing import TickTimer
 from rakectl.drive.canbus import TraceRecorder
 from rakectl.drive.client import DriveClient, Joint
 from rakectl.errors import CommsTimeout
-from rakectl.protocol.cia402 import Command as DriveCommand
-from rakectl.protocol.cia402 import State as DriveState
-from rakectl.protocol.cia402 import path_to_enabled
+from rakectl.protocol.cia402 import DriveCommand, DriveState, path_to_enabled
 from rakectl.protocol.codec import NmtState
 
 RECORDER_COLUMNS = (
@@ -89,7 +87,7 @@ class Daemon:
         self.workspace = self.controller.servo.workspace
         capacity = round(settings.daemon.recorder_s * settings.rate_hz)
         self.recorder = FlightRecorder(RECORDER_COLUMNS, capacity)
-        self.state = State.INIT
+        self.state = DaemonState.INIT
         self.fault_reason = ""
         self.ticks = 0
         self.hold = (0.0, 0.0)  # (reach, depth) held in ARMED and HOLD
@@ -140,7 +138,7 @@ class Daemon:
                 self._exec_us = exec_ns * 1e-3
                 self._record_timing(exec_ns)
                 self._overrun_streak = self._overrun_streak + 1 if skipped else 0
-                if self.state is State.INIT and self.ticks > timeout_ticks:
+                if self.state is DaemonState.INIT and self.ticks > timeout_ticks:
                     raise CommsTimeout("no valid feedback from both drives within "
                                        f"{self.settings.daemon.boot_timeout_s:g} s of bring-up")
                 self.slack()
@@ -187,9 +185,9 @@ class Daemon:
         client.receive()
         voltages = (0.0, 0.0)
         state = self.state
-        if state is State.INIT:
+        if state is DaemonState.INIT:
             self._check_ready()
-        elif state is not State.FAULT and state is not State.ESTOP:
+        elif state is not DaemonState.FAULT and state is not DaemonState.ESTOP:
             problem = self._supervise(armed=state in ARMED_STATES)
             if problem:
                 self.fault(problem)
@@ -257,7 +255,7 @@ class Daemon:
         if level is ForceLevel.HARD and previous is not ForceLevel.HARD:
             self._back_off()
         planner = self.planner
-        if planner is not None and self.state is State.EXCAVATE:
+        if planner is not None and self.state is DaemonState.EXCAVATE:
             if planner.check_stall(c.reach_m, c.depth_m):
                 self.event("object_found", reach_m=c.reach_m, depth_m=c.depth_m)
             sup = self.supervisor  # an adaptive stroke follows the larger estimate
@@ -270,11 +268,11 @@ class Daemon:
         reach, depth = c.reach_m, c.depth_m - self.settings.supervision.back_off_m
         self.event("force_limit", f_hat_n=c.f_hat_n, f_current_n=sup.f_current_n,
                    reach_m=c.reach_m, depth_m=c.depth_m)
-        if self.state is State.EXCAVATE and self.planner is not None:
+        if self.state is DaemonState.EXCAVATE and self.planner is not None:
             self.planner.force_stop(c.reach_m, c.depth_m)
             return
         self.hold = (reach, depth)
-        if self.state is State.JOG:
+        if self.state is DaemonState.JOG:
             self._transition(Event.STOP, "force limit: backing off")
 
     def _reference(self) -> tuple[float, float, bool]:
@@ -283,16 +281,17 @@ class Daemon:
         At the caution level the reference holds still (jog and lane do not advance).
         """
         state = self.state
-        if self.supervisor.level is ForceLevel.CAUTION and state in (State.JOG, State.EXCAVATE):
+        moving = state in (DaemonState.JOG, DaemonState.EXCAVATE)
+        if self.supervisor.level is ForceLevel.CAUTION and moving:
             return self._ref[0], self._ref[1], True
-        if state is State.JOG and self.jog is not None:
+        if state is DaemonState.JOG and self.jog is not None:
             self.jog.step()
             if self.jog.expired and not self.jog.moving:
                 self.hold = self.jog.tip()
                 self._transition(Event.STOP, "dead-man: no jog command")
             reach, depth = self.jog.tip()
             return reach, depth, self.jog.contact
-        if state is State.EXCAVATE and self.planner is not None:
+        if state is DaemonState.EXCAVATE and self.planner is not None:
             planner = self.planner
             planner.step()
             if planner.done:
@@ -340,7 +339,7 @@ class Daemon:
         old, self.state = self.state, new
         if old in ARMED_STATES and new not in ARMED_STATES:
             self._enabled = False
-            self.client.command(None, DriveCommand.QUICK_STOP if new is State.ESTOP
+            self.client.command(None, DriveCommand.QUICK_STOP if new is DaemonState.ESTOP
                                 else DriveCommand.DISABLE_VOLTAGE)
         self.event("state", old=old.name, new=new.name, reason=reason)
         self.notifier.status(f"{new.name.lower()}{': ' + reason if reason else ''}")

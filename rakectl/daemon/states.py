@@ -17,7 +17,7 @@ from collections.abc import Mapping
 from types import MappingProxyType
 
 
-class State(enum.Enum):
+class DaemonState(enum.Enum):
     INIT = 0  # bringing the drives up
     DISARMED = 1  # drives disabled, 0 V
     ARMED = 2  # drives enabled, holding the pose where it was armed
@@ -41,35 +41,36 @@ class Event(enum.Enum):
     RESET = enum.auto()
 
 
-ARMED_STATES = frozenset({State.ARMED, State.JOG, State.EXCAVATE, State.HOLD})
+ARMED_STATES = frozenset({DaemonState.ARMED, DaemonState.JOG, DaemonState.EXCAVATE,
+                          DaemonState.HOLD})
 
 
-def _table() -> dict[tuple[State, Event], State]:
-    table: dict[tuple[State, Event], State] = {
-        (State.INIT, Event.READY): State.DISARMED,
-        (State.DISARMED, Event.ARM): State.ARMED,
-        (State.FAULT, Event.RESET): State.DISARMED,
-        (State.ESTOP, Event.RESET): State.DISARMED,
+def _table() -> dict[tuple[DaemonState, Event], DaemonState]:
+    table: dict[tuple[DaemonState, Event], DaemonState] = {
+        (DaemonState.INIT, Event.READY): DaemonState.DISARMED,
+        (DaemonState.DISARMED, Event.ARM): DaemonState.ARMED,
+        (DaemonState.FAULT, Event.RESET): DaemonState.DISARMED,
+        (DaemonState.ESTOP, Event.RESET): DaemonState.DISARMED,
     }
     for armed in ARMED_STATES:
-        table[(armed, Event.DISARM)] = State.DISARMED
-        table[(armed, Event.JOG)] = State.JOG
-        table[(armed, Event.EXCAVATE)] = State.EXCAVATE
-        table[(armed, Event.STOP)] = State.HOLD
-    table[(State.EXCAVATE, Event.DONE)] = State.HOLD
+        table[(armed, Event.DISARM)] = DaemonState.DISARMED
+        table[(armed, Event.JOG)] = DaemonState.JOG
+        table[(armed, Event.EXCAVATE)] = DaemonState.EXCAVATE
+        table[(armed, Event.STOP)] = DaemonState.HOLD
+    table[(DaemonState.EXCAVATE, Event.DONE)] = DaemonState.HOLD
     # switching straight between jogging and excavating is refused: stop first
-    del table[(State.JOG, Event.EXCAVATE)]
-    del table[(State.EXCAVATE, Event.JOG)]
-    for state in State:
-        table[(state, Event.ESTOP)] = State.ESTOP
-        if state is not State.ESTOP:
-            table[(state, Event.FAULT)] = State.FAULT
+    del table[(DaemonState.JOG, Event.EXCAVATE)]
+    del table[(DaemonState.EXCAVATE, Event.JOG)]
+    for state in DaemonState:
+        table[(state, Event.ESTOP)] = DaemonState.ESTOP
+        if state is not DaemonState.ESTOP:
+            table[(state, Event.FAULT)] = DaemonState.FAULT
     return table
 
 
-TRANSITIONS: Mapping[tuple[State, Event], State] = MappingProxyType(_table())
+TRANSITIONS: Mapping[tuple[DaemonState, Event], DaemonState] = MappingProxyType(_table())
 
 
-def next_state(state: State, event: Event) -> State | None:
+def next_state(state: DaemonState, event: Event) -> DaemonState | None:
     """The state after ``event``, or None if the table does not allow it."""
     return TRANSITIONS.get((state, event))

@@ -110,7 +110,7 @@ from rakectl.config.settings import DrivesSettings, MotorsSettings
 from rakectl.core.motor_model import MotorParams, joint_per_motor_rad, joint_resolution
 from rakectl.drive.canbus import BusError, TraceRecorder
 from rakectl.errors import CommsTimeout, ConfigError, DriveFault, FrameError
-from rakectl.protocol.cia402 import FAULT_RESET_BIT, Command, State, decode_statusword
+from rakectl.protocol.cia402 import FAULT_RESET_BIT, DriveCommand, DriveState, decode_statusword
 from rakectl.protocol.codec import (
     EMCY_SIZE,
     NMT_COB_ID,
@@ -220,7 +220,7 @@ class DriveInfo:
     identity: Identity
     limits: DriveLimits
     statusword: int  # 0x6041 read just before NMT start
-    state: State
+    state: DriveState
 
 
 @dataclass(frozen=True)
@@ -341,7 +341,7 @@ class BringUp:
     def _label(self, joint: Joint) -> str:
         return drive_label(joint, self._node_id[joint])
 
-    def _state_of(self, joint: Joint, statusword: int) -> State:
+    def _state_of(self, joint: Joint, statusword: int) -> DriveState:
         try:
             return decode_statusword(statusword)
         except FrameError as error:
@@ -448,7 +448,7 @@ class Feedback:
         self.theta_vel_rad_per_s = math.nan
         self.current_r_a = math.nan
         self.current_theta_a = math.nan
-        self.state: list[State | None] = [None, None]
+        self.state: list[DriveState | None] = [None, None]
         self.statusword = [0, 0]
         self.error_register = [0, 0]
         self.stale_cycles = [0, 0]
@@ -546,7 +546,7 @@ class DriveClient:
         self.latency_samples = 0
         self._fresh = [0, 0]  # TPDO1s per drive in this drain
         self._send_failed = False
-        self._command: list[Command] = [Command.DISABLE_VOLTAGE, Command.DISABLE_VOLTAGE]
+        self._command: list[DriveCommand] = [DriveCommand.DISABLE_VOLTAGE] * 2
         self._controlword = [0, 0]  # goes out with the next send()
         self._controlword_after = [0, 0]  # ... and from the one after on
         self._controlword_sent = [0, 0]
@@ -574,8 +574,8 @@ class DriveClient:
         for info in infos:
             self.feedback.statusword[info.joint] = info.statusword
             self.feedback.state[info.joint] = info.state
-            self._state_fault[info.joint] = info.state in (State.FAULT,
-                                                            State.FAULT_REACTION_ACTIVE)
+            self._state_fault[info.joint] = info.state in (DriveState.FAULT,
+                                                            DriveState.FAULT_REACTION_ACTIVE)
             self._update_fault(info.joint)
         return infos
 
@@ -666,7 +666,7 @@ class DriveClient:
         state = decode_statusword(statusword)
         fb = self.feedback
         fb.statusword[j], fb.error_register[j], fb.state[j] = statusword, error_register, state
-        self._state_fault[j] = state is State.FAULT or state is State.FAULT_REACTION_ACTIVE
+        self._state_fault[j] = state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
         self._update_fault(j)
         self.stats.tpdo2_received[j] += 1
 
@@ -705,21 +705,21 @@ class DriveClient:
 
     # ------------------------------------------------------------------- send
 
-    def command(self, joint: Joint | None, command: Command) -> None:
+    def command(self, joint: Joint | None, command: DriveCommand) -> None:
         """Send ``command``'s controlword to one drive (None: both) from the next send() on.
 
         Repeating the current command changes nothing. FAULT_RESET sends 0, then
         0x80 (held); asked again once 0x80 went out, it makes a new edge.
         """
         for j in JOINTS if joint is None else (joint,):
-            if command is Command.FAULT_RESET:
+            if command is DriveCommand.FAULT_RESET:
                 self._fault_reset(j)
             elif command is not self._command[j]:
                 self._controlword[j] = self._controlword_after[j] = command.value
             self._command[j] = command
 
     def _fault_reset(self, j: int) -> None:
-        in_progress = (self._command[j] is Command.FAULT_RESET
+        in_progress = (self._command[j] is DriveCommand.FAULT_RESET
                        and self._controlword_sent[j] != FAULT_RESET_BIT)
         if not in_progress:
             self._controlword[j], self._controlword_after[j] = 0, FAULT_RESET_BIT
@@ -791,7 +791,7 @@ class DriveClient:
 
     def stop_all(self) -> None:
         """0 V and DISABLE_VOLTAGE to both drives, applied now (RPDO1s, then a SYNC)."""
-        self.command(None, Command.DISABLE_VOLTAGE)
+        self.command(None, DriveCommand.DISABLE_VOLTAGE)
         self.send(0.0, 0.0)
         self.sync()
 

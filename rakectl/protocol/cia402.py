@@ -61,7 +61,7 @@ from typing import Final
 from rakectl.errors import FrameError
 
 
-class State(enum.Enum):
+class DriveState(enum.Enum):
     NOT_READY_TO_SWITCH_ON = enum.auto()
     SWITCH_ON_DISABLED = enum.auto()
     READY_TO_SWITCH_ON = enum.auto()
@@ -72,7 +72,7 @@ class State(enum.Enum):
     FAULT = enum.auto()
 
 
-class Command(enum.Enum):
+class DriveCommand(enum.Enum):
     """A device-control command; its value is the controlword that sends it."""
 
     DISABLE_VOLTAGE = 0x00
@@ -99,33 +99,33 @@ FAULT_RESET_BIT: Final = 0x0080
 
 # (mask, value, state) per the standard's statusword table; value has x = 0.
 STATUSWORD_PATTERNS: Final = (
-    (0x004F, 0x0000, State.NOT_READY_TO_SWITCH_ON),
-    (0x004F, 0x0040, State.SWITCH_ON_DISABLED),
-    (0x006F, 0x0021, State.READY_TO_SWITCH_ON),
-    (0x006F, 0x0023, State.SWITCHED_ON),
-    (0x006F, 0x0027, State.OPERATION_ENABLED),
-    (0x006F, 0x0007, State.QUICK_STOP_ACTIVE),
-    (0x004F, 0x000F, State.FAULT_REACTION_ACTIVE),
-    (0x004F, 0x0008, State.FAULT),
+    (0x004F, 0x0000, DriveState.NOT_READY_TO_SWITCH_ON),
+    (0x004F, 0x0040, DriveState.SWITCH_ON_DISABLED),
+    (0x006F, 0x0021, DriveState.READY_TO_SWITCH_ON),
+    (0x006F, 0x0023, DriveState.SWITCHED_ON),
+    (0x006F, 0x0027, DriveState.OPERATION_ENABLED),
+    (0x006F, 0x0007, DriveState.QUICK_STOP_ACTIVE),
+    (0x004F, 0x000F, DriveState.FAULT_REACTION_ACTIVE),
+    (0x004F, 0x0008, DriveState.FAULT),
 )
 STATE_BITS_MASK: Final = 0x006F
 
 # (mask, value, command) for controlwords with bit 7 clear.
 CONTROLWORD_PATTERNS: Final = (
-    (0x0002, 0x0000, Command.DISABLE_VOLTAGE),
-    (0x0006, 0x0002, Command.QUICK_STOP),
-    (0x0007, 0x0006, Command.SHUTDOWN),
-    (0x000F, 0x0007, Command.SWITCH_ON),
-    (0x000F, 0x000F, Command.ENABLE_OPERATION),
+    (0x0002, 0x0000, DriveCommand.DISABLE_VOLTAGE),
+    (0x0006, 0x0002, DriveCommand.QUICK_STOP),
+    (0x0007, 0x0006, DriveCommand.SHUTDOWN),
+    (0x000F, 0x0007, DriveCommand.SWITCH_ON),
+    (0x000F, 0x000F, DriveCommand.ENABLE_OPERATION),
 )
 
 
-def _match_state(low_bits: int) -> State | None:
+def _match_state(low_bits: int) -> DriveState | None:
     matches = [state for mask, value, state in STATUSWORD_PATTERNS if low_bits & mask == value]
     return matches[0] if matches else None
 
 
-def _match_command(low_bits: int) -> Command:
+def _match_command(low_bits: int) -> DriveCommand:
     return next(cmd for mask, value, cmd in CONTROLWORD_PATTERNS if low_bits & mask == value)
 
 
@@ -139,7 +139,7 @@ def _check_word(name: str, word: int) -> None:
         raise FrameError(f"{name} must be an int in 0..0xFFFF, got {word!r}")
 
 
-def decode_statusword(statusword: int) -> State:
+def decode_statusword(statusword: int) -> DriveState:
     """The state a statusword reports; FrameError for a pattern the standard does not define."""
     _check_word("statusword", statusword)
     state = _STATE_BY_LOW_BITS[statusword & 0x7F]
@@ -154,90 +154,95 @@ def status_flags(statusword: int) -> StatusFlag:
     return StatusFlag(statusword) & ~StatusFlag(STATE_BITS_MASK)
 
 
-def encode_statusword(state: State, flags: StatusFlag = NO_FLAGS) -> int:
+def encode_statusword(state: DriveState, flags: StatusFlag = NO_FLAGS) -> int:
     """The statusword of ``state`` (don't-care bits 0) with ``flags`` set."""
     if flags & STATE_BITS_MASK:
         raise FrameError(f"status flags must leave the state bits alone, got 0x{flags:04X}")
     return _STATE_BITS[state] | int(flags)
 
 
-def controlword(command: Command) -> int:
+def controlword(command: DriveCommand) -> int:
     """The controlword that sends ``command``."""
     return command.value
 
 
-def decode_controlword(controlword: int, previous_controlword: int) -> Command | None:
+def decode_controlword(controlword: int, previous_controlword: int) -> DriveCommand | None:
     """The command a controlword gives after ``previous_controlword``.
 
     FAULT_RESET on a rising edge of bit 7; None while bit 7 stays set.
     """
     _check_word("controlword", controlword)
     if controlword & FAULT_RESET_BIT:
-        return None if previous_controlword & FAULT_RESET_BIT else Command.FAULT_RESET
+        return None if previous_controlword & FAULT_RESET_BIT else DriveCommand.FAULT_RESET
     return _COMMAND_BY_LOW_BITS[controlword & 0x0F]
 
 
 # --------------------------------------------------------------------------- transitions
 
-TRANSITIONS: Final[Mapping[tuple[State, Command], State]] = MappingProxyType({
-    (State.SWITCH_ON_DISABLED, Command.SHUTDOWN): State.READY_TO_SWITCH_ON,  # 2
-    (State.READY_TO_SWITCH_ON, Command.SWITCH_ON): State.SWITCHED_ON,  # 3
-    (State.READY_TO_SWITCH_ON, Command.ENABLE_OPERATION): State.OPERATION_ENABLED,  # 3+4
-    (State.SWITCHED_ON, Command.ENABLE_OPERATION): State.OPERATION_ENABLED,  # 4
-    (State.OPERATION_ENABLED, Command.DISABLE_OPERATION): State.SWITCHED_ON,  # 5
-    (State.SWITCHED_ON, Command.SHUTDOWN): State.READY_TO_SWITCH_ON,  # 6
-    (State.READY_TO_SWITCH_ON, Command.QUICK_STOP): State.SWITCH_ON_DISABLED,  # 7
-    (State.READY_TO_SWITCH_ON, Command.DISABLE_VOLTAGE): State.SWITCH_ON_DISABLED,  # 7
-    (State.OPERATION_ENABLED, Command.SHUTDOWN): State.READY_TO_SWITCH_ON,  # 8
-    (State.OPERATION_ENABLED, Command.DISABLE_VOLTAGE): State.SWITCH_ON_DISABLED,  # 9
-    (State.SWITCHED_ON, Command.DISABLE_VOLTAGE): State.SWITCH_ON_DISABLED,  # 10
-    (State.SWITCHED_ON, Command.QUICK_STOP): State.SWITCH_ON_DISABLED,  # 10
-    (State.OPERATION_ENABLED, Command.QUICK_STOP): State.QUICK_STOP_ACTIVE,  # 11
-    (State.QUICK_STOP_ACTIVE, Command.DISABLE_VOLTAGE): State.SWITCH_ON_DISABLED,  # 12
-    (State.FAULT, Command.FAULT_RESET): State.SWITCH_ON_DISABLED,  # 15
-    (State.QUICK_STOP_ACTIVE, Command.ENABLE_OPERATION): State.OPERATION_ENABLED,  # 16
+TRANSITIONS: Final[Mapping[tuple[DriveState, DriveCommand], DriveState]] = MappingProxyType({
+    (DriveState.SWITCH_ON_DISABLED, DriveCommand.SHUTDOWN): DriveState.READY_TO_SWITCH_ON,  # 2
+    (DriveState.READY_TO_SWITCH_ON, DriveCommand.SWITCH_ON): DriveState.SWITCHED_ON,  # 3
+    (DriveState.READY_TO_SWITCH_ON, DriveCommand.ENABLE_OPERATION):
+        DriveState.OPERATION_ENABLED,  # 3+4
+    (DriveState.SWITCHED_ON, DriveCommand.ENABLE_OPERATION): DriveState.OPERATION_ENABLED,  # 4
+    (DriveState.OPERATION_ENABLED, DriveCommand.DISABLE_OPERATION): DriveState.SWITCHED_ON,  # 5
+    (DriveState.SWITCHED_ON, DriveCommand.SHUTDOWN): DriveState.READY_TO_SWITCH_ON,  # 6
+    (DriveState.READY_TO_SWITCH_ON, DriveCommand.QUICK_STOP): DriveState.SWITCH_ON_DISABLED,  # 7
+    (DriveState.READY_TO_SWITCH_ON, DriveCommand.DISABLE_VOLTAGE):
+        DriveState.SWITCH_ON_DISABLED,  # 7
+    (DriveState.OPERATION_ENABLED, DriveCommand.SHUTDOWN): DriveState.READY_TO_SWITCH_ON,  # 8
+    (DriveState.OPERATION_ENABLED, DriveCommand.DISABLE_VOLTAGE):
+        DriveState.SWITCH_ON_DISABLED,  # 9
+    (DriveState.SWITCHED_ON, DriveCommand.DISABLE_VOLTAGE): DriveState.SWITCH_ON_DISABLED,  # 10
+    (DriveState.SWITCHED_ON, DriveCommand.QUICK_STOP): DriveState.SWITCH_ON_DISABLED,  # 10
+    (DriveState.OPERATION_ENABLED, DriveCommand.QUICK_STOP): DriveState.QUICK_STOP_ACTIVE,  # 11
+    (DriveState.QUICK_STOP_ACTIVE, DriveCommand.DISABLE_VOLTAGE):
+        DriveState.SWITCH_ON_DISABLED,  # 12
+    (DriveState.FAULT, DriveCommand.FAULT_RESET): DriveState.SWITCH_ON_DISABLED,  # 15
+    (DriveState.QUICK_STOP_ACTIVE, DriveCommand.ENABLE_OPERATION):
+        DriveState.OPERATION_ENABLED,  # 16
 })
 """What a command does in a state; absent pairs are ignored (the state stays)."""
 
-AUTOMATIC_TRANSITIONS: Final[Mapping[State, State]] = MappingProxyType({
-    State.NOT_READY_TO_SWITCH_ON: State.SWITCH_ON_DISABLED,  # 1: self-test done
-    State.FAULT_REACTION_ACTIVE: State.FAULT,  # 14: fault reaction done
+AUTOMATIC_TRANSITIONS: Final[Mapping[DriveState, DriveState]] = MappingProxyType({
+    DriveState.NOT_READY_TO_SWITCH_ON: DriveState.SWITCH_ON_DISABLED,  # 1: self-test done
+    DriveState.FAULT_REACTION_ACTIVE: DriveState.FAULT,  # 14: fault reaction done
 })
 """Transitions a drive makes by itself, once the state's work is done."""
 
 # Bring-up takes every step explicitly: never 3+4 in one command, and never
 # straight from a quick stop back to operation (16).
 _NOT_FOR_BRING_UP: Final = frozenset({
-    (State.READY_TO_SWITCH_ON, Command.ENABLE_OPERATION),
-    (State.QUICK_STOP_ACTIVE, Command.ENABLE_OPERATION),
+    (DriveState.READY_TO_SWITCH_ON, DriveCommand.ENABLE_OPERATION),
+    (DriveState.QUICK_STOP_ACTIVE, DriveCommand.ENABLE_OPERATION),
 })
 
 
-def next_state(state: State, command: Command | None) -> State:
+def next_state(state: DriveState, command: DriveCommand | None) -> DriveState:
     """The state after ``command`` (None = no command) per :data:`TRANSITIONS`."""
     if command is None:
         return state
     return TRANSITIONS.get((state, command), state)
 
 
-def settle(state: State) -> State:
+def settle(state: DriveState) -> DriveState:
     """The state a drive reaches from ``state`` by automatic transitions alone."""
     while state in AUTOMATIC_TRANSITIONS:
         state = AUTOMATIC_TRANSITIONS[state]
     return state
 
 
-def on_fault(state: State) -> State:
+def on_fault(state: DriveState) -> DriveState:
     """Transition 13: a fault sends every state but the fault states to FAULT_REACTION_ACTIVE."""
-    if state in (State.FAULT_REACTION_ACTIVE, State.FAULT):
+    if state in (DriveState.FAULT_REACTION_ACTIVE, DriveState.FAULT):
         return state
-    return State.FAULT_REACTION_ACTIVE
+    return DriveState.FAULT_REACTION_ACTIVE
 
 
-def _bring_up_paths() -> dict[State, tuple[Command, ...]]:
+def _bring_up_paths() -> dict[DriveState, tuple[DriveCommand, ...]]:
     """Shortest command sequences to OPERATION_ENABLED, searched backwards from it."""
-    paths: dict[State, tuple[Command, ...]] = {State.OPERATION_ENABLED: ()}
-    frontier = [State.OPERATION_ENABLED]
+    paths: dict[DriveState, tuple[DriveCommand, ...]] = {DriveState.OPERATION_ENABLED: ()}
+    frontier = [DriveState.OPERATION_ENABLED]
     while frontier:
         reached = []
         for (source, command), target in TRANSITIONS.items():
@@ -252,7 +257,7 @@ def _bring_up_paths() -> dict[State, tuple[Command, ...]]:
 _BRING_UP_PATHS: Final = MappingProxyType(_bring_up_paths())
 
 
-def path_to_enabled(state: State) -> list[Command]:
+def path_to_enabled(state: DriveState) -> list[DriveCommand]:
     """The commands that bring a drive from ``state`` to OPERATION_ENABLED, in order.
 
     From NOT_READY_TO_SWITCH_ON and FAULT_REACTION_ACTIVE the drive first moves

@@ -28,7 +28,7 @@ import canopen
 from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVariable, datatypes
 
 from rakectl.protocol import codec
-from rakectl.protocol.cia402 import Command
+from rakectl.protocol.cia402 import DriveCommand
 from rakectl.protocol.files import EDS_DIR
 
 DC_SERVO_EDS: Final = EDS_DIR / "dc_servo_drive.eds"
@@ -101,7 +101,7 @@ SIGNAL_STYLES: Final = {
     0x6041: SignalStyle("statusword"),
     0x1001: SignalStyle("error_register"),
     0x2000: SignalStyle("voltage_v", 0.001, "V"),
-    0x6040: SignalStyle("controlword", choices=_choices(Command)),
+    0x6040: SignalStyle("controlword", choices=_choices(DriveCommand)),
 }
 """DBC name, scale and unit of each object a PDO maps (raw × factor = physical)."""
 

@@ -45,7 +45,7 @@ from rakectl.drive.client import (
 )
 from rakectl.errors import CommsTimeout, ConfigError, DriveFault, NonFiniteError
 from rakectl.protocol import cia402, codec
-from rakectl.protocol.cia402 import Command, State
+from rakectl.protocol.cia402 import DriveCommand, DriveState
 from rakectl.protocol.codec import FunctionCode, NmtCommand, NmtState, cob_id
 
 DRIVES = DrivesSettings()
@@ -119,7 +119,7 @@ def tpdo1(node: int, counts: int, rpm: int = 0, ma: int = 0) -> tuple[int, bytes
     return cob_id(FunctionCode.TPDO1, node), codec.encode_tpdo1(counts, rpm, ma)
 
 
-def tpdo2(node: int, state: State, register: int = 0) -> tuple[int, bytes]:
+def tpdo2(node: int, state: DriveState, register: int = 0) -> tuple[int, bytes]:
     statusword = cia402.encode_statusword(state)
     return cob_id(FunctionCode.TPDO2, node), codec.encode_tpdo2(statusword, register)
 
@@ -175,17 +175,17 @@ def test_r_position_of_the_default_lead_screw(bus: FakeBus, client: DriveClient)
 
 def test_tpdo2_gives_the_cia402_state_and_the_fault_flag(bus: FakeBus,
                                                          client: DriveClient) -> None:
-    bus.feed(*tpdo2(R_NODE, State.OPERATION_ENABLED))
-    bus.feed(*tpdo2(THETA_NODE, State.SWITCH_ON_DISABLED))
+    bus.feed(*tpdo2(R_NODE, DriveState.OPERATION_ENABLED))
+    bus.feed(*tpdo2(THETA_NODE, DriveState.SWITCH_ON_DISABLED))
     client.receive()
-    assert client.feedback.state == [State.OPERATION_ENABLED, State.SWITCH_ON_DISABLED]
+    assert client.feedback.state == [DriveState.OPERATION_ENABLED, DriveState.SWITCH_ON_DISABLED]
     assert not client.drive_faults()
-    bus.feed(*tpdo2(THETA_NODE, State.FAULT, register=0x11))
+    bus.feed(*tpdo2(THETA_NODE, DriveState.FAULT, register=0x11))
     client.receive()
-    assert client.feedback.state[Joint.THETA] is State.FAULT
+    assert client.feedback.state[Joint.THETA] is DriveState.FAULT
     assert client.feedback.error_register[Joint.THETA] == 0x11
     assert client.drive_faults()
-    bus.feed(*tpdo2(THETA_NODE, State.SWITCH_ON_DISABLED))
+    bus.feed(*tpdo2(THETA_NODE, DriveState.SWITCH_ON_DISABLED))
     client.receive()
     assert not client.drive_faults()
     assert client.stats.tpdo2_received == [1, 3]
@@ -331,9 +331,9 @@ def test_send_packs_both_rpdos_with_voltage_and_controlword(bus: FakeBus,
                                                             client: DriveClient) -> None:
     client.send(1.2345, -40.0)
     assert bus.take_sent() == [rpdo(R_NODE, 1234, 0), rpdo(THETA_NODE, -32767, 0)]
-    client.command(Joint.THETA, Command.SHUTDOWN)
+    client.command(Joint.THETA, DriveCommand.SHUTDOWN)
     client.send(0.0, 0.5)
-    client.command(None, Command.ENABLE_OPERATION)
+    client.command(None, DriveCommand.ENABLE_OPERATION)
     client.send(0.0, 0.5)
     assert bus.take_sent() == [rpdo(R_NODE, 0, 0x00), rpdo(THETA_NODE, 500, 0x06),
                                rpdo(R_NODE, 0, 0x0F), rpdo(THETA_NODE, 500, 0x0F)]
@@ -357,19 +357,19 @@ def _controlwords(bus: FakeBus, node: int) -> list[int]:
 
 
 def test_fault_reset_is_a_rising_edge_of_bit_7(bus: FakeBus, client: DriveClient) -> None:
-    client.command(None, Command.SHUTDOWN)
+    client.command(None, DriveCommand.SHUTDOWN)
     client.send(0.0, 0.0)
-    client.command(Joint.R, Command.FAULT_RESET)
+    client.command(Joint.R, DriveCommand.FAULT_RESET)
     for _ in range(3):
         client.send(0.0, 0.0)
     assert _controlwords(bus, R_NODE) == [0x06, 0x00, 0x80, 0x80]
-    client.command(Joint.R, Command.FAULT_RESET)  # again, after 0x80 went out: a new edge
+    client.command(Joint.R, DriveCommand.FAULT_RESET)  # again, after 0x80 went out: a new edge
     client.send(0.0, 0.0)
-    client.command(Joint.R, Command.FAULT_RESET)  # the edge is under way: nothing changes
+    client.command(Joint.R, DriveCommand.FAULT_RESET)  # the edge is under way: nothing changes
     client.send(0.0, 0.0)
     client.send(0.0, 0.0)
     assert _controlwords(bus, R_NODE) == [0x00, 0x80, 0x80]
-    client.command(Joint.R, Command.SHUTDOWN)
+    client.command(Joint.R, DriveCommand.SHUTDOWN)
     client.send(0.0, 0.0)
     assert _controlwords(bus, R_NODE) == [0x06]
 
@@ -377,14 +377,14 @@ def test_fault_reset_is_a_rising_edge_of_bit_7(bus: FakeBus, client: DriveClient
 def test_repeating_the_current_command_changes_nothing(bus: FakeBus,
                                                        client: DriveClient) -> None:
     for _ in range(3):
-        client.command(None, Command.SWITCH_ON)
+        client.command(None, DriveCommand.SWITCH_ON)
         client.send(0.0, 0.0)
     assert _controlwords(bus, THETA_NODE) == [0x07, 0x07, 0x07]
 
 
 def test_stop_all_sends_zero_volts_disable_voltage_and_a_sync(bus: FakeBus,
                                                               client: DriveClient) -> None:
-    client.command(None, Command.ENABLE_OPERATION)
+    client.command(None, DriveCommand.ENABLE_OPERATION)
     client.send(3.0, 3.0)
     bus.take_sent()
     client.stop_all()
@@ -791,7 +791,7 @@ def enable(rig: Rig, ticks: int, voltages: Any = None) -> None:
     for _ in range(ticks):
         for joint in Joint:
             state = rig.client.feedback.state[joint]
-            if state is not None and state is not State.OPERATION_ENABLED:
+            if state is not None and state is not DriveState.OPERATION_ENABLED:
                 rig.client.command(joint, cia402.path_to_enabled(state)[0])
         lock_step(rig, 1, voltages)
 
@@ -804,8 +804,8 @@ def test_bring_up_against_the_emulator(rig: Rig) -> None:
     assert (theta_info.identity.product_code, theta_info.identity.serial) == (2, 2001)
     assert (r_info.limits.max_voltage_mv, r_info.limits.current_limit_ma) == (24000, 6000)
     assert theta_info.limits.current_limit_ma == 10000
-    assert r_info.state is theta_info.state is State.SWITCH_ON_DISABLED
-    assert rig.client.feedback.state == [State.SWITCH_ON_DISABLED] * 2
+    assert r_info.state is theta_info.state is DriveState.SWITCH_ON_DISABLED
+    assert rig.client.feedback.state == [DriveState.SWITCH_ON_DISABLED] * 2
     assert [node.nmt for node in rig.emulator.nodes] == [NmtState.OPERATIONAL] * 2
     assert rig.emulator.theta_node.watchdog_timeout_s == DRIVES.watchdog_timeout_ms / 1000
 
@@ -821,7 +821,7 @@ def test_lock_step_enable_and_hold_the_start_pose(rig: Rig) -> None:
                 1200.0 * (target[1] - fb.theta_rad) - 40.0 * fb.theta_vel_rad_per_s)
 
     enable(rig, 10, hold)
-    assert rig.client.feedback.state == [State.OPERATION_ENABLED] * 2
+    assert rig.client.feedback.state == [DriveState.OPERATION_ENABLED] * 2
     lock_step(rig, 500, hold)
     plant = rig.emulator.plant
     sampled = (plant.r_m, plant.theta_rad)  # what the drives sample at the next SYNC
@@ -844,18 +844,18 @@ def test_lock_step_enable_and_hold_the_start_pose(rig: Rig) -> None:
 def test_watchdog_fault_and_fault_reset_against_the_emulator(rig: Rig) -> None:
     bring_up_against_the_emulator(rig)
     enable(rig, 6)
-    assert rig.client.feedback.state == [State.OPERATION_ENABLED] * 2
+    assert rig.client.feedback.state == [DriveState.OPERATION_ENABLED] * 2
     lock_step(rig, DRIVES.watchdog_timeout_ms + 2, send=False)  # SYNCs but no RPDO1
     rig.client.receive()
     fb = rig.client.feedback
-    assert rig.client.drive_faults() and fb.state == [State.FAULT] * 2
+    assert rig.client.drive_faults() and fb.state == [DriveState.FAULT] * 2
     assert [e.code if e else None for e in fb.last_emcy] == [
         codec.EmcyCode.COMMAND_WATCHDOG_TIMEOUT] * 2
-    rig.client.command(None, Command.FAULT_RESET)
+    rig.client.command(None, DriveCommand.FAULT_RESET)
     lock_step(rig, 3)  # controlword 0, then 0x80: the rising edge
     rig.client.receive()
-    assert fb.state == [State.SWITCH_ON_DISABLED] * 2
+    assert fb.state == [DriveState.SWITCH_ON_DISABLED] * 2
     assert [e.code if e else None for e in fb.last_emcy] == [codec.EmcyCode.NO_ERROR] * 2
     assert not rig.client.drive_faults()
     enable(rig, 6)
-    assert fb.state == [State.OPERATION_ENABLED] * 2
+    assert fb.state == [DriveState.OPERATION_ENABLED] * 2

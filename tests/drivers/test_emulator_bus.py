@@ -29,7 +29,7 @@ from drivers.settings import EmulatorConfig, TimingMode
 from rakectl.core.motor_model import MotorParams, joint_per_motor_rad, joint_resolution
 from rakectl.errors import ConfigError
 from rakectl.protocol import codec
-from rakectl.protocol.cia402 import Command, State, decode_statusword
+from rakectl.protocol.cia402 import DriveCommand, DriveState, decode_statusword
 from rakectl.protocol.codec import EmcyCode, NmtCommand
 from tests.drivers.test_node import sdo_download, sdo_reply, sdo_upload
 
@@ -121,12 +121,12 @@ def bring_up(ctl: Controller, watchdog_ms: int = 50) -> None:
     for node_id in NODES:
         assert ctl.sdo(node_id, sdo_download(0x2003, 0, watchdog_ms, 2)) == ("ok", 0)
     assert of(ctl.nmt(NmtCommand.START), 0x281)  # TPDO2 on entering OPERATIONAL
-    for command in (Command.SHUTDOWN, Command.SWITCH_ON, Command.ENABLE_OPERATION):
+    for command in (DriveCommand.SHUTDOWN, DriveCommand.SWITCH_ON, DriveCommand.ENABLE_OPERATION):
         ctl.cycle({n: (0, command.value) for n in NODES})
-    frames = ctl.cycle({n: (0, Command.ENABLE_OPERATION.value) for n in NODES})
+    frames = ctl.cycle({n: (0, DriveCommand.ENABLE_OPERATION.value) for n in NODES})
     for node_id in NODES:
         (tpdo2,) = of(frames, 0x280 + node_id)
-        assert decode_statusword(codec.decode_tpdo2(tpdo2)[0]) is State.OPERATION_ENABLED
+        assert decode_statusword(codec.decode_tpdo2(tpdo2)[0]) is DriveState.OPERATION_ENABLED
 
 
 def joint_state(tpdo1: bytes, motor: MotorParams) -> tuple[float, float, float]:
@@ -144,7 +144,7 @@ def hold(ctl: Controller, emulator: Emulator, cycles: int) -> list[Frames]:
     config = emulator.config
     motors = {1: config.physics.motor_r, 2: config.physics.motor_theta}
     targets = {1: config.drives.start_r_m, 2: config.drives.start_theta_rad}
-    commands = {n: (0, Command.ENABLE_OPERATION.value) for n in NODES}
+    commands = {n: (0, DriveCommand.ENABLE_OPERATION.value) for n in NODES}
     history = []
     for _ in range(cycles):
         frames = ctl.cycle(commands)
@@ -154,7 +154,8 @@ def hold(ctl: Controller, emulator: Emulator, cycles: int) -> list[Frames]:
             position, velocity, _ = joint_state(tpdo1, motors[node_id])
             kp, kd = GAINS[node_id]
             voltage_v = max(-24.0, min(24.0, kp * (targets[node_id] - position) - kd * velocity))
-            commands[node_id] = (codec.voltage_v_to_mv(voltage_v), Command.ENABLE_OPERATION.value)
+            enable = DriveCommand.ENABLE_OPERATION.value
+            commands[node_id] = (codec.voltage_v_to_mv(voltage_v), enable)
     return history
 
 
@@ -210,9 +211,9 @@ def test_silence_faults_both_drives_within_the_watchdog_and_the_arm_brakes(rig: 
                                   2: [EmcyCode.COMMAND_WATCHDOG_TIMEOUT]}
     assert latency_s < 0.050 + 0.050  # the watchdog, plus scheduling slack on a shared VM
     for node in emulator.nodes:
-        assert node.state is State.FAULT and node.output_voltage_v == 0.0
+        assert node.state is DriveState.FAULT and node.output_voltage_v == 0.0
         (tpdo2,) = of(frames, 0x280 + node.node_id)
-        assert decode_statusword(codec.decode_tpdo2(tpdo2)[0]) is State.FAULT
+        assert decode_statusword(codec.decode_tpdo2(tpdo2)[0]) is DriveState.FAULT
     # LOCKSTEP, no SYNC, communication lost: the physics follows the wall clock at 0 V.
     theta_before = emulator.plant.theta_rad
     until_s = time.monotonic() + 0.3
@@ -234,10 +235,10 @@ def test_controller_heartbeat_loss_and_fault_reset(rig: Any) -> None:
     assert emcy_codes(frames) == {1: [EmcyCode.HEARTBEAT_LOST], 2: [EmcyCode.HEARTBEAT_LOST]}
     assert time.monotonic() - started_s >= 0.25
     ctl.send(0x70A, b"\x05")
-    ctl.cycle({n: (0, Command.FAULT_RESET.value) for n in NODES})
+    ctl.cycle({n: (0, DriveCommand.FAULT_RESET.value) for n in NODES})
     frames = ctl.cycle({})
     assert emcy_codes(frames) == {1: [EmcyCode.NO_ERROR], 2: [EmcyCode.NO_ERROR]}
-    assert all(node.state is State.SWITCH_ON_DISABLED for node in emulator.nodes)
+    assert all(node.state is DriveState.SWITCH_ON_DISABLED for node in emulator.nodes)
 
 
 def test_current_limit_write_rebuilds_the_physics_in_the_same_state(rig: Any) -> None:
@@ -295,7 +296,7 @@ def test_bad_frames_are_counted_logged_at_most_once_a_second_and_ignored() -> No
         last = [f for e, f in log.events if e == "bad_frame"][4:]
         assert [(f["node_id"], f["kind"], f["count"], f["new"]) for f in last] == [
             (1, "wrong_length", 60, 30)]
-        assert emulator.r_node.state is State.SWITCH_ON_DISABLED
+        assert emulator.r_node.state is DriveState.SWITCH_ON_DISABLED
         emulator.close()
     finally:
         controller_bus.shutdown()

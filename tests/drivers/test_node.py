@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 from drivers.node import BadInput, DriveKind, DriveNode, DriveSpec, Frame, SdoAbort
 from rakectl.core.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, joint_resolution
 from rakectl.protocol import codec
-from rakectl.protocol.cia402 import Command, State, decode_statusword
+from rakectl.protocol.cia402 import DriveCommand, DriveState, decode_statusword
 from rakectl.protocol.codec import EmcyCode, NmtCommand, NmtState
 
 NODE_ID = 1
@@ -85,11 +85,11 @@ class Bench:
         self.counter = codec.next_sync_counter(self.counter)
         return self.rx(codec.SYNC_COB_ID, codec.encode_sync(self.counter))
 
-    def rpdo(self, voltage_mv: int, command: Command | int) -> list[tuple[int, bytes]]:
-        word = command.value if isinstance(command, Command) else command
+    def rpdo(self, voltage_mv: int, command: DriveCommand | int) -> list[tuple[int, bytes]]:
+        word = command.value if isinstance(command, DriveCommand) else command
         return self.rx(RPDO1, codec.encode_rpdo(voltage_mv, word))
 
-    def cycle(self, voltage_mv: int, command: Command | int = Command.ENABLE_OPERATION
+    def cycle(self, voltage_mv: int, command: DriveCommand | int = DriveCommand.ENABLE_OPERATION
               ) -> list[tuple[int, bytes]]:
         """One control cycle: SYNC (the drive answers), then the controller's RPDO1."""
         frames = self.sync()
@@ -106,10 +106,11 @@ class Bench:
 
     def enable(self) -> None:
         self.nmt(NmtCommand.START)
-        for command in (Command.SHUTDOWN, Command.SWITCH_ON, Command.ENABLE_OPERATION):
+        for command in (DriveCommand.SHUTDOWN, DriveCommand.SWITCH_ON,
+                        DriveCommand.ENABLE_OPERATION):
             self.cycle(0, command)
         self.sync()
-        assert self.node.state is State.OPERATION_ENABLED
+        assert self.node.state is DriveState.OPERATION_ENABLED
 
 
 def make_node(**changes: Any) -> DriveNode:
@@ -131,7 +132,7 @@ def emcys(frames: Sequence[tuple[int, bytes]]) -> list[int]:
     return [codec.decode_emcy(d).code for i, d in frames if i == EMCY]
 
 
-def states(frames: Sequence[tuple[int, bytes]]) -> list[State]:
+def states(frames: Sequence[tuple[int, bytes]]) -> list[DriveState]:
     return [decode_statusword(codec.decode_tpdo2(d)[0]) for i, d in frames if i == TPDO2]
 
 
@@ -141,7 +142,7 @@ def states(frames: Sequence[tuple[int, bytes]]) -> list[State]:
 def test_boot_up_then_heartbeats_in_pre_operational(drive: Bench) -> None:
     assert drive.booted == [(HEARTBEAT, b"\x00")]
     assert drive.node.nmt is NmtState.PRE_OPERATIONAL
-    assert drive.node.state is State.SWITCH_ON_DISABLED
+    assert drive.node.state is DriveState.SWITCH_ON_DISABLED
     assert drive.at(0.099).poll() == []
     assert drive.at(0.100).poll() == [(HEARTBEAT, bytes([NmtState.PRE_OPERATIONAL]))]
     assert drive.at(0.150).poll() == []
@@ -152,7 +153,7 @@ def test_boot_up_then_heartbeats_in_pre_operational(drive: Bench) -> None:
 def test_nmt_commands_address_the_node_or_all(drive: Bench) -> None:
     assert states(drive.nmt(NmtCommand.START, 2)) == []
     assert drive.node.nmt is NmtState.PRE_OPERATIONAL
-    assert states(drive.nmt(NmtCommand.START, NODE_ID)) == [State.SWITCH_ON_DISABLED]
+    assert states(drive.nmt(NmtCommand.START, NODE_ID)) == [DriveState.SWITCH_ON_DISABLED]
     assert drive.node.nmt is NmtState.OPERATIONAL
     drive.nmt(NmtCommand.ENTER_PRE_OPERATIONAL)
     assert drive.node.nmt is NmtState.PRE_OPERATIONAL
@@ -165,12 +166,12 @@ def test_nmt_commands_address_the_node_or_all(drive: Bench) -> None:
 
 def test_pdos_only_when_operational(drive: Bench) -> None:
     assert drive.sync() == []
-    drive.rpdo(1000, Command.SHUTDOWN)
+    drive.rpdo(1000, DriveCommand.SHUTDOWN)
     assert drive.node.stats.rpdos_ignored == 1
     drive.nmt(NmtCommand.START)
     frames = drive.sync()
     assert ids(frames) == [TPDO1]
-    assert drive.node.state is State.SWITCH_ON_DISABLED  # the pre-op RPDO was dropped
+    assert drive.node.state is DriveState.SWITCH_ON_DISABLED  # the pre-op RPDO was dropped
 
 
 def test_reset_node_restores_power_on_values_and_reset_communication_only_0x1xxx(
@@ -183,7 +184,7 @@ def test_reset_node_restores_power_on_values_and_reset_communication_only_0x1xxx
     drive.enable()
     assert drive.nmt(NmtCommand.RESET_NODE) == [(HEARTBEAT, b"\x00")]
     assert drive.node.nmt is NmtState.PRE_OPERATIONAL
-    assert drive.node.state is State.SWITCH_ON_DISABLED
+    assert drive.node.state is DriveState.SWITCH_ON_DISABLED
     assert drive.node.output_voltage_v == 0.0
     assert drive.sdo(sdo_upload(0x2003)) == ("value", 20)
 
@@ -195,45 +196,47 @@ def test_controlword_takes_effect_at_the_next_sync(drive: Bench) -> None:
     drive.nmt(NmtCommand.START)
     drive.sync()
     seen = []
-    for command in (Command.SHUTDOWN, Command.SWITCH_ON, Command.ENABLE_OPERATION,
-                    Command.DISABLE_OPERATION, Command.QUICK_STOP, Command.DISABLE_VOLTAGE):
+    for command in (DriveCommand.SHUTDOWN, DriveCommand.SWITCH_ON,
+                    DriveCommand.ENABLE_OPERATION, DriveCommand.DISABLE_OPERATION,
+                    DriveCommand.QUICK_STOP, DriveCommand.DISABLE_VOLTAGE):
         before = drive.node.state
         drive.rpdo(0, command)
         assert drive.node.state is before  # synchronous RPDO: nothing before the SYNC
         seen += states(drive.sync())
-    assert seen == [State.READY_TO_SWITCH_ON, State.SWITCHED_ON, State.OPERATION_ENABLED,
-                    State.SWITCHED_ON, State.SWITCH_ON_DISABLED]  # quick stop = 10 from there
+    assert seen == [DriveState.READY_TO_SWITCH_ON, DriveState.SWITCHED_ON,
+                    DriveState.OPERATION_ENABLED, DriveState.SWITCHED_ON,
+                    DriveState.SWITCH_ON_DISABLED]  # quick stop = 10 from there
 
 
 def test_controlword_by_sdo_acts_at_once(drive: Bench) -> None:
-    assert drive.sdo(sdo_download(0x6040, 0, Command.SHUTDOWN.value, 2)) == ("ok", 0)
-    assert drive.node.state is State.READY_TO_SWITCH_ON
+    assert drive.sdo(sdo_download(0x6040, 0, DriveCommand.SHUTDOWN.value, 2)) == ("ok", 0)
+    assert drive.node.state is DriveState.READY_TO_SWITCH_ON
     assert drive.sdo(sdo_upload(0x6041)) == ("value", drive.node.statusword)
     assert drive.sdo(sdo_upload(0x6060)) == ("value", 0xFF)  # −1: voltage mode
 
 
 def test_voltage_applies_from_the_sync_after_the_rpdo(drive: Bench) -> None:
     drive.enable()
-    drive.rpdo(5000, Command.ENABLE_OPERATION)
+    drive.rpdo(5000, DriveCommand.ENABLE_OPERATION)
     assert drive.node.output_voltage_v == 0.0
     drive.sync()
     assert drive.node.output_voltage_v == pytest.approx(5.0)
     drive.sync()  # no new RPDO: the latched command stays
     assert drive.node.output_voltage_v == pytest.approx(5.0)
-    drive.rpdo(-3000, Command.DISABLE_OPERATION)
+    drive.rpdo(-3000, DriveCommand.DISABLE_OPERATION)
     drive.sync()
-    assert drive.node.state is State.SWITCHED_ON
+    assert drive.node.state is DriveState.SWITCHED_ON
     assert drive.node.output_voltage_v == 0.0  # not enabled: 0 V, bridge driven
 
 
 def test_quick_stop_applies_zero_volts_until_enabled_again(drive: Bench) -> None:
     drive.enable()
     drive.cycle(4000)
-    drive.cycle(4000, Command.QUICK_STOP)
+    drive.cycle(4000, DriveCommand.QUICK_STOP)
     drive.sync()
-    assert drive.node.state is State.QUICK_STOP_ACTIVE
+    assert drive.node.state is DriveState.QUICK_STOP_ACTIVE
     assert drive.node.output_voltage_v == 0.0
-    drive.rpdo(4000, Command.ENABLE_OPERATION)
+    drive.rpdo(4000, DriveCommand.ENABLE_OPERATION)
     drive.sync()
     assert drive.node.output_voltage_v == pytest.approx(4.0)
 
@@ -242,7 +245,7 @@ def test_command_beyond_max_voltage_is_clamped_with_one_emcy_per_episode(drive: 
     drive.enable()
     frames = []
     for voltage_mv in (30000, 32000, -30000, 1000, 25000):
-        drive.rpdo(voltage_mv, Command.ENABLE_OPERATION)
+        drive.rpdo(voltage_mv, DriveCommand.ENABLE_OPERATION)
         frames.append(drive.sync())
     assert drive.node.stats.clamped_commands == 4
     assert [emcys(f) for f in frames] == [[EmcyCode.INVALID_COMMAND], [], [],
@@ -250,7 +253,7 @@ def test_command_beyond_max_voltage_is_clamped_with_one_emcy_per_episode(drive: 
     assert drive.node.output_voltage_v == pytest.approx(24.0)
     statusword, register = codec.decode_tpdo2(next(d for i, d in frames[0] if i == TPDO2))
     assert statusword & 0x0880 == 0x0880 and register == 0x81  # warning + internal limit
-    assert drive.node.state is State.OPERATION_ENABLED  # a warning, not a fault
+    assert drive.node.state is DriveState.OPERATION_ENABLED  # a warning, not a fault
     assert drive.sdo(sdo_download(0x2001, 0, 12000, 2)) == ("ok", 0)
     assert drive.node.output_voltage_v == pytest.approx(12.0)
 
@@ -260,7 +263,7 @@ def test_command_beyond_max_voltage_is_clamped_with_one_emcy_per_episode(drive: 
 
 def _assert_watchdog_fault(frames: list[tuple[int, bytes]], drive: Bench) -> None:
     assert emcys(frames) == [EmcyCode.COMMAND_WATCHDOG_TIMEOUT]
-    assert states(frames) == [State.FAULT]
+    assert states(frames) == [DriveState.FAULT]
     assert drive.node.output_voltage_v == 0.0
     assert drive.node.fault is EmcyCode.COMMAND_WATCHDOG_TIMEOUT
     assert drive.sdo(sdo_upload(0x603F)) == ("value", EmcyCode.COMMAND_WATCHDOG_TIMEOUT)
@@ -281,7 +284,7 @@ def test_watchdog_faults_when_syncs_stop_but_rpdos_go_on(drive: Bench) -> None:
     drive.enable()
     started_s = drive.now_s  # the last SYNC
     for _ in range(30):
-        frames = drive.at(drive.now_s + 0.001).rpdo(1000, Command.ENABLE_OPERATION)
+        frames = drive.at(drive.now_s + 0.001).rpdo(1000, DriveCommand.ENABLE_OPERATION)
         frames += drive.poll()
         if frames:
             break
@@ -293,7 +296,7 @@ def test_wrong_length_rpdo_is_counted_and_does_not_feed_the_watchdog(drive: Benc
     drive.enable()
     frames: list[tuple[int, bytes]] = []
     for _ in range(25):
-        drive.rx(RPDO1, codec.encode_rpdo(1000, Command.ENABLE_OPERATION.value)[:3])
+        drive.rx(RPDO1, codec.encode_rpdo(1000, DriveCommand.ENABLE_OPERATION.value)[:3])
         frames += drive.sync()
     assert drive.node.stats.bad.counts[BadInput.WRONG_LENGTH] == 25
     assert EmcyCode.COMMAND_WATCHDOG_TIMEOUT in emcys(frames)
@@ -309,32 +312,32 @@ def test_controller_heartbeat_loss_faults_and_reset_waits_for_its_return(drive: 
     assert emcys(drive.at(1.249).poll()) == []
     frames = drive.at(1.250).poll()
     assert emcys(frames) == [EmcyCode.HEARTBEAT_LOST]
-    assert drive.node.state is State.FAULT
+    assert drive.node.state is DriveState.FAULT
     assert emcys(drive.controlword_by_sdo(0x80)) == []  # reset refused: still no heartbeat
-    assert drive.node.state is State.FAULT
+    assert drive.node.state is DriveState.FAULT
     drive.at(1.3).rx(controller_heartbeat, b"\x05")
     drive.controlword_by_sdo(0x00)
     assert emcys(drive.controlword_by_sdo(0x80)) == [EmcyCode.NO_ERROR]
-    assert drive.node.state is State.SWITCH_ON_DISABLED
+    assert drive.node.state is DriveState.SWITCH_ON_DISABLED
 
 
 def test_fault_reset_acts_on_the_rising_edge_of_bit_7(drive: Bench) -> None:
     drive.enable()
     drive.cycle(0)
     drive.at(drive.now_s + 0.05).poll()
-    assert drive.node.state is State.FAULT
+    assert drive.node.state is DriveState.FAULT
     drive.nmt(NmtCommand.START)
-    drive.rpdo(0, Command.FAULT_RESET)
+    drive.rpdo(0, DriveCommand.FAULT_RESET)
     frames = drive.sync()
     assert emcys(frames) == [EmcyCode.NO_ERROR]
     assert codec.decode_emcy(next(d for i, d in frames if i == EMCY)).error_register == 0
-    assert states(frames) == [State.SWITCH_ON_DISABLED]
+    assert states(frames) == [DriveState.SWITCH_ON_DISABLED]
     drive.rpdo(0, 0x86)  # bit 7 held, plus SHUTDOWN: no command while bit 7 stays set
     drive.sync()
-    assert drive.node.state is State.SWITCH_ON_DISABLED
-    drive.rpdo(0, Command.SHUTDOWN)
+    assert drive.node.state is DriveState.SWITCH_ON_DISABLED
+    drive.rpdo(0, DriveCommand.SHUTDOWN)
     drive.sync()
-    assert drive.node.state is State.READY_TO_SWITCH_ON
+    assert drive.node.state is DriveState.READY_TO_SWITCH_ON
 
 
 def test_overcurrent_and_hard_stop_fault_only_when_enabled(drive: Bench) -> None:
@@ -479,4 +482,4 @@ def test_print_microseconds_per_sync_of_the_protocol_alone(drive: Bench) -> None
         node.sense(1.0, 10.0, 1.0, False, 0.001)
     per_sync_us = (time.perf_counter() - started_s) / cycles * 1e6
     print(f"\nDriveNode, one drive: {per_sync_us:.1f} µs per SYNC (SYNC + RPDO1 + sense)")
-    assert node.state is State.OPERATION_ENABLED
+    assert node.state is DriveState.OPERATION_ENABLED

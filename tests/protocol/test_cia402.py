@@ -8,9 +8,9 @@ from hypothesis import strategies as st
 
 from rakectl.errors import FrameError
 from rakectl.protocol import cia402, codec
-from rakectl.protocol.cia402 import Command, State, StatusFlag
+from rakectl.protocol.cia402 import DriveCommand, DriveState, StatusFlag
 
-S, C = State, Command
+S, C = DriveState, DriveCommand
 
 # The state machine figure of CiA 402 / IEC 61800-7-201, transcribed independently
 # of the module: (number, from, command, to). 3+4 is "switch on + enable operation".
@@ -78,16 +78,16 @@ def test_automatic_transitions_are_1_and_14() -> None:
     assert cia402.settle(S.OPERATION_ENABLED) is S.OPERATION_ENABLED
 
 
-@pytest.mark.parametrize("state", list(State))
-@pytest.mark.parametrize("command", list(Command))
-def test_commands_outside_the_table_are_ignored(state: State, command: Command) -> None:
+@pytest.mark.parametrize("state", list(DriveState))
+@pytest.mark.parametrize("command", list(DriveCommand))
+def test_commands_outside_the_table_are_ignored(state: DriveState, command: DriveCommand) -> None:
     expected = cia402.TRANSITIONS.get((state, command), state)
     assert cia402.next_state(state, command) is expected
     assert cia402.next_state(state, None) is state
 
 
-@pytest.mark.parametrize("state", list(State))
-def test_a_fault_leads_to_fault_reaction_from_any_state(state: State) -> None:
+@pytest.mark.parametrize("state", list(DriveState))
+def test_a_fault_leads_to_fault_reaction_from_any_state(state: DriveState) -> None:
     faulted = cia402.on_fault(state)
     if state in (S.FAULT, S.FAULT_REACTION_ACTIVE):
         assert faulted is state
@@ -103,15 +103,15 @@ def test_disable_operation_is_switch_on_on_the_wire() -> None:
 # --------------------------------------------------------------------------- statusword
 
 
-@pytest.mark.parametrize("state", list(State))
-def test_statusword_of_every_state_decodes(state: State) -> None:
+@pytest.mark.parametrize("state", list(DriveState))
+def test_statusword_of_every_state_decodes(state: DriveState) -> None:
     for statusword in STATUSWORDS[state]:
         assert cia402.decode_statusword(statusword) is state
         assert cia402.decode_statusword(statusword | 0xFF00) is state
 
 
-@given(st.sampled_from(State), st.integers(0, 0xFFFF))
-def test_statusword_round_trip_with_any_flags(state: State, bits: int) -> None:
+@given(st.sampled_from(DriveState), st.integers(0, 0xFFFF))
+def test_statusword_round_trip_with_any_flags(state: DriveState, bits: int) -> None:
     flags = StatusFlag(bits) & (StatusFlag.VOLTAGE_ENABLED | StatusFlag.WARNING
                                 | StatusFlag.REMOTE | StatusFlag.TARGET_REACHED
                                 | StatusFlag.INTERNAL_LIMIT_ACTIVE)
@@ -149,7 +149,7 @@ def test_words_out_of_range_are_rejected(word: int) -> None:
 
 @pytest.mark.parametrize(("command", "pattern"), CONTROLWORDS)
 def test_controlword_of_each_command_fits_the_standards_pattern(
-    command: Command, pattern: str
+    command: DriveCommand, pattern: str
 ) -> None:
     assert _matches(cia402.controlword(command), pattern)
     assert cia402.decode_controlword(cia402.controlword(command), 0) is command
@@ -182,8 +182,8 @@ def test_held_fault_reset_does_not_leave_fault_twice() -> None:
 # --------------------------------------------------------------------------- bring-up
 
 
-@pytest.mark.parametrize("state", list(State))
-def test_bring_up_path_reaches_operation_enabled_by_the_table(state: State) -> None:
+@pytest.mark.parametrize("state", list(DriveState))
+def test_bring_up_path_reaches_operation_enabled_by_the_table(state: DriveState) -> None:
     path = cia402.path_to_enabled(state)
     current = cia402.settle(state)
     for command in path:
@@ -204,7 +204,7 @@ def test_bring_up_takes_every_step_explicitly() -> None:
 class ScriptedDrive:
     """The drive's side of the state machine, fed RPDO1 frames, answering TPDO2 frames."""
 
-    def __init__(self, state: State) -> None:
+    def __init__(self, state: DriveState) -> None:
         self.state, self.previous_controlword = state, 0
 
     def on_rpdo(self, frame: bytes) -> bytes:
@@ -217,8 +217,8 @@ class ScriptedDrive:
         return codec.encode_tpdo2(cia402.encode_statusword(self.state, flags), 0)
 
 
-@pytest.mark.parametrize("start", list(State))
-def test_scripted_bring_up_over_frames(start: State) -> None:
+@pytest.mark.parametrize("start", list(DriveState))
+def test_scripted_bring_up_over_frames(start: DriveState) -> None:
     drive = ScriptedDrive(start)
     frame = drive.on_rpdo(codec.encode_rpdo(0, 0))
     sent = []

@@ -32,7 +32,7 @@ from drivers.emulator import Emulator
 from rakectl.config.loader import load_settings
 from rakectl.config.settings import BusInterface, BusSettings, Settings
 from rakectl.drive.canbus import open_bus
-from rakectl.protocol.cia402 import Command, State, decode_statusword
+from rakectl.protocol.cia402 import DriveCommand, DriveState, decode_statusword
 from tests.vcan.vcan_bench import (
     CHANNEL,
     START_TIMEOUT_S,
@@ -213,13 +213,13 @@ def _check_bring_up_on_the_wire(frames: list[can.Message]) -> None:
         assert (0x1018, 2) in read  # the identity checked
         controlwords = [_decode(dbc, f)["controlword"]
                         for f in frames if f.arbitration_id == 0x200 + node]
-        sequence = [Command.SHUTDOWN.value, Command.SWITCH_ON.value,
-                    Command.ENABLE_OPERATION.value]
+        sequence = [DriveCommand.SHUTDOWN.value, DriveCommand.SWITCH_ON.value,
+                    DriveCommand.ENABLE_OPERATION.value]
         firsts = [controlwords.index(word) for word in sequence]
         assert firsts == sorted(firsts), controlwords[:20]  # 0x06, 0x07, 0x0F in that order
         statuswords = [_decode(dbc, f)["statusword"]
                        for f in frames if f.arbitration_id == 0x280 + node]
-        assert decode_statusword(statuswords[-1]) is State.OPERATION_ENABLED
+        assert decode_statusword(statuswords[-1]) is DriveState.OPERATION_ENABLED
 
 
 def _check_daemon_trace(frames: list[can.Message]) -> None:
