@@ -21,10 +21,6 @@ class NonFiniteError(RakeError, ArithmeticError):
     """A NaN or infinity reached a place where only finite numbers may be."""
 
 
-class SafetyLimitExceeded(RakeError):
-    """A safety bound was or would be exceeded."""
-
-
 class DriveFault(RakeError):
     """A drive reported a fault or behaved outside its protocol."""
 

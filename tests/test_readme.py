@@ -6,7 +6,7 @@ import re
 from pathlib import Path
 
 from rakectl.api.server import api_reference
-from rakectl.config.reference import settings_reference
+from rakectl.cli.docs import configuration_reference
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()
@@ -19,7 +19,7 @@ def _generated(name: str) -> str:
 
 
 def test_configuration_reference_is_generated_from_the_declarations() -> None:
-    assert _generated("config-reference") == settings_reference().strip(), (
+    assert _generated("config-reference") == configuration_reference().strip(), (
         "README configuration table is stale: regenerate with `rakectl config-docs`"
     )
 

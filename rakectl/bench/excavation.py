@@ -40,6 +40,7 @@ from rakectl.config.loader import load_settings
 from rakectl.config.settings import LaneSettings
 from rakectl.core.lane import LanePhase, LanePlanner
 from rakectl.core.supervision import ForceLevel
+from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim.parallel import fork_map
 from rakectl.sim.rake_plant import RakeLoop
 from rakectl.sim.scenario import Scenario
@@ -48,7 +49,6 @@ from rakectl.sim.simulate import advance_reference, build_reference
 SCENARIOS = Path(__file__).resolve().parents[2] / "config" / "scenarios"
 SOILS = ("sand", "loam", "clay")
 HARDEST_SOIL = "clay"
-FORCE_LIMIT_N = 90.0
 SPEEDUP_GOAL = 2.0  # over fixed-safe, in sand and loam
 # Stroke speeds tried for the fixed-safe baseline, fastest first (capped at the adaptive
 # controller's top speed).

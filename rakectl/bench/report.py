@@ -42,6 +42,7 @@ from rakectl.bench.loop import LoopFigures, format_loop, measure_loop
 from rakectl.bench.tick import STAGES, TickFigures, bench_tick, format_tick
 from rakectl.config.loader import load_settings
 from rakectl.errors import RakeError
+from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim.scenario import Scenario
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -104,7 +105,7 @@ def run_all(options: BenchOptions, echo: Callable[[str], None]) -> Path:
                                 progress=lambda line: echo(f"  {line}"))
     echo(format_excavation(excavation))
     options.report.mkdir(parents=True, exist_ok=True)
-    from rakectl.sim.plot import plot_excavation
+    from rakectl.bench.plot import plot_excavation
 
     for soil in SOILS:
         plot_excavation(excavation, soil, options.report / f"excavation-{soil}.png")
@@ -151,9 +152,10 @@ def table_rows(report: ExcavationReport) -> list[tuple[str, ...]]:
     return rows
 
 
+LIMIT = f"{FORCE_LIMIT_N:g} N"
 HEADER = ("soil", "controller", "time to depth", "true floor mm (shallowest)",
           "stroke m/s (mean)", "max true F_z N",
-          "ticks > 90 N", "mines fired", "max estimate N", "ticks ≥ caution",
+          f"ticks > {LIMIT}", "mines fired", "max estimate N", "ticks ≥ caution",
           "speedup vs fixed-safe")
 
 
@@ -163,7 +165,7 @@ def sweep_lines(report: ExcavationReport) -> list[str]:
               "none of the sweep's speeds was safe; the slowest was used")
     lines = [f"fixed-safe stroke speed: {chosen}: the fastest of a descending sweep in "
              f"{HARDEST_SOIL} ({SWEEP_CYCLES} cycles) whose run reached its depth with no "
-             "stall, no force stop, the estimate under the caution level, 0 ticks > 90 N, "
+             f"stall, no force stop, the estimate under the caution level, 0 ticks > {LIMIT}, "
              "no mine fired"]
     lines += [f"  {speed_of(r.job):g} m/s: {'safe' if r.safe else 'not safe'} ({why(r)})"
               for r in sweep.tried]
@@ -197,8 +199,8 @@ def adaptive_phases_line(report: ExcavationReport) -> str:
 def goal_line(report: ExcavationReport) -> str:
     speedups = ", ".join(f"{soil} {report.speedup(soil):.2f}×" for soil in SOILS)
     over = sum(report.result(soil, Controller.ADAPTIVE).ticks_over_limit for soil in SOILS)
-    return (f"adaptive vs fixed-safe: {speedups}; adaptive ticks > 90 N in all soils: {over}. "
-            f"Goal (≥ {SPEEDUP_GOAL:g}× in sand and loam, 0 ticks > 90 N everywhere): "
+    return (f"adaptive vs fixed-safe: {speedups}; adaptive ticks > {LIMIT} in all soils: {over}. "
+            f"Goal (≥ {SPEEDUP_GOAL:g}× in sand and loam, 0 ticks > {LIMIT} everywhere): "
             + ("met" if report.goal_met() else "NOT met"))
 
 
@@ -307,7 +309,7 @@ def _excavation_section(report: ExcavationReport, quick: bool) -> list[str]:
     position = [report.result(soil, Controller.POSITION) for soil in SOILS]
     over = [r for r in position if r.ticks_over_limit > 0 or r.mines_activated > 0]
     worst = max(r.f_true_z_max_n for r in position)
-    lines = ["## (d) Excavation: time to rake a lane to depth, within 90 N", ""]
+    lines = [f"## (d) Excavation: time to rake a lane to depth, within {LIMIT}", ""]
     if quick:
         lines += ["**Quick run (`--quick`): a shorter, shallower lane than the reference; "
                   "not the benchmark's figures.**", ""]
@@ -350,7 +352,7 @@ def _excavation_section(report: ExcavationReport, quick: bool) -> list[str]:
                   f"{', '.join(r.job.soil for r in over)}: largest true force {worst:.0f} N.",
                   ""]
     else:
-        lines += [f"Pure position control did **not** exceed 90 N here (largest true force "
+        lines += [f"Pure position control did **not** exceed {LIMIT} here (largest true force "
                   f"{worst:.0f} N). The emulated soil gives way at its collapse force (the "
                   f"paper's saw-tooth: {collapse} N in sand, loam and clay, ±20 % per cell), "
                   "so a tip driven into it does not build force without bound, and the clamp "

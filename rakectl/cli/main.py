@@ -120,8 +120,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def _plot(settings: Scenario, result: SimulationResult, path: Path, title: str) -> None:
-    from rakectl.config.settings import PlantKind, TrajectoryKind
     from rakectl.sim.plot import plot_lane, plot_paper_panels
+    from rakectl.sim.scenario import PlantKind, TrajectoryKind
 
     if settings.plant.kind is PlantKind.RAKE and settings.trajectory.kind is TrajectoryKind.LANE:
         mines = [(m.reach_m, m.depth_m, m.width_m, m.thickness_m)
@@ -132,9 +132,9 @@ def _plot(settings: Scenario, result: SimulationResult, path: Path, title: str) 
 
 
 def _cmd_config_docs(args: argparse.Namespace) -> int:
-    from rakectl.config.reference import settings_reference
+    from rakectl.cli.docs import configuration_reference
 
-    print(settings_reference())
+    print(configuration_reference())
     return 0
 
 
@@ -172,8 +172,9 @@ def _cmd_bench_parts(args: argparse.Namespace, report: Path) -> int:
         return 0
     if args.excavation:
         from rakectl.bench.excavation import FULL, QUICK, SOILS, run_excavation
+        from rakectl.bench.plot import plot_excavation
         from rakectl.bench.report import format_excavation
-        from rakectl.sim.plot import plot_excavation, pyplot
+        from rakectl.sim.plot import pyplot
 
         pyplot()  # fail before the work, not after it
         result = run_excavation(QUICK if args.quick else FULL, args.workers,
@@ -202,7 +203,7 @@ def _echo_progress(line: str) -> None:
 
 
 def _cmd_api_docs(args: argparse.Namespace) -> int:
-    from rakectl.api.server import api_reference
+    from rakectl.cli.docs import api_reference
 
     print(api_reference())
     return 0
@@ -233,8 +234,6 @@ def _cmd_emulator(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from rakectl.errors import ApiError
-
     commands: dict[str, Callable[[argparse.Namespace], int]] = {
         "simulate": _cmd_simulate, "config-docs": _cmd_config_docs, "bench": _cmd_bench,
         "api-docs": _cmd_api_docs,
@@ -249,19 +248,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         elif extra:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
         return {**commands, **ops}[args.command](args)
-    except ApiError as exc:
-        print(f"rakectl: error: {exc}", file=sys.stderr)
-        return EXIT_FAILURE
-    except TimeoutError as exc:
-        print(f"rakectl: error: {exc}", file=sys.stderr)
-        return EXIT_FAILURE
     except ConfigError as exc:
         print(f"rakectl: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    except RakeError as exc:
-        print(f"rakectl: error: {exc}", file=sys.stderr)
-        return EXIT_FAILURE
-    except OSError as exc:
+    except (RakeError, OSError) as exc:  # OSError: TimeoutError and socket errors included
         print(f"rakectl: error: {exc}", file=sys.stderr)
         return EXIT_FAILURE
     except KeyboardInterrupt:

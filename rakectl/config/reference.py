@@ -1,14 +1,12 @@
-"""The configuration reference, rendered from the declarations in rakectl.config.settings."""
+"""The configuration reference: Markdown tables rendered from the options' declarations."""
 
 from __future__ import annotations
 
 import dataclasses
 import enum
 import typing
-from collections.abc import Iterator
+from collections.abc import Collection, Iterable, Iterator
 from typing import Any
-
-from rakectl.config.settings import Settings
 
 
 def _type_name(tp: Any) -> str:
@@ -27,17 +25,21 @@ def _show(value: Any) -> str:
     return f"`{value:g}`" if isinstance(value, float) else f"`{value}`"
 
 
-def rows(cls: type = Settings, prefix: str = "", instance: Any = None
-         ) -> Iterator[tuple[str, ...]]:
+def rows(cls: type, prefix: str = "", instance: Any = None,
+         skip: Collection[str] = ()) -> Iterator[tuple[str, ...]]:
     """(key, type, default, unit, bounds, doc) for every option below ``cls``.
 
     Defaults are read from ``instance`` (the section's default as its parent
     declares it, e.g. the r motor's), else from a default-constructed ``cls``.
+    Top-level fields named in ``skip`` are left out (a root that extends another
+    documents only what it adds).
     """
     hints = typing.get_type_hints(cls)
     if instance is None:
         instance = cls()
     for f in dataclasses.fields(cls):
+        if f.name in skip:
+            continue
         tp = hints[f.name]
         value = getattr(instance, f.name)
         item = typing.get_args(tp)[0] if typing.get_origin(tp) is tuple else None
@@ -51,19 +53,13 @@ def rows(cls: type = Settings, prefix: str = "", instance: Any = None
             yield from rows(item, f"{prefix}{f.name}[].")  # type: ignore[arg-type]
 
 
-def _table(cls: type, prefix: str = "") -> str:
+def table(cls: type, prefix: str = "", skip: Collection[str] = ()) -> str:
+    """A Markdown table of every option below ``cls``, keys prefixed with ``prefix``."""
     lines = ["| key | type | default | unit | bounds | meaning |", "|---|---|---|---|---|---|"]
-    lines += ["| " + " | ".join(row) + " |" for row in rows(cls, prefix)]
+    lines += ["| " + " | ".join(row) + " |" for row in rows(cls, prefix, skip=skip)]
     return "\n".join(lines)
 
 
-def settings_reference() -> str:
-    """Markdown reference of the controller's settings and of the emulator's."""
-    from drivers.settings import EmulatorSettings
-
-    return "\n".join([
-        "### Controller (`rakectl.yaml`, and every scenario)", "",
-        _table(Settings), "",
-        "### Emulated hardware (scenarios and the emulator: `emulator.…`)", "",
-        _table(EmulatorSettings, "emulator."),
-    ])
+def reference(parts: Iterable[tuple[str, str]]) -> str:
+    """(title, table) pairs as one Markdown document, a level-3 heading each."""
+    return "\n\n".join(f"### {title}\n\n{body}" for title, body in parts)

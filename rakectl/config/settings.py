@@ -12,18 +12,12 @@ from dataclasses import dataclass
 
 from rakectl.config.declare import Bounds, has_default, section, setting
 from rakectl.core.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, MotorParams
+from rakectl.limits import FORCE_LIMIT_N
 
 __all__ = ["Bounds", "has_default", "section", "setting"]  # re-exported declaration helpers
 
 
 # --------------------------------------------------------------------------- kinds
-
-
-class PlantKind(enum.StrEnum):
-    """What ``rakectl simulate`` closes the loop around."""
-
-    FIRST_ORDER = "first_order"  # the paper's P(s) = 1/(τs + 1) on the vertical axis
-    RAKE = "rake"  # motors, arm and soil models of drivers/
 
 
 class BusInterface(enum.StrEnum):
@@ -42,23 +36,7 @@ class RtModeSetting(enum.StrEnum):
     OFF = "off"  # do not try (tests, development)
 
 
-class TrajectoryKind(enum.StrEnum):
-    RAMP = "ramp"  # x_d = start + speed · (t − t0) for t ≥ t0, at a fixed reach
-    STEP = "step"  # x_d = start + amplitude for t ≥ t0, at a fixed reach
-    LANE = "lane"  # raking strokes over a lane, deeper each cycle (paper Fig. 3)
-
-
 # --------------------------------------------------------------------------- sections
-
-
-@dataclass(frozen=True)
-class PlantSettings:
-    """The plant of an offline simulation."""
-
-    kind: PlantKind = setting(PlantKind.FIRST_ORDER, "Plant model: first_order or rake.")
-    time_constant_s: float = setting(
-        0.2, "Time constant τ of the first-order position loop P(s) = 1/(τs+1).", unit="s", gt=0
-    )
 
 
 @dataclass(frozen=True)
@@ -88,19 +66,6 @@ class EstimatorSettings:
     max_delay_s: float = setting(
         0.5, "Longest α the position history can serve (sizes the ring).", unit="s", gt=0, le=5.0
     )
-
-
-@dataclass(frozen=True)
-class TrajectorySettings:
-    """Desired vertical trajectory x_d(t) (depth into the soil, positive down)."""
-
-    kind: TrajectoryKind = setting(TrajectoryKind.RAMP, "ramp or step.")
-    start_m: float = setting(0.0, "x_d before the trajectory starts.", unit="m", ge=-1, le=1)
-    start_time_s: float = setting(0.0, "When the ramp or step starts.", unit="s", ge=0)
-    speed_m_per_s: float = setting(0.007, "Ramp speed.", unit="m/s", ge=-1, le=1)
-    amplitude_m: float = setting(0.01, "Step height.", unit="m", ge=-1, le=1)
-    reach_m: float = setting(1.0, "Horizontal reach of the tip for ramp and step.", unit="m",
-                             gt=0, le=10)
 
 
 @dataclass(frozen=True)
@@ -251,8 +216,8 @@ class ClampSettings:
     """The voltage clamp: the last stage before a voltage is encoded (see rakectl.core.clamp)."""
 
     force_limit_n: float = setting(
-        90.0, "Worst-case static vertical tip force the clamp allows. May be lowered, never "
-        "raised above 90 N (pressure-fused mines).", unit="N", gt=0, le=90)
+        FORCE_LIMIT_N, "Worst-case static vertical tip force the clamp allows. May be lowered, "
+        "never raised above 90 N (pressure-fused mines).", unit="N", gt=0, le=FORCE_LIMIT_N)
     model_margin: float = setting(
         0.2, "Share of force_limit_n kept back for model error (masses, friction, k_t, η).",
         ge=0.05, lt=1)
@@ -288,10 +253,10 @@ class SupervisionSettings:
 
     caution_force_n: float = setting(
         55.0, "Above this estimated vertical force the motion holds still (no advance).",
-        unit="N", gt=0, lt=90)
+        unit="N", gt=0, lt=FORCE_LIMIT_N)
     hard_force_n: float = setting(
         75.0, "Above this the motion stops and the tip backs off upward; must stay below 90 N.",
-        unit="N", gt=0, lt=90)
+        unit="N", gt=0, lt=FORCE_LIMIT_N)
     back_off_m: float = setting(0.01, "How far the tip backs off upward on the hard level.",
                                 unit="m", gt=0, le=0.1)
     current_filter_s: float = setting(
@@ -361,12 +326,10 @@ class DaemonSettings:
 
 @dataclass(frozen=True)
 class Settings:
-    """Root of the configuration: a scenario or the daemon's configuration file."""
+    """Root of the daemon's configuration file (a scenario adds the simulation's own sections)."""
 
-    plant: PlantSettings = section(PlantSettings)
     impedance: ImpedanceSettings = section(ImpedanceSettings)
     estimator: EstimatorSettings = section(EstimatorSettings)
-    trajectory: TrajectorySettings = section(TrajectorySettings)
     lane: LaneSettings = section(LaneSettings)
     jog: JogSettings = section(JogSettings)
     geometry: GeometrySettings = section(GeometrySettings)
@@ -377,8 +340,8 @@ class Settings:
     bus: BusSettings = section(BusSettings)
     drives: DrivesSettings = section(DrivesSettings)
     daemon: DaemonSettings = section(DaemonSettings)
-    desired_force_n: float = setting(0.0, "Desired contact force F_d.", unit="N", ge=-90, le=90)
-    duration_s: float = setting(20.0, "Length of a simulation.", unit="s", gt=0, le=3600)
+    desired_force_n: float = setting(0.0, "Desired contact force F_d.", unit="N",
+                                     ge=-FORCE_LIMIT_N, le=FORCE_LIMIT_N)
     rate_hz: float = setting(1000.0, "Control loop rate.", unit="Hz", ge=10, le=10000)
 
     def cross_checks(self) -> list[tuple[str, str]]:

@@ -77,6 +77,7 @@ from rakectl.core.motor_model import (
     joint_resolution,
     reflected_inertia,
 )
+from rakectl.limits import FORCE_LIMIT_N
 
 
 @dataclass(frozen=True)
@@ -137,8 +138,8 @@ class VoltageClamp:
 
     def __init__(self, clamp: ClampSettings, motor_r: MotorParams, motor_theta: MotorParams,
                  dt_s: float) -> None:
-        if clamp.force_limit_n > 90.0:
-            raise ValueError("clamp.force_limit_n may not exceed 90 N")
+        if clamp.force_limit_n > FORCE_LIMIT_N:
+            raise ValueError(f"clamp.force_limit_n may not exceed {FORCE_LIMIT_N:g} N")
         self._limit_n = clamp.force_limit_n * (1.0 - clamp.model_margin)
         self.limit_n = self._limit_n  # the bound on the worst case (limit less the margin)
         self._r = _Joint.of(motor_r, clamp, dt_s)

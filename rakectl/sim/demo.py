@@ -17,6 +17,7 @@ from typing import Any
 
 from rakectl.api.operator import follow_excavation
 from rakectl.errors import RakeError
+from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim.rig import emulated_bench, namespaces_unavailable
 
 CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
@@ -100,7 +101,7 @@ def _report(summary: dict[str, Any], out: Path, as_json: bool) -> None:
         f"cycle(s)",
         f"object found       {where}",
         f"max vertical force estimated {summary['f_hat_z_max_n']:.1f} N, true "
-        f"{summary['f_true_z_max_n']:.1f} N (limit 90 N)",
+        f"{summary['f_true_z_max_n']:.1f} N (limit {FORCE_LIMIT_N:g} N)",
         f"mine activated     {'YES' if summary['mine_activated'] else 'no'}",
         f"plot               {out / 'demo.png'}",
     ]

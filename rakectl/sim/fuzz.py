@@ -49,16 +49,16 @@ import numpy as np
 
 from drivers.objects import BuriedObjects, GroundParams, MineParams, RootParams, StoneParams
 from drivers.soil import SoilLayer, SoilParams, SurfaceWave, original_surface_height_m
-from rakectl.config.settings import LaneSettings, PlantKind, PlantSettings, TrajectoryKind
+from rakectl.config.settings import LaneSettings
 from rakectl.core.clamp import VoltageClamp
 from rakectl.core.lane import LanePlanner
+from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim.parallel import fork_map
 from rakectl.sim.progress import Progress
 from rakectl.sim.rake_plant import RakeLoop
-from rakectl.sim.scenario import Scenario
+from rakectl.sim.scenario import PlantKind, PlantSettings, Scenario, TrajectoryKind
 from rakectl.sim.simulate import HOLD_AFTER_DONE_S, Reference
 
-FORCE_LIMIT_N = 90.0  # pressure-fused mines: the requirement that must never fail
 PLUNGE_END_DEPTH_M = 0.15
 LANE_DURATION_S = 12.0  # cap of one lane or stroke case (simulated)
 WORST_CASE_FILE = "worst-case.json"

@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 from typing import Protocol
 
-from rakectl.config.settings import Settings
 from rakectl.core.control import build_impedance
+from rakectl.sim.scenario import Scenario
 
 BASE_COLUMNS = ("x_ref_m", "x_m", "x_e_hat_m", "x_c_m", "f_hat_n")
 
@@ -43,7 +43,7 @@ class FirstOrderLoop:
 
     columns: tuple[str, ...] = ()
 
-    def __init__(self, settings: Settings, x0_m: float) -> None:
+    def __init__(self, settings: Scenario, x0_m: float) -> None:
         dt_s = 1.0 / settings.rate_hz
         self.controller = build_impedance(settings)
         self._decay = math.exp(-dt_s / settings.plant.time_constant_s)

@@ -18,11 +18,11 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
-from rakectl.config.settings import PlantKind, Settings, TrajectoryKind
 from rakectl.core.lane import LanePlanner
 from rakectl.core.supervision import ForceLevel
 from rakectl.errors import NonFiniteError
 from rakectl.sim.plants import BASE_COLUMNS, ClosedLoop, FirstOrderLoop
+from rakectl.sim.scenario import PlantKind, Scenario, TrajectoryKind
 from rakectl.sim.trajectory import TrajectoryReference
 
 ProgressCallback = Callable[[int, int], None]
@@ -108,7 +108,7 @@ class SimulationResult:
         }
 
 
-def build_reference(settings: Settings) -> Reference:
+def build_reference(settings: Scenario) -> Reference:
     dt_s = 1.0 / settings.rate_hz
     if settings.trajectory.kind is TrajectoryKind.LANE:
         lane = settings.lane
@@ -116,18 +116,15 @@ def build_reference(settings: Settings) -> Reference:
     return TrajectoryReference(settings.trajectory, dt_s)
 
 
-def build_loop(settings: Settings, reference: Reference) -> ClosedLoop:
+def build_loop(settings: Scenario, reference: Reference) -> ClosedLoop:
     if settings.plant.kind is PlantKind.FIRST_ORDER:
         return FirstOrderLoop(settings, reference.depth_m)
-    from rakectl.sim.rake_plant import RakeLoop  # the emulator's physics, for simulation only
-    from rakectl.sim.scenario import Scenario
+    from rakectl.sim.rake_plant import RakeLoop  # the emulator's physics, loaded only for it
 
-    if not isinstance(settings, Scenario):
-        raise TypeError("plant kind rake needs a Scenario (controller + emulator settings)")
     return RakeLoop(settings, reference.reach_m, reference.depth_m)
 
 
-def run(settings: Settings, progress: ProgressCallback | None = None) -> SimulationResult:
+def run(settings: Scenario, progress: ProgressCallback | None = None) -> SimulationResult:
     """Simulate at ``settings.rate_hz`` for ``duration_s`` (or until a lane is done)."""
     reference = build_reference(settings)
     loop = build_loop(settings, reference)

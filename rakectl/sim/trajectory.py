@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from rakectl.config.settings import TrajectoryKind, TrajectorySettings
+from rakectl.sim.scenario import TrajectoryKind, TrajectorySettings
 
 
 def desired_position_m(traj: TrajectorySettings, t_s: float) -> float:

@@ -91,7 +91,7 @@ def test_position_control_has_no_force_estimate_from_the_delay(excavation: Any) 
 
 @pytest.mark.slow
 def test_plots_and_the_report_file(excavation: Any, tmp_path: Path) -> None:
-    from rakectl.sim.plot import plot_excavation
+    from rakectl.bench.plot import plot_excavation
 
     plot_excavation(excavation, "clay", tmp_path / "clay.png")
     assert (tmp_path / "clay.png").stat().st_size > 10_000

@@ -6,10 +6,11 @@ from pathlib import Path
 
 import pytest
 
+from rakectl.cli.docs import configuration_reference
 from rakectl.config.loader import load_settings
-from rakectl.config.reference import settings_reference
-from rakectl.config.settings import PlantKind, Settings
+from rakectl.config.settings import Settings
 from rakectl.errors import ConfigError
+from rakectl.sim.scenario import PlantKind, Scenario
 
 
 def _write(tmp_path: Path, text: str) -> Path:
@@ -20,7 +21,7 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 def _error(path: Path | None, overrides: tuple[str, ...] = ()) -> str:
     with pytest.raises(ConfigError) as info:
-        load_settings(path, overrides)
+        load_settings(path, overrides, root=Scenario)
     message = str(info.value)
     assert "\n" not in message
     return message
@@ -35,10 +36,19 @@ def test_defaults_load_and_are_frozen() -> None:
 
 def test_scenario_file_loads(tmp_path: Path) -> None:
     path = _write(tmp_path, "plant:\n  kind: first_order\n  time_constant_s: 0.1\nrate_hz: 500\n")
-    settings = load_settings(path)
+    settings = load_settings(path, root=Scenario)
     assert settings.plant.kind is PlantKind.FIRST_ORDER
     assert settings.plant.time_constant_s == 0.1
     assert settings.rate_hz == 500.0
+
+
+@pytest.mark.parametrize("section", ["plant:\n  kind: rake\n", "trajectory:\n  kind: step\n",
+                                     "duration_s: 5\n", "emulator:\n  seed: 1\n"])
+def test_the_daemons_configuration_has_no_simulation_sections(tmp_path: Path,
+                                                              section: str) -> None:
+    with pytest.raises(ConfigError, match="is not a known option"):
+        load_settings(_write(tmp_path, section))
+    load_settings(_write(tmp_path, section), root=Scenario)
 
 
 def test_number_literals_yaml_1_1_would_read_as_strings(tmp_path: Path) -> None:
@@ -101,8 +111,6 @@ def test_bad_overrides_are_named(override: str, expected: str) -> None:
 
 
 def test_overrides_can_give_lists_of_sections() -> None:
-    from rakectl.sim.scenario import Scenario
-
     settings = load_settings(
         None, ["emulator.ground.objects.mines=[{reach_m: 1.0, depth_m: 0.06}]"], root=Scenario
     )
@@ -129,11 +137,12 @@ def test_yaml_1_1_booleans_map_back_to_enum_words(tmp_path: Path) -> None:
 
 def test_overrides_apply_on_top_of_the_file(tmp_path: Path) -> None:
     path = _write(tmp_path, "estimator:\n  delay_s: 0.02\n")
-    settings = load_settings(path, ["estimator.delay_s=0.03", "plant.kind=first_order"])
+    settings = load_settings(path, ["estimator.delay_s=0.03", "plant.kind=first_order"],
+                             root=Scenario)
     assert settings.estimator.delay_s == 0.03
 
 
 def test_reference_lists_every_option_with_unit_and_bounds() -> None:
-    text = settings_reference()
+    text = configuration_reference()
     assert "| impedance.damping_ns_per_m | float | `13300` | N·s/m | > 0, ≤ 1e+08 |" in text
     assert "| plant.kind | first_order \\| rake | `first_order` |" in text

@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from rakectl.config.loader import load_settings
 from rakectl.core.impedance import DelayForceEstimator, ImpedanceFilter
 from rakectl.errors import ConfigError
+from rakectl.sim.scenario import Scenario
 from rakectl.sim.simulate import run
 from tests.reference import LoopParams, solve
 
@@ -40,7 +41,7 @@ def test_discrete_loop_matches_continuous_solution(params: LoopParams) -> None:
     Measured: ≤ 5.4 µm and ≤ 3.1 %; the rest is the 1 ms sample-and-hold."""
     reference = solve(params, fine_step_s=1e-5 if params.duration_s <= 10 else 2e-5,
                       sample_every_s=1e-3)
-    result = run(load_settings(None, _overrides(params)))
+    result = run(load_settings(None, _overrides(params), root=Scenario))
     n = min(len(reference["t_s"]), len(result.data))
     x_error = np.abs(result.column("x_m")[:n] - reference["x_m"][:n])
     f_error = np.abs(result.column("f_hat_n")[:n] - reference["f_hat_n"][:n])
@@ -56,7 +57,7 @@ def test_discrete_loop_matches_continuous_solution(params: LoopParams) -> None:
 
 
 def test_paper_figures() -> None:
-    summary = run(load_settings("config/scenarios/paper-fig5.yaml")).summary()
+    summary = run(load_settings("config/scenarios/paper-fig5.yaml", root=Scenario)).summary()
     assert summary["f_hat_final_n"] == pytest.approx(14.00, abs=0.05)
     assert summary["tracking_error_final_m"] == pytest.approx(2.80e-3, abs=0.02e-3)
     assert summary["ticks"] == 20_000
