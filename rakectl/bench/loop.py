@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from rakectl.api.server import Client
-from rakectl.bench.wakeup import run_cyclictest
+from rakectl.bench.cyclictest import run_cyclictest
 from rakectl.errors import RakeError
 from rakectl.sim.rig import emulated_bench, namespaces_unavailable
 

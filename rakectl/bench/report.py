@@ -331,7 +331,7 @@ def _excavation_section(report: ExcavationReport, quick: bool) -> list[str]:
               "the last stroke really took there times its margin there under those set "
               f"points (at most doubled), from {lane.depth_step_m * 1e3:g} to "
               f"{lane.max_depth_step_m * 1e3:g} mm, deeper far from the robot, and strokes "
-              "start where the lane is not yet done (`rakectl.core.lane.CutProfile`); the "
+              "start where the lane is not yet done (`rakectl.core.cut_profile.CutProfile`); the "
               "plunge's speed follows the same "
               f"force set point from {lane.plunge_speed_m_per_s * 1e3:g} up to "
               f"{lane.max_plunge_speed_m_per_s * 1e3:g} mm/s.",

@@ -18,35 +18,23 @@ asserted: these machines are shared and noisy.
 from __future__ import annotations
 
 import argparse
-import math
-import shutil
-import struct
-import subprocess
 import sys
-import tempfile
 import time
-import tracemalloc
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import nullcontext
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from rakectl.daemon.recorder import FlightRecorder
+from rakectl.bench.cyclictest import NS_PER_US, merge_cyclictest, run_cyclictest
+from rakectl.bench.recording import bench_dump, bench_hot_paths
 from rakectl.daemon.rt import GcMonitor, RtMode, RtRequest, apply_rt, no_gc, revert_rt
 from rakectl.daemon.timing import (
     DEFAULT_SPIN_THRESHOLD_S,
-    PERCENTILES,
     TickTimer,
     TimingStats,
-    nearest_rank,
     percentiles_ns,
 )
-
-CYCLICTEST_HISTOGRAM_US = 20_000
-NS_PER_US = 1000
-
 
 # --- our loop ------------------------------------------------------------------------------
 
@@ -146,219 +134,6 @@ def make_garbage() -> None:
     """A load that leaves a reference cycle per tick, for the cyclic collector to find."""
     node: list[Any] = [None] * 8
     node[0] = node
-
-
-# --- cyclictest ----------------------------------------------------------------------------
-
-
-def run_cyclictest(
-    duration_s: float,
-    *,
-    priority: int = 80,
-    interval_us: int = 1000,
-    why_not: Callable[[str], None] | None = None,
-) -> dict[str, Any] | None:
-    """Run ``cyclictest -m -p <priority> -i <interval>`` for ``duration_s`` (whole seconds).
-
-    Percentiles come from its histogram (1 µs buckets). Returns None when it is
-    absent or fails, after passing the reason to ``why_not`` (default: stderr).
-    """
-    explain = why_not if why_not is not None else _print_to_stderr
-    executable = shutil.which("cyclictest")
-    if executable is None:
-        explain("cyclictest not found: apt-get install -y rt-tests")
-        return None
-    seconds = max(1, math.ceil(duration_s))
-    with tempfile.TemporaryDirectory(prefix="rakectl-cyclictest-") as directory:
-        histfile = Path(directory) / "histogram.txt"
-        command = [
-            executable, "-m", "-p", str(priority), "-i", str(interval_us), "-q",
-            "-D", str(seconds), "-h", str(CYCLICTEST_HISTOGRAM_US), f"--histfile={histfile}",
-        ]  # fmt: skip
-        try:
-            done = subprocess.run(command, capture_output=True, text=True, timeout=seconds + 30)
-        except (OSError, subprocess.TimeoutExpired) as exc:
-            explain(f"cyclictest did not run: {exc}")
-            return None
-        if done.returncode != 0 or not histfile.exists():
-            explain(f"cyclictest failed (exit {done.returncode}): {done.stderr.strip()[-300:]}")
-            return None
-        result = parse_cyclictest_histogram(histfile.read_text().splitlines())
-    return result | {"label": f"cyclictest -m -p {priority} -i {interval_us}"}
-
-
-def _print_to_stderr(reason: str) -> None:
-    print(f"cyclictest: {reason}", file=sys.stderr)
-
-
-def parse_cyclictest_histogram(lines: Iterable[str]) -> dict[str, Any]:
-    """Percentiles (nearest rank, in ns) from cyclictest's ``--histfile`` of one thread."""
-    counts = np.zeros(CYCLICTEST_HISTOGRAM_US, dtype=np.int64)
-    footer: dict[str, int] = {}
-    for line in lines:
-        if line.startswith("#"):
-            key, _, value = line[1:].partition(":")
-            if value.strip().isdigit():
-                footer.setdefault(key.strip(), int(value))
-        elif line.strip():
-            bucket_us, count = line.split()[:2]
-            if int(bucket_us) < counts.size:
-                counts[int(bucket_us)] = int(count)
-    overflows = footer.get("Histogram Overflows", 0)
-    return _cyclictest_summary(counts, overflows, footer.get("Max Latencies", 0) * NS_PER_US)
-
-
-def _cyclictest_summary(counts: np.ndarray, overflows: int, max_ns: int) -> dict[str, Any]:
-    return {
-        "samples": int(counts.sum()) + overflows,
-        "latency_ns": _histogram_percentiles_ns(counts, overflows, max_ns),
-        "overflows": overflows,
-        "max_ns": max_ns,
-        "counts": counts,
-    }
-
-
-def merge_cyclictest(runs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """One summary of several cyclictest runs (their histograms added)."""
-    counts = np.sum([run["counts"] for run in runs], axis=0)
-    overflows = sum(run["overflows"] for run in runs)
-    merged = _cyclictest_summary(counts, overflows, max(run["max_ns"] for run in runs))
-    return merged | {"label": runs[0].get("label", "cyclictest")}
-
-
-def _histogram_percentiles_ns(counts: np.ndarray, overflows: int, max_ns: int) -> dict[str, int]:
-    """Like `percentiles_ns` on the samples; a rank inside the overflow reads as the max."""
-    total = int(counts.sum()) + overflows
-    cumulative = np.cumsum(counts)
-    result: dict[str, int] = {}
-    for name, per_mille in PERCENTILES:
-        bucket = int(np.searchsorted(cumulative, nearest_rank(per_mille, total)))
-        result[name] = bucket * NS_PER_US if bucket < counts.size else max_ns
-    result["max"] = max_ns
-    return result
-
-
-# --- hot paths -----------------------------------------------------------------------------
-
-
-def _per_call_us(run: Callable[[int], None], calls: int) -> float:
-    """Best of 5 runs of ``run(calls)``, per call, in µs."""
-    best_s = math.inf
-    for _ in range(5):
-        start_s = time.perf_counter()
-        run(calls)
-        best_s = min(best_s, time.perf_counter() - start_s)
-    return best_s / calls * 1e6
-
-
-def _allocation(run: Callable[[int], None], calls: int) -> tuple[float, int]:
-    """(bytes kept per call, peak bytes above the start) of ``run``, traced by tracemalloc.
-
-    Bytes kept per call compare ``calls`` with ``10 × calls``: the few objects a
-    write replaces (a counter's int) cancel out, a per-call leak does not.
-    """
-    run(calls)
-    tracemalloc.start()
-    try:
-        start_bytes = tracemalloc.get_traced_memory()[0]
-        tracemalloc.reset_peak()
-        run(calls)
-        short_bytes = tracemalloc.get_traced_memory()[0]
-        run(10 * calls)
-        long_bytes, peak_bytes = tracemalloc.get_traced_memory()
-    finally:
-        tracemalloc.stop()
-    return (long_bytes - short_bytes) / (10 * calls), peak_bytes - start_bytes
-
-
-def _record_row_variants(columns: int, capacity: int) -> dict[str, Callable[[int], None]]:
-    """Ways to write one row of a float64 ring, each run ``calls`` times in a loop."""
-    recorder = FlightRecorder(tuple(f"c{j}" for j in range(columns)), capacity)
-    data = np.zeros((capacity, columns))
-    row_views = list(data)
-    raw = data.data.cast("B")
-    pack_into = struct.Struct(f"={columns}d").pack_into
-    values = tuple(0.1 * j for j in range(columns))
-    index = [k % capacity for k in range(capacity * 4)]
-
-    def loop_only(calls: int) -> None:
-        for k in range(calls):
-            index[k % len(index)]
-
-    def record_row(calls: int) -> None:
-        write = recorder.record_row
-        for _ in range(calls):
-            write(values)
-
-    def ndarray_setitem(calls: int) -> None:
-        for k in range(calls):
-            data[index[k % len(index)]] = values
-
-    def row_view_slice(calls: int) -> None:
-        for k in range(calls):
-            row_views[index[k % len(index)]][:] = values
-
-    def struct_pack_into(calls: int) -> None:
-        for k in range(calls):
-            pack_into(raw, index[k % len(index)] * columns * 8, *values)
-
-    return {
-        "FlightRecorder.record_row (struct.pack_into, ring index kept)": record_row,
-        "ndarray[i] = tuple": ndarray_setitem,
-        "row_view[:] = tuple": row_view_slice,
-        "struct.pack_into(memoryview, offset, *tuple)": struct_pack_into,
-        "loop alone (the index lookup the variants below share)": loop_only,
-    }
-
-
-def bench_hot_paths(calls: int = 100_000, columns: int = 12) -> str:
-    """µs per call and allocations of the recorder's and the stats' hot-path writes."""
-    lines = [f"hot paths, {calls} calls, best of 5, {columns} columns (µs per call incl. loop):"]
-    with no_gc():
-        for name, run in _record_row_variants(columns, 2000).items():
-            lines.append(_hot_path_line(name, run, calls))
-        stats = TimingStats(1e-3, window_s=60.0)
-
-        def record(calls: int) -> None:
-            write = stats.record
-            for k in range(calls):
-                write(1_000_000 * k, 40_000, 12_000, 0)
-
-        lines.append(_hot_path_line("TimingStats.record", record, calls))
-    return "\n".join(lines)
-
-
-def bench_dump(rows: int = 2000, columns: int = 12, budget_s: float = 200e-6) -> str:
-    """How a `DumpWriter` of ``rows`` shares out over `work` calls of ``budget_s`` each."""
-    recorder = FlightRecorder(tuple(f"c{j}" for j in range(columns)), rows)
-    rng = np.random.default_rng(0)
-    for row in rng.normal(size=(rows, columns)).tolist():
-        recorder.record_row(row)
-    with tempfile.TemporaryDirectory(prefix="rakectl-dump-") as directory:
-        start_s = time.perf_counter()
-        writer = recorder.start_dump(Path(directory) / "dump.csv")
-        snapshot_s = time.perf_counter() - start_s
-        call_ns: list[int] = []
-        done = False
-        while not done:
-            start_ns = time.perf_counter_ns()
-            done = writer.work(budget_s)
-            call_ns.append(time.perf_counter_ns() - start_ns)
-    per_call = percentiles_ns(np.array(call_ns, dtype=np.int64))
-    return (
-        f"dump of {rows} rows × {columns} columns: snapshot {snapshot_s * 1e6:.0f} µs, then "
-        f"{len(call_ns)} work({budget_s * 1e6:.0f} µs) calls taking p50 "
-        f"{per_call['p50'] / 1e3:.0f} µs, p99 {per_call['p99'] / 1e3:.0f} µs, max "
-        f"{per_call['max'] / 1e3:.0f} µs"
-    )
-
-
-def _hot_path_line(name: str, run: Callable[[int], None], calls: int) -> str:
-    kept_per_call, peak = _allocation(run, calls)
-    return (
-        f"  {_per_call_us(run, calls):6.3f} µs  {name}  "
-        f"[memory kept {abs(kept_per_call):.4f} B/call, peak +{peak} B]"
-    )
 
 
 # --- report --------------------------------------------------------------------------------

@@ -15,11 +15,11 @@ between ``plunge_speed_m_per_s`` and ``max_plunge_speed_m_per_s``. Nor is the
 depth of cut: each cycle's step is the last one's scaled by the last stroke's margin
 (:func:`~rakectl.core.governor.next_depth_step_m`), from ``depth_step_m`` up to
 ``max_depth_step_m``: soft soil in few deep cuts, hard soil in many shallow ones.
-That law runs per bin of reach (:class:`CutProfile`): each bin's next cut follows the
-force and lag met there and the floor the tip really left there, so where the arm
-holds the tine down well (far from the robot) the lane goes down in deep cuts while
-near the robot it goes in shallow ones; once the far part is at the target depth the
-strokes start where the lane is not yet done (partial strokes).
+That law runs per bin of reach (:mod:`rakectl.core.cut_profile`): each bin's next cut
+follows the force and lag met there and the floor the tip really left there, so where
+the arm holds the tine down well (far from the robot) the lane goes down in deep cuts
+while near the robot it goes in shallow ones; once the far part is at the target depth
+the strokes start where the lane is not yet done (partial strokes).
 
 Depth is positive below ground level 0 (the same axis as the impedance
 controller's x).
@@ -31,7 +31,8 @@ import enum
 import math
 
 from rakectl.config.settings import LaneSettings
-from rakectl.core.governor import StrokeGovernor, next_depth_step_m
+from rakectl.core.cut_profile import CutProfile
+from rakectl.core.governor import StrokeGovernor
 
 # Free-space descent stops this far above the previous cycle's floor; the rest
 # of the way down is at plunge speed.
@@ -56,27 +57,6 @@ LAG_TARGET_SHARE = 0.5
 # and F̂ reads its descent (K_e·α·v, 40 N after a 20 mm/s plunge, gone in about 60 ms).
 # The depth of the next cut is judged on the stroke's force after this.
 PLUNGE_TAIL_S = 0.1
-# The lane's depths are planned per bin of reach this wide (about two tine widths), in at
-# most MAX_BINS bins (wider on a long lane): planning the next stroke takes ~3 µs per bin,
-# in the daemon's tick where a stroke ends.
-BIN_M = 0.02
-MAX_BINS = 64
-# An adaptive stroke's reference never descends toward the robot (a descent in soil reads as
-# force, K_e·α·v: 2000 N per m/s) and rises at most this much per metre of reach (0.025 m/s
-# at the top stroke speed: the tip follows without lag).
-RISE_PER_M = 0.1
-# A bin's next cut is the smallest of its own and of this many bins on either side: the
-# force and lag met in one bin are a sample of the soil around it.
-WINDOW_BINS = 2
-# An adaptive cut that would leave less than this share of depth_step_m above the target
-# goes to the target: a whole cycle for a sliver costs more than the sliver's load.
-SLIVER_SHARE = 0.5
-# An adaptive lane's bin is done once a stroke at the target depth went through it and the
-# tip really was within this of the target there, or after a second stroke at the target
-# (the tine rides up where the clamp caps its hold-down: one more pass, not a loop).
-FLOOR_TOLERANCE_M = 0.003
-
-
 class LanePhase(enum.Enum):
     APPROACH = enum.auto()  # free space: to above where the next stroke starts
     LOWER = enum.auto()  # free space: down to just above the floor there
@@ -89,177 +69,6 @@ class LanePhase(enum.Enum):
 CONTACT_PHASES = frozenset({LanePhase.PLUNGE, LanePhase.STROKE})
 
 
-class CutProfile:
-    """The lane's depths per bin of reach, bin 0 nearest the robot (pure).
-
-    ``plan_m`` is the next (or current) stroke's reference depth, ``done_m`` the deepest
-    stroke completed, ``left_m`` the shallowest measured tip depth the last stroke through
-    each bin left (ground level 0 before any). A stroke starts at the far edge of the
-    farthest bin not yet done to the target depth (``start``) and ends at the lane's near end.
-
-    After each stroke (:meth:`finish`), a fixed lane plans every bin one ``depth_step_m``
-    deeper. An adaptive lane plans each bin's cut, counted from the floor the tip left there,
-    by :func:`~rakectl.core.governor.next_depth_step_m` on the force and lag met in that bin and
-    the cut it really took (the smallest over WINDOW_BINS on either side), and never less
-    than ``depth_step_m`` below what was done. The plan is then shaped: not deeper than
-    the target, not descending toward the robot, rising at most RISE_PER_M; a bin that
-    would be left less than SLIVER_SHARE of a step short of the target goes to it; on an
-    adaptive lane a bin at the target whose measured floor is more than FLOOR_TOLERANCE_M
-    short gets one more stroke. The shaping keeps every bin not yet done at least
-    ``min(target, done + depth_step_m)`` deep (the done depths are themselves
-    non-descending and within the rise: each plan was), so every stroke makes progress.
-    """
-
-    __slots__ = ("_adaptive", "_at_target", "_force_n", "_lag_m", "_max_step_m", "_min_step_m",
-                 "_target_m", "_tip_m", "done_m", "left_m", "n_bins", "near_m", "plan_m",
-                 "start", "width_m")
-
-    def __init__(self, lane: LaneSettings) -> None:
-        span_m = lane.reach_far_m - lane.reach_near_m
-        if not span_m > 0.0:
-            raise ValueError("lane: reach_far_m must be > reach_near_m")
-        self.n_bins = min(MAX_BINS, max(1, math.ceil(span_m / BIN_M - 1e-9)))
-        self.width_m = span_m / self.n_bins
-        self.near_m = lane.reach_near_m
-        self._adaptive = lane.adaptive
-        self._target_m = lane.target_depth_m
-        self._min_step_m, self._max_step_m = lane.depth_step_m, lane.max_depth_step_m
-        n = self.n_bins
-        self.plan_m = [min(lane.depth_step_m, lane.target_depth_m)] * n
-        self.done_m = [0.0] * n
-        self.left_m = [0.0] * n
-        self.start = n - 1
-        self._at_target = [0] * n  # strokes at the target depth through each bin
-        self._tip_m = [math.inf] * n  # this stroke's shallowest measured tip per bin
-        self._force_n = [-math.inf] * n  # this stroke's peak force estimate per bin
-        self._lag_m = [0.0] * n  # this stroke's peak lag per bin
-
-    def bin_of(self, reach_m: float) -> int:
-        b = int((reach_m - self.near_m) / self.width_m)
-        return 0 if b < 0 else (self.n_bins - 1 if b >= self.n_bins else b)
-
-    @property
-    def complete(self) -> bool:
-        return self.start < 0
-
-    @property
-    def start_reach_m(self) -> float:
-        return self.near_m + (self.start + 1) * self.width_m
-
-    @property
-    def start_depth_m(self) -> float:
-        return self.plan_m[self.start]
-
-    def depth_and_slope_at(self, reach_m: float) -> tuple[float, float]:
-        """The stroke's reference depth at ``reach_m`` and its slope d(depth)/d(reach) (≥ 0:
-        the plan never descends toward the robot): linear between the bins' centres, the
-        start bin's depth beyond its centre."""
-        x = (reach_m - self.near_m) / self.width_m - 0.5
-        plan = self.plan_m
-        if x >= self.start:
-            return plan[self.start], 0.0
-        if x <= 0.0:
-            return plan[0], 0.0
-        b = int(x)
-        rise_m = plan[b + 1] - plan[b]
-        return plan[b] + (x - b) * rise_m, rise_m / self.width_m
-
-    def landing_m(self, band_m: float) -> float:
-        """Shallowest floor a descent at the start meets: done there, and what the tip left
-        within ``band_m`` on the robot's side of the start."""
-        start = self.start
-        lowest = self.bin_of(self.start_reach_m - band_m + 1e-9)
-        return min(self.done_m[start], min(self.left_m[lowest:start + 1]))
-
-    def record(self, reach_m: float, depth_m: float, lag_m: float) -> None:
-        """The measured tip and its lag, each tick of a stroke."""
-        b = self.bin_of(reach_m)
-        if depth_m < self._tip_m[b]:
-            self._tip_m[b] = depth_m
-        if lag_m > self._lag_m[b]:
-            self._lag_m[b] = lag_m
-
-    def record_force(self, reach_m: float, force_n: float) -> None:
-        """A stroke's force estimate where the tip is (a non-finite one sticks as nan)."""
-        b = self.bin_of(reach_m)
-        if not math.isfinite(force_n):
-            self._force_n[b] = math.nan
-        elif force_n > self._force_n[b]:
-            self._force_n[b] = force_n
-
-    def finish(self, force_target_n: float, lag_target_m: float) -> None:
-        """A stroke ended at the lane's near end: plan the next one (see the class)."""
-        n, target = self.n_bins, self._target_m
-        seen = list(range(self.start + 1))  # the stroke ran from the start to the near end
-        for b in seen:
-            self.done_m[b] = max(self.done_m[b], self.plan_m[b])
-            self._at_target[b] += self.plan_m[b] >= target - 1e-9
-            if self._tip_m[b] == math.inf:  # not observed: taken to be on its reference
-                self._tip_m[b] = self.plan_m[b]
-        want = [target] * n
-        if self._adaptive and math.isfinite(force_target_n):
-            cut = self._next_cuts(seen, force_target_n, lag_target_m)
-            sliver_m = SLIVER_SHARE * self._min_step_m
-            for b in seen:
-                want[b] = max(self.done_m[b] + self._min_step_m, self._tip_m[b] + cut[b])
-                if want[b] > target - sliver_m:  # not a cycle for what is left
-                    want[b] = target
-        else:
-            for b in range(n):
-                want[b] = self.done_m[b] + self._min_step_m
-        for b in seen:
-            self.left_m[b] = self._tip_m[b]
-        plan = [min(target, w) for w in want]
-        rise_m = RISE_PER_M * self.width_m
-        for b in range(1, n):  # rising at most RISE_PER_M away from the robot
-            plan[b] = min(plan[b], plan[b - 1] + rise_m)
-        for b in range(n - 2, -1, -1):  # never descending toward it
-            plan[b] = min(plan[b], plan[b + 1])
-        self.plan_m = plan
-        start = n - 1
-        while start >= 0 and self._finished(start):
-            start -= 1
-        self.start = start
-        self._tip_m = [math.inf] * n
-        self._force_n = [-math.inf] * n
-        self._lag_m = [0.0] * n
-
-    def _finished(self, b: int) -> bool:
-        if self.done_m[b] < self._target_m - 1e-9:
-            return False
-        return (not self._adaptive or self._at_target[b] >= 2
-                or self.left_m[b] >= self._target_m - FLOOR_TOLERANCE_M)
-
-    @property
-    def depth_reached_m(self) -> float:
-        """The lane's depth where it is least deep: the depth done, except that a bin an
-        adaptive lane has not finished counts where the tip really left it."""
-        return min(d if self._finished(b) else min(d, self.left_m[b])
-                   for b, d in enumerate(self.done_m))
-
-    def _next_cuts(self, seen: list[int], force_target_n: float,
-                   lag_target_m: float) -> list[float]:
-        """Each seen bin's next cut (adaptive): the depth law on the cut it took."""
-        n = self.n_bins
-        force = list(self._force_n)
-        carried = -math.inf  # a bin with no sample (the plunge's tail) takes its neighbour's
-        for b in seen:
-            if force[b] == -math.inf:
-                force[b] = carried
-            else:
-                carried = force[b]
-        for b in reversed(seen):
-            if force[b] == -math.inf:
-                force[b] = carried
-            else:
-                carried = force[b]
-        own = [math.inf] * n
-        for b in seen:
-            took_m = max(self.plan_m[b] - self.left_m[b], self._min_step_m)
-            peak_n = force[b] if force[b] != -math.inf else math.nan  # none: the least cut
-            own[b] = next_depth_step_m(took_m, peak_n, force_target_n, self._lag_m[b],
-                                       lag_target_m, self._min_step_m, self._max_step_m)
-        return [min(own[max(0, b - WINDOW_BINS):b + WINDOW_BINS + 1]) for b in range(n)]
 
 
 class LanePlanner:

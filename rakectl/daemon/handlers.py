@@ -62,7 +62,7 @@ def status(daemon: Daemon) -> dict[str, Any]:
         "drives": [{"state": s.name.lower() if s is not None else None,
                     "stale_cycles": fb.stale_cycles[j]} for j, s in enumerate(fb.state)],
         "bus": client.stats.as_dict(),
-        "timing": daemon.timing_summary(),
+        "timing": daemon.timing.summary(),
     }
     planner = daemon.planner
     if planner is not None:
@@ -151,7 +151,7 @@ def make_handler(daemon: Daemon) -> Callable[[Request], Reply]:
         if cmd is Command.EXCAVATE:
             return _excavate(daemon, request)
         if cmd is Command.TIMING_RESET:
-            daemon.reset_timing()
+            daemon.timing.reset()
             return {"state": daemon.state.name.lower()}
         if cmd is Command.SHUTDOWN:
             daemon.request_stop()

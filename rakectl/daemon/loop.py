@@ -37,11 +37,11 @@ from rakectl.core.control import TipController
 from rakectl.core.jog import Jog
 from rakectl.core.lane import LanePlanner
 from rakectl.core.supervision import ForceLevel, ForceSupervisor
-from rakectl.daemon.histogram import Histogram
+from rakectl.daemon.events import EventLog
 from rakectl.daemon.recorder import DumpWriter, FlightRecorder
 from rakectl.daemon.sdnotify import Notifier
 from rakectl.daemon.states import ARMED_STATES, DaemonState, Event, next_state
-from rakectl.daemon.timing import TickTimer
+from rakectl.daemon.timing import LoopTiming, TickTimer
 from rakectl.drive.canbus import TraceRecorder
 from rakectl.drive.client import DriveClient, Joint
 from rakectl.errors import CommsTimeout
@@ -58,7 +58,6 @@ SLACK_GUARD_S = 250e-6  # slack work stops this long before the next deadline
 SEND_FAILURE_STREAK = 3  # ticks in a row with a failed send: fault
 HEARTBEAT_CHECK_TICKS = 10
 NMT_RETRY_TICKS = 300  # in INIT, NMT start is repeated this often to a drive not OPERATIONAL
-LOG_EVERY_S = 1.0  # a repeated loop event is logged at most this often
 
 log = structlog.get_logger("rakectl")
 
@@ -74,13 +73,7 @@ class Daemon:
         self.dump_dir = dump_dir
         self.dt_s = 1.0 / settings.rate_hz
         self.timer = TickTimer(self.dt_s, clock_ns)
-        self.latency = Histogram()  # wake-up latency: actual wake − deadline
-        self.execution = Histogram()  # the tick's own work
-        self.period = Histogram()  # wake to wake
-        self.oversleep = Histogram()  # the OS's wake-up late of the sleep, before the spin
-        self.longest_gap_ns = 0
-        self._last_wake_ns = 0
-        self._overruns_at_reset = 0
+        self.timing = LoopTiming(self.timer)
         self.controller = TipController(settings)
         self.supervisor = ForceSupervisor(settings.supervision, settings.clamp, settings.motors.r,
                                           settings.motors.theta, self.dt_s)
@@ -101,9 +94,7 @@ class Daemon:
         self._overrun_streak = 0
         self._stop_requested = False
         self._dumps: collections.deque[DumpWriter] = collections.deque()
-        self._events: collections.deque[tuple[str, dict[str, Any]]] = collections.deque(
-            maxlen=256)
-        self._last_logged: dict[str, float] = {}
+        self.events = EventLog(log, rate_limited=("timing",))
         self._clock_ns = clock_ns
         self._next_stats_tick = 0
         self._next_watchdog_tick = 0
@@ -136,7 +127,7 @@ class Daemon:
                 self.tick(skipped)
                 exec_ns = self._clock_ns() - started_ns
                 self._exec_us = exec_ns * 1e-3
-                self._record_timing(exec_ns)
+                self.timing.record(exec_ns)
                 self._overrun_streak = self._overrun_streak + 1 if skipped else 0
                 if self.state is DaemonState.INIT and self.ticks > timeout_ticks:
                     raise CommsTimeout("no valid feedback from both drives within "
@@ -144,25 +135,6 @@ class Daemon:
                 self.slack()
         finally:
             self.finish()
-
-    def _record_timing(self, exec_ns: int) -> None:
-        timer = self.timer
-        self.latency.add(timer.latency_ns)
-        self.oversleep.add(timer.sleep_overshoot_ns)
-        self.execution.add(exec_ns)
-        if self._last_wake_ns:
-            gap_ns = timer.wake_ns - self._last_wake_ns
-            self.period.add(gap_ns)
-            if gap_ns > self.longest_gap_ns:
-                self.longest_gap_ns = gap_ns
-        self._last_wake_ns = timer.wake_ns
-
-    def reset_timing(self) -> None:
-        """Start the timing statistics afresh (benchmark phases)."""
-        for histogram in (self.latency, self.execution, self.period, self.oversleep):
-            histogram.reset()
-        self.longest_gap_ns = 0
-        self._overruns_at_reset = self.timer.overruns
 
     def finish(self) -> None:
         """0 V, drives disabled, the recorder dumped: the end of every run."""
@@ -174,7 +146,7 @@ class Daemon:
             self._dumps[0].work(1.0)
             if self._dumps[0].done:
                 self._dumps.popleft()
-        self._flush_events(len(self._events))
+        self.events.flush(self.state.name)
 
     # ------------------------------------------------------------------ one tick
 
@@ -415,7 +387,7 @@ class Daemon:
                 self.event("recorder_dumped", path=str(writer.path))
         if self.trace is not None:
             self.trace.drain(32)
-        self._flush_events(1)
+        self.events.flush(self.state.name, 1)
         self._periodic()
 
     def _periodic(self) -> None:
@@ -426,7 +398,7 @@ class Daemon:
             self._next_stats_tick = self.ticks + round(self.settings.daemon.stats_interval_s
                                                        * self.settings.rate_hz)
             if self.ticks > 1:
-                self.event("timing", **self.timing_summary())
+                self.event("timing", **self.timing.summary())
         if self.state not in ARMED_STATES and self.ticks % 1000 == 0:
             gc.collect(1)  # never while armed: the collector is off then (see cli)
 
@@ -441,34 +413,11 @@ class Daemon:
             out["sync_to_tpdo_max_us"] = round(float(values.max()), 1)
         return out
 
-    def timing_summary(self) -> dict[str, Any]:
-        """Percentiles (ns) since the start or the last reset; cheap enough for the slack."""
-        return {
-            "latency_ns": self.latency.percentiles_ns(),
-            "exec_ns": self.execution.percentiles_ns(),
-            "period_ns": self.period.percentiles_ns(),
-            "oversleep_ns": self.oversleep.percentiles_ns(),
-            "longest_gap_ns": self.longest_gap_ns,
-            "overruns": self.timer.overruns - self._overruns_at_reset,
-            "skipped": self.timer.skipped_total,
-            "gc_collections": [g["collections"] for g in gc.get_stats()],
-        }
-
     # ------------------------------------------------------------------ events and dumps
 
     def event(self, name: str, **fields: Any) -> None:
         """Queue a log line; it is written in the slack, never in the tick."""
-        self._events.append((name, fields))
-
-    def _flush_events(self, count: int) -> None:
-        now = time.monotonic()
-        for _ in range(min(count, len(self._events))):
-            name, fields = self._events.popleft()
-            rate_limited = name in ("timing",)
-            if rate_limited and now - self._last_logged.get(name, -math.inf) < LOG_EVERY_S:
-                continue
-            self._last_logged[name] = now
-            log.info(name, state=self.state.name, **fields)
+        self.events.add(name, fields)
 
     def _dump(self, reason: str) -> Path:
         stamp = time.strftime("%Y%m%d-%H%M%S")

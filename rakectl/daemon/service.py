@@ -96,5 +96,5 @@ def run(config: Path | None, overrides: list[str]) -> int:
             trace.close()
         with contextlib.suppress(Exception):
             bus.shutdown()
-    log.info("stopped", **{**daemon.timing_summary(), "ticks": daemon.ticks})
+    log.info("stopped", **{**daemon.timing.summary(), "ticks": daemon.ticks})
     return 0

@@ -29,12 +29,14 @@ The clock and the sleep are injected, so tests run on a fake clock. A loop::
 
 from __future__ import annotations
 
+import gc
 import time
 from collections.abc import Callable
-from typing import TypedDict
+from typing import Any, TypedDict
 
 import numpy as np
 
+from rakectl.daemon.histogram import Histogram
 from rakectl.errors import ConfigError
 
 NS_PER_S = 1_000_000_000
@@ -228,4 +230,56 @@ class TimingStats:
             "period_ns": percentiles_ns(period_ns[period_ns >= 0]),
             "latency_ns": percentiles_ns(latency_ns),
             "exec_ns": percentiles_ns(exec_ns),
+        }
+
+
+class LoopTiming:
+    """The daemon's timing figures in 1 µs histograms: O(1) per tick, cheap percentiles.
+
+    Wake-up latency (actual wake − deadline), the OS's oversleep before the
+    spin, the tick's own work and the period, since the start or the last
+    :meth:`reset` (benchmark phases).
+    """
+
+    def __init__(self, timer: TickTimer) -> None:
+        self.timer = timer
+        self.latency = Histogram()
+        self.execution = Histogram()
+        self.period = Histogram()
+        self.oversleep = Histogram()
+        self.longest_gap_ns = 0
+        self._last_wake_ns = 0
+        self._overruns_at_reset = 0
+
+    def record(self, exec_ns: int) -> None:
+        """The tick that just ran: its timer's figures and its execution time."""
+        timer = self.timer
+        self.latency.add(timer.latency_ns)
+        self.oversleep.add(timer.sleep_overshoot_ns)
+        self.execution.add(exec_ns)
+        if self._last_wake_ns:
+            gap_ns = timer.wake_ns - self._last_wake_ns
+            self.period.add(gap_ns)
+            if gap_ns > self.longest_gap_ns:
+                self.longest_gap_ns = gap_ns
+        self._last_wake_ns = timer.wake_ns
+
+    def reset(self) -> None:
+        """Start afresh (benchmark phases)."""
+        for histogram in (self.latency, self.execution, self.period, self.oversleep):
+            histogram.reset()
+        self.longest_gap_ns = 0
+        self._overruns_at_reset = self.timer.overruns
+
+    def summary(self) -> dict[str, Any]:
+        """Percentiles (ns) and counters; cheap enough for the loop's slack."""
+        return {
+            "latency_ns": self.latency.percentiles_ns(),
+            "exec_ns": self.execution.percentiles_ns(),
+            "period_ns": self.period.percentiles_ns(),
+            "oversleep_ns": self.oversleep.percentiles_ns(),
+            "longest_gap_ns": self.longest_gap_ns,
+            "overruns": self.timer.overruns - self._overruns_at_reset,
+            "skipped": self.timer.skipped_total,
+            "gc_collections": [g["collections"] for g in gc.get_stats()],
         }

@@ -12,12 +12,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rakectl.config.settings import LaneSettings
+from rakectl.core.cut_profile import RISE_PER_M, CutProfile
 from rakectl.core.lane import (
     LANDING_BAND_M,
     PLUNGE_MARGIN_M,
-    RISE_PER_M,
     SETTLE_TIMEOUT_S,
-    CutProfile,
     LanePhase,
     LanePlanner,
 )
