@@ -29,11 +29,12 @@ import can
 import cantools
 
 from rakectl.errors import ApiError, CommsTimeout, RakeError
+from rakectl.protocol.files import DBC_PATH
 from rakectl.sim.rig import Bench
 
 CHANNEL = "vcan0"
 ROOT = Path(__file__).resolve().parents[2]
-DBC = ROOT / "drivers" / "rakedrive.dbc"
+DBC = DBC_PATH
 DAEMON_NICE, EMULATOR_NICE = 10, -5  # the emulator first (see vcan_bench)
 START_TIMEOUT_S = 240.0  # both processes started and the daemon disarmed (Python is slow in a VM)
 IN_VM = "run tests/vcan/run-in-vm.sh (it boots a kernel with SocketCAN in a VM)"
