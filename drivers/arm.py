@@ -3,17 +3,20 @@
 Generalized coordinates q = (r, θ): rake length and angle below the horizontal.
 The rake and its carriage (mass m, length L) are a uniform slender rod whose
 centre of mass lies s = r − L/2 from the pivot along the rake; the platform
-rotates with θ, its centre of mass on the pivot. From the Lagrangian::
+rotates with θ, its centre of mass on the pivot. A counterweight m_c, linked to
+the carriage by a cable over a pulley at the pivot, sits b·s behind the pivot
+along the rake (b = β m/m_c, β the counterbalance share), so the arm's centre of
+mass moves only by the unbalanced (1 − β) m. From the Lagrangian::
 
-    T = ½ M_r ṙ² + ½ M_θ(r) θ̇²,   M_r = m + J_r/k_r²,
-    M_θ(r) = m s² + m L²/12 + I_platform + J_θ/k_θ²
-    V = m g (h − s sin θ)
+    T = ½ M_r ṙ² + ½ M_θ(r) θ̇²,   M_r = m' + J_r/k_r²,   m' = m + β² m²/m_c,
+    M_θ(r) = m' s² + m L²/12 + I_platform + J_θ/k_θ²
+    V = (1 − β) m g (h − s sin θ)
 
-the mass matrix is diagonal (polar coordinates of a rigid rod) and, with
-momenta p_r = M_r ṙ and p_θ = M_θ θ̇::
+the mass matrix is diagonal (polar coordinates of rigid rods on one axis) and,
+with momenta p_r = M_r ṙ and p_θ = M_θ θ̇::
 
-    ṗ_θ = m g s cos θ + Q_θ
-    ṗ_r = m g sin θ + m s θ̇² + Q_r
+    ṗ_θ = (1 − β) m g s cos θ + Q_θ
+    ṗ_r = (1 − β) m g sin θ + m' s θ̇² + Q_r
 
 Q holds the motor loads (drivers.motor), joint damping, hard stops at the
 Workspace limits and the tip contact force mapped through Jᵀ by
@@ -44,7 +47,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -57,7 +60,7 @@ from drivers.motor import (
     stick_slip_velocity,
     substeps_in,
 )
-from drivers.soil import VerticalLaw
+from drivers.mount import MAX_PARTS, MAX_SLIDE_M, TineMount
 from rakectl.config.declare import setting
 from rakectl.core import kinematics
 from rakectl.core.kinematics import Workspace
@@ -107,20 +110,39 @@ class ArmParams:
         0.5, "Viscous damping of the θ pivot bearings.", unit="N·m·s/rad", ge=0, le=1e5
     )
     tine_mount_stiffness_n_per_m: float = setting(
-        3.0e4, "Vertical stiffness of the tines' compliant mount (0: rigid). In series with "
+        5.0e3, "Vertical stiffness of the tines' compliant mount (0: rigid). In series with "
         "whatever the tines press on, it bounds the contact stiffness (rakectl.core.clamp).",
         unit="N/m", ge=0, le=1e9,
     )
     tine_mount_damping_ns_per_m: float = setting(
-        50.0, "Damping of the tines' compliant mount.", unit="N·s/m", ge=0, le=1e6
+        7.5, "Damping of the tines' compliant mount.", unit="N·s/m", ge=0, le=1e6
+    )
+    counterweight_kg: float = setting(
+        8.0, "Counterweight linked to the carriage (a cable over a pulley at the pivot): it "
+        "moves behind the pivot as the rake extends, counterbalance_share × rake mass / this "
+        "× (r − length/2), so it balances that share of the rake's weight on both joints and "
+        "adds counterbalance_share² × rake mass² / this to the mass each moves (0: none).",
+        unit="kg", ge=0, le=1e3,
+    )
+    counterbalance_share: float = setting(
+        0.5, "Share of the rake's weight the counterweight balances (1: the arm is balanced "
+        "in every pose). A hardware requirement (rakectl.core.clamp): half leaves at most "
+        "10 N of the rake's weight at the tip, which presses down with no uncertainty "
+        "band while the θ gear can still lift the rest.", ge=0, le=1.5,
+    )
+    tine_mount_side_stiffness_n_per_m: float = setting(
+        5.0e3, "Horizontal stiffness of the tines' mount (0: rigid sideways). The tines meet a "
+        "stone's or a mine's side through it (rakectl.core.clamp: "
+        "clamp.side_contact_stiffness_n_per_m).", unit="N/m", ge=0, le=1e9,
+    )
+    tine_mount_side_damping_ns_per_m: float = setting(
+        7.5, "Horizontal damping of the tines' mount.", unit="N·s/m", ge=0, le=1e6
     )
 
     def __post_init__(self) -> None:
         check_declared_bounds(self)
 
 
-# Rounds of the tine mount's active-set iteration (contacts, yields, soil collapses).
-_MOUNT_ITERATIONS = 16
 
 class ContactModel(Protocol):
     """The ground as the tip feels it (implemented by the soil model).
@@ -181,9 +203,23 @@ class _HardStop:
     damping: float
 
 
+def unbalanced_weight_n(arm: ArmParams) -> float:
+    """The rake's weight the counterweight leaves to the motors."""
+    share = arm.counterbalance_share if arm.counterweight_kg > 0.0 else 0.0
+    return (1.0 - share) * arm.rake_mass_kg * arm.gravity_m_per_s2
+
+
+def counterweight_mass_kg(arm: ArmParams) -> float:
+    """What the counterweight adds to the mass along r (and, times (r − length/2)², to θ's
+    inertia): it moves counterbalance_share × rake mass / counterweight as fast."""
+    if arm.counterweight_kg <= 0.0:
+        return 0.0
+    return (arm.counterbalance_share * arm.rake_mass_kg) ** 2 / arm.counterweight_kg
+
+
 def gravity_joint_loads(arm: ArmParams, r_m: float, theta_rad: float) -> tuple[float, float]:
     """Loads (F_r in N, τ_θ in N·m) the motors must supply to hold the pose against gravity."""
-    weight_n = arm.rake_mass_kg * arm.gravity_m_per_s2
+    weight_n = unbalanced_weight_n(arm)
     com_m = r_m - 0.5 * arm.rake_length_m
     return -weight_n * math.sin(theta_rad), -weight_n * com_m * math.cos(theta_rad)
 
@@ -193,9 +229,10 @@ def joint_masses(
 ) -> tuple[float, float]:
     """Diagonal of the mass matrix at rake length r_m: (M_r in kg, M_θ in kg·m²)."""
     com_m = r_m - 0.5 * arm.rake_length_m
-    return arm.rake_mass_kg + reflected_inertia(motor_r), (
+    moving_kg = arm.rake_mass_kg + counterweight_mass_kg(arm)
+    return moving_kg + reflected_inertia(motor_r), (
         _inertia_at_com(arm) + arm.platform_inertia_kgm2 + reflected_inertia(motor_theta)
-        + arm.rake_mass_kg * com_m * com_m
+        + moving_kg * com_m * com_m
     )
 
 
@@ -251,6 +288,8 @@ class ArmPlant:
         self._drive_r = MotorDrive(motor_r, substep_s)
         self._drive_theta = MotorDrive(motor_theta, substep_s)
         self._mass_r, _ = joint_masses(arm, motor_r, motor_theta, 0.0)
+        self._moving_kg = arm.rake_mass_kg + counterweight_mass_kg(arm)
+        self._weight_n = unbalanced_weight_n(arm)
         self._inertia_theta_0 = joint_masses(arm, motor_r, motor_theta, arm.rake_length_m / 2)[1]
         self._stop_r = _HardStop(workspace.r_min_m, workspace.r_max_m,
                                  arm.stop_stiffness_r_n_per_m, arm.stop_damping_r_ns_per_m)
@@ -261,9 +300,10 @@ class ArmPlant:
         self._rng = np.random.default_rng(seed)
         self._bridge_r, self._bridge_theta = Bridge.DRIVEN, Bridge.DRIVEN
         self._time_s, self._last_tip_force_n, self._last_contact_loads = 0.0, (0.0, 0.0), (0.0, 0.0)
-        self._mount_k = arm.tine_mount_stiffness_n_per_m
-        self._mount_c = arm.tine_mount_damping_ns_per_m
-        self.mount_m = 0.0  # compression of the tine mount (> 0: tines pushed up)
+        self._tines = TineMount(arm.tine_mount_stiffness_n_per_m,
+                                arm.tine_mount_damping_ns_per_m,
+                                arm.tine_mount_side_stiffness_n_per_m,
+                                arm.tine_mount_side_damping_ns_per_m, substep_s)
         self.set_state(ArmState(workspace.r_min_m, 0.0))
 
     def _check_explicit_damping(self) -> None:
@@ -285,7 +325,7 @@ class ArmPlant:
         self._p_theta = self._inertia_theta(state.r_m) * state.theta_vel_rad_per_s
         self._current_r_a, self._current_theta_a = state.current_r_a, state.current_theta_a
         self._counts_r = self._drive_r.counts(state.r_m)
-        self.mount_m = 0.0
+        self._tines.reset()
         self._counts_theta = self._drive_theta.counts(state.theta_rad)
         self._measured = Measurement(
             self._counts_r * self._drive_r.resolution,
@@ -346,10 +386,20 @@ class ArmPlant:
         """True tip (reach_m, height_m) of the arm, before the tine mount's compression."""
         return kinematics.forward(self.workspace, self._r_m, self._theta_rad)
 
+    @property
+    def mount_m(self) -> float:
+        """Compression of the tine mount (> 0: tines pushed up)."""
+        return self._tines.compression_m
+
+    @property
+    def mount_offset_m(self) -> float:
+        """Sideways offset of the tines on their mount (> 0: away from the robot)."""
+        return self._tines.offset_m
+
     def tine_m(self) -> tuple[float, float]:
-        """Where the tines are: the tip raised by the mount's compression."""
+        """Where the tines are: the tip moved by the mount's offset and compression."""
         reach_m, height_m = self.tip_m()
-        return reach_m, height_m + self.mount_m
+        return reach_m + self._tines.offset_m, height_m + self._tines.compression_m
 
     def tip_vel_m_per_s(self) -> tuple[float, float]:
         return kinematics.tip_velocity(self._r_m, self._theta_rad, self.r_vel_m_per_s,
@@ -361,7 +411,7 @@ class ArmPlant:
                            + self._p_theta**2 / self._inertia_theta(self._r_m))
         com_m = self._r_m - 0.5 * self.arm.rake_length_m
         height_m = self.workspace.pivot_height_m - com_m * math.sin(self._theta_rad)
-        return kinetic_j + self.arm.rake_mass_kg * self.arm.gravity_m_per_s2 * height_m
+        return kinetic_j + unbalanced_weight_n(self.arm) * height_m
 
     def measure(self) -> Measurement:
         """The drives' report, sampled at the end of the last step."""
@@ -371,7 +421,7 @@ class ArmPlant:
 
     def _inertia_theta(self, r_m: float) -> float:
         com_m = r_m - 0.5 * self.arm.rake_length_m
-        return self._inertia_theta_0 + self.arm.rake_mass_kg * com_m * com_m
+        return self._inertia_theta_0 + self._moving_kg * com_m * com_m
 
     def step(
         self, voltage_r_v: float, voltage_theta_v: float, contact: ContactModel, dt_s: float
@@ -392,18 +442,23 @@ class ArmPlant:
         reach_vel, height_vel = kinematics.tip_velocity(r_m, theta_rad, vel_r, vel_theta)
         laws = getattr(contact, "vertical_laws", None)
         transmitted = getattr(contact, "transmitted", None)
+        ground = getattr(contact, "ground", contact)
+        tines = self._tines
+        if tines.sideways and transmitted is not None and hasattr(ground, "normal_laws"):
+            return self._mounted_loads(contact, transmitted, ground, reach_m, height_m,
+                                       reach_vel, height_vel)
         mount_n = -1.0  # < 0: rigid tines
-        if self._mount_k > 0.0 and laws is not None and transmitted is not None:
+        if tines.vertical and laws is not None and transmitted is not None:
             # every law the tines could meet down to the mount fully extended (the lowest
             # they can reach), so a relaxing mount never carries them unseen into the ground
-            compression_m = self._mount(
-                laws(reach_m, height_m, height_m + self.mount_m, reach_vel), height_m,
+            compression_m = tines._vertical(
+                laws(reach_m, height_m, height_m + tines.compression_m, reach_vel), height_m,
                 height_vel)
-            rate_m_per_s = (compression_m - self.mount_m) / self.substep_s
-            mount_n = max(0.0, self._mount_k * compression_m + self._mount_c * rate_m_per_s)
+            rate_m_per_s = (compression_m - tines.compression_m) / self.substep_s
+            mount_n = max(0.0, tines.k_v * compression_m + tines.c_v * rate_m_per_s)
             height_vel += rate_m_per_s
             height_m += compression_m
-            self.mount_m = compression_m
+            tines.compression_m = compression_m
         force = contact.step(reach_m, height_m, reach_vel, height_vel, self.substep_s)
         if not math.isfinite(force[0] + force[1]):
             raise NonFiniteError(f"contact force must be finite, got {force}")
@@ -416,112 +471,40 @@ class ArmPlant:
         self._last_contact_loads = kinematics.joint_loads(r_m, theta_rad, force[0], force[1])
         return self._last_contact_loads
 
-    def _mount(self, laws: list[VerticalLaw], height_m: float, height_vel_m_per_s: float
-               ) -> float:
-        """The mount's compression at the end of this substep (backward Euler).
-
-        The tines are massless: the mount's force k·δ + c·δ̇ equals the ground's, the
-        sum over the laws the tines are below of K (ref − z − δ) − B (ż + δ̇), each as the
-        ground itself computes it: an object's elastic part held at its cap where it
-        yields, the soil's interface lowered by whole steps of cap/K where it collapses
-        (:class:`drivers.soil.VerticalLaw`). The laws in contact, yielding, and the
-        collapsed interfaces are found by iteration (piecewise linear, active set); each
-        only changes one way within a substep, so a stiff top cannot make it chatter.
-        Solved implicitly, so a stiff ground (a stone, 10⁷ N/m) is stable at the
-        substep and meets the tines without a force spike.
-        """
-        h, k, c, d0 = self.substep_s, self._mount_k, self._mount_c, self.mount_m
-        relaxed = c * d0 / (c + h * k)  # no ground force: the mount relaxes
-        d = relaxed
-        refs = [law.ref_m for law in laws]
-        active = [height_m + d0 < ref_m for ref_m in refs]
-        yielding = [False] * len(laws)
-        above = [False] * len(laws)  # the tines stay above it this substep
-        slack = [False] * len(laws)  # the tines leave it faster than it pushes: it reads 0
-        for _ in range(_MOUNT_ITERATIONS):
-            stiff = damp = force = 0.0
-            for law, ref_m, on, cap in zip(laws, refs, active, yielding, strict=True):
-                if on:
-                    damp += law.damping_ns_per_m
-                    if cap:
-                        force += law.cap_n
-                    else:
-                        stiff += law.stiffness_n_per_m
-                        force += law.stiffness_n_per_m * (ref_m - height_m)
-            if any(active):
-                force += (damp + c) * d0 / h - damp * height_vel_m_per_s
-                d = force / (stiff + k + (damp + c) / h)
-                if k * d + c * (d - d0) / h <= 0.0:  # the ground would pull: it lets go
-                    d = relaxed
-            changed = False
-            for i, law in enumerate(laws):
-                if not active[i]:
-                    if height_m + d < refs[i] and not above[i] and not slack[i]:
-                        active[i] = changed = True  # the solution reaches it: it joins
-                    continue
-                elastic_n = law.stiffness_n_per_m * (refs[i] - height_m - d)
-                if elastic_n < 0.0 and not changed:
-                    # in contact, yet the solution is above it: the contact force jumps at
-                    # the surface (damping). Either the tines rest on it this substep, or
-                    # the other laws already hold the mount above it there.
-                    rest = self._rest_on(refs[i], height_m, relaxed)
-                    if self._others_n(laws, refs, active, yielding, i, height_m,
-                                      height_vel_m_per_s, rest) < (
-                            k * rest + c * (rest - d0) / h):
-                        return rest
-                    active[i], above[i], changed = False, True, True
-                    break
-                held_n = law.cap_n if yielding[i] else elastic_n
-                if not changed and held_n < law.damping_ns_per_m * (
-                        height_vel_m_per_s + (d - d0) / h):
-                    # it would pull: a contact only pushes (Soil.step and Body.touch clip its
-                    # force at 0), so it carries nothing this substep and the others hold the
-                    # tines (else its damping pulled the mount down while the ground read the
-                    # others' force unrelieved: a tine lifted up a rounded edge out of the soil
-                    # read 90-170 N with the mount carrying 17-47 N, seed 7's lanes 429, 606,
-                    # 732, 735)
-                    active[i], slack[i], changed = False, True, True
-                    break
-                if yielding[i]:
-                    continue
-                if elastic_n > law.cap_n:
-                    changed = True
-                    if law.collapses:  # the soil gives way as Soil._push does
-                        steps = math.floor(elastic_n / law.cap_n)
-                        refs[i] -= steps * law.cap_n / law.stiffness_n_per_m
-                    else:
-                        yielding[i] = True
-            if not changed:
-                break
-        for i, ref_m in enumerate(refs):
-            if above[i] and height_m + d < ref_m:  # left out, yet reached: rest on it
-                return self._rest_on(ref_m, height_m, relaxed)
-        return d
-
-    @staticmethod
-    def _rest_on(ref_m: float, height_m: float, relaxed_m: float) -> float:
-        """The compression that puts the tines on ``ref_m``, not below it by a rounding (the
-        ground would read its damping at the speed they fell in this substep), and never
-        extending faster than the mount relaxes (its force stays ≥ 0)."""
-        d = max(ref_m - height_m, relaxed_m)
-        while height_m + d < ref_m:
-            d = math.nextafter(d, math.inf)
-        return d
-
-    def _others_n(self, laws: list[VerticalLaw], refs: list[float], active: list[bool],
-                  yielding: list[bool], skip: int, height_m: float, height_vel_m_per_s: float,
-                  d_m: float) -> float:
-        """The force of the active laws but ``skip`` on tines at compression ``d_m``."""
-        tine_m = height_m + d_m
-        rate_m_per_s = height_vel_m_per_s + (d_m - self.mount_m) / self.substep_s
-        total_n = 0.0
-        for j, law in enumerate(laws):
-            if j == skip or not active[j] or tine_m >= refs[j]:
-                continue
-            elastic_n = (law.cap_n if yielding[j]
-                         else law.stiffness_n_per_m * (refs[j] - tine_m))
-            total_n += max(0.0, elastic_n - law.damping_ns_per_m * rate_m_per_s)
-        return total_n
+    def _mounted_loads(self, contact: ContactModel, transmitted: Any, ground: Any,
+                       reach_m: float, height_m: float, reach_vel: float, height_vel: float
+                       ) -> tuple[float, float]:
+        """The mount that gives sideways too (drivers.mount): the ground is met where the
+        tines are, and the arm feels what the mount carries both ways."""
+        tines, h = self._tines, self.substep_s
+        tines.step_s = h
+        e, d = tines.solve(ground, reach_m, height_m, reach_vel, height_vel)
+        slide_m = max(abs(e - tines.offset_m), abs(d - tines.compression_m))
+        parts = min(MAX_PARTS, math.ceil(slide_m / MAX_SLIDE_M)) if slide_m > MAX_SLIDE_M else 1
+        tines.step_s = h / parts
+        side_sum = down_sum = 0.0
+        for k in range(parts):
+            at_reach, at_height = reach_m + k * tines.step_s * reach_vel, \
+                height_m + k * tines.step_s * height_vel
+            if parts > 1:
+                e, d = tines.solve(ground, at_reach, at_height, reach_vel, height_vel)
+            tine_vel = (reach_vel + (e - tines.offset_m) / tines.step_s,
+                        height_vel + (d - tines.compression_m) / tines.step_s)
+            side_n, down_n = tines.commit(e, d, reach_vel)
+            force = contact.step(at_reach + e, at_height + d, tine_vel[0], tine_vel[1],
+                                 tines.step_s)
+            if not math.isfinite(force[0] + force[1] + side_n + down_n):
+                raise NonFiniteError(f"contact force must be finite, got {force}")
+            if tines.vertical:
+                transmitted(down_n)
+            side_sum += side_n
+            down_sum += down_n if tines.vertical else force[1]
+        tines.step_s = h
+        force = (side_sum / parts, down_sum / parts)  # the arm feels the substep's mean
+        r_m, theta_rad = self._r_m, self._theta_rad
+        self._last_tip_force_n = force
+        self._last_contact_loads = kinematics.joint_loads(r_m, theta_rad, force[0], force[1])
+        return self._last_contact_loads
 
     def _substep(self, voltage_r_v: float, voltage_theta_v: float, contact: ContactModel) -> None:
         h, arm, r_m, theta_rad = self.substep_s, self.arm, self._r_m, self._theta_rad
@@ -532,14 +515,14 @@ class ArmPlant:
             self._current_r_a, voltage_r_v, vel_r, self._bridge_r)
         self._current_theta_a, mean_theta_a = self._drive_theta.currents(
             self._current_theta_a, voltage_theta_v, vel_theta, self._bridge_theta)
-        com_m, weight_n = r_m - 0.5 * arm.rake_length_m, arm.rake_mass_kg * arm.gravity_m_per_s2
+        com_m, weight_n = r_m - 0.5 * arm.rake_length_m, self._weight_n
         force_theta = (weight_n * com_m * math.cos(theta_rad) + load_theta
                        - arm.damping_theta_nms_per_rad * vel_theta)
         band = self._drive_theta.load_band(mean_theta_a, vel_theta)
         vel_theta = _joint_velocity(self._p_theta, force_theta, inertia_theta, theta_rad,
                                     self._stop_theta, band, h)
         force_r = (weight_n * math.sin(theta_rad) + load_r - arm.damping_r_ns_per_m * vel_r
-                   + arm.rake_mass_kg * com_m * vel_theta * vel_theta)  # centrifugal: p_θ new
+                   + self._moving_kg * com_m * vel_theta * vel_theta)  # centrifugal: p_θ new
         band = self._drive_r.load_band(mean_r_a, vel_r)
         vel_r = _joint_velocity(self._p_r, force_r, self._mass_r, r_m, self._stop_r, band, h)
         self._p_theta, self._p_r = inertia_theta * vel_theta, self._mass_r * vel_r

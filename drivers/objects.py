@@ -44,10 +44,24 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from drivers.soil import Soil, SoilParams, VerticalLaw
 from rakectl.config.declare import section, setting
 from rakectl.errors import NonFiniteError
+
+
+class NormalLaw(NamedTuple):
+    """An object's contact along its outward normal (n_reach, n_up) where the tine is:
+    F = K·penetration + B·(approach speed along n), ≥ 0, its elastic part at most
+    ``cap_n`` (a root yields; infinite for the rigid ones)."""
+
+    depth_m: float
+    n_reach: float
+    n_up: float
+    stiffness_n_per_m: float
+    damping_ns_per_m: float
+    cap_n: float
 
 
 class Contact(enum.Enum):
@@ -200,8 +214,19 @@ class Body:
             self._record_side(abs(self.force_reach_n))
         return True
 
+    def normal_law(self, reach_m: float, height_m: float) -> NormalLaw | None:
+        """The law along the normal at this point, if it is inside and the normal leans
+        sideways (a side or a rounded edge): what the tine mount's coupled solve needs."""
+        contact = self._contact(reach_m, height_m)
+        if contact is None or contact[1] == 0.0:
+            return None
+        depth_m, n_reach, n_up = contact
+        return NormalLaw(depth_m, n_reach, n_up, self.stiffness_n_per_m,
+                         self.stiffness_n_per_m * self.damping_s, self.yield_force_n)
+
     def vertical_law(self, reach_m: float, height_m: float, face_height_m: float,
-                     reach_vel_m_per_s: float = 0.0) -> VerticalLaw | None:
+                     reach_vel_m_per_s: float = 0.0, edges: bool = True
+                     ) -> VerticalLaw | None:
         """The law of the face the tines press from above, if any, as the tine mount solves
         it, if the tip at ``height_m`` is inside: linearized where the tines were
         (``face_height_m``; on its surface if they were above it), along the normal
@@ -217,6 +242,8 @@ class Body:
         if contact is None or contact[2] <= 0.0:
             return None
         depth_m, n_reach, n_up = contact
+        if n_reach != 0.0 and not edges:  # a mount that gives sideways solves it coupled
+            return None
         damping = self.stiffness_n_per_m * self.damping_s
         # Only a reach speed INTO an edge is folded into the reference (it raises it: the
         # tines ride up sooner). One away from it would lower the reference below the
@@ -322,20 +349,37 @@ class Ground:
         return truth.force_drag_n, truth.force_down_n
 
     def vertical_laws(self, reach_m: float, height_m: float, face_height_m: float,
-                      reach_vel_m_per_s: float = 0.0) -> list[VerticalLaw]:
+                      reach_vel_m_per_s: float = 0.0, edges: bool = True
+                      ) -> list[VerticalLaw]:
         """The vertical laws a tip at reach_m could meet from ``height_m`` up: the soil's
         (Soil.vertical_law) and any buried object's top or rounded edge (which, judged
         where the tines were: ``face_height_m``; an edge's law depends on the tip's reach
-        speed too); used by the arm's compliant tine mount."""
+        speed too; ``edges=False`` leaves edges to a mount that gives sideways); used by
+        the arm's compliant tine mount."""
         laws = []
         for body in self.bodies:
-            law = body.vertical_law(reach_m, height_m, face_height_m, reach_vel_m_per_s)
+            law = body.vertical_law(reach_m, height_m, face_height_m, reach_vel_m_per_s,
+                                    edges)
             if law is not None:
                 laws.append(law)
         law = self.soil.vertical_law(reach_m, height_m)
         if law is not None:
             laws.append(law)
         return laws
+
+    def normal_laws(self, reach_m: float, height_m: float) -> list[tuple[int, NormalLaw]]:
+        """(body index, law) of every object whose side or rounded edge holds this point."""
+        laws = []
+        for i, body in enumerate(self.bodies):
+            law = body.normal_law(reach_m, height_m)
+            if law is not None:
+                laws.append((i, law))
+        return laws
+
+    def drag_law(self, reach_m: float, height_m: float, reach_vel_m_per_s: float
+                 ) -> tuple[float, float]:
+        """The soil's drag a tip here would meet (Soil.drag_law: as :meth:`step` computes it)."""
+        return self.soil.drag_law(reach_m, height_m, reach_vel_m_per_s)
 
     def transmitted(self, force_down_n: float) -> None:
         """What a compliant tine mount carried into the ground this substep: the truth's

@@ -308,6 +308,12 @@ class Soil:
     def cell_centre_m(self, index: int) -> float:
         return self._reach_min_m + (index + 0.5) * self.cell_m
 
+    def cell_edges_m(self, index: int) -> tuple[float, float]:
+        """The reach interval of cell ``index`` (the edge cells reach on beyond the lane)."""
+        low_m = -math.inf if index == 0 else self._reach_min_m + index * self.cell_m
+        high_m = math.inf if index == self._last else self._reach_min_m + (index + 1) * self.cell_m
+        return low_m, high_m
+
     def cell_index(self, reach_m: float) -> int:
         """The grid cell holding ``reach_m`` (edge cells beyond the lane)."""
         j = int((reach_m - self._reach_min_m) * self._inv_cell)
@@ -387,15 +393,29 @@ class Soil:
 
     def _drag(self, j: int, layer: int, height_m: float, reach_vel_m_per_s: float) -> None:
         """Cutting resistance from the soil just ahead of the tip."""
+        resist_n, smooth, surface_m = self._resistance(j, layer, height_m, reach_vel_m_per_s)
+        self.surface_height_m = surface_m
+        self.cut_depth_m = surface_m - height_m if resist_n > 0.0 else 0.0
+        self.force_reach_n = -resist_n * math.tanh(reach_vel_m_per_s / smooth)
+
+    def _resistance(self, j: int, layer: int, height_m: float, reach_vel_m_per_s: float
+                    ) -> tuple[float, float, float]:
+        """(H, v_s', surface ahead): the drag is −H·tanh(v/v_s') at this cut."""
         ahead = j - 1 if reach_vel_m_per_s < 0.0 else j + 1
         ahead = 0 if ahead < 0 else (self._last if ahead > self._last else ahead)
-        self.surface_height_m = self._surface[ahead]
-        cut_m = self.surface_height_m - height_m
+        surface_m = self._surface[ahead]
+        cut_m = surface_m - height_m
         if cut_m <= 0.0:
-            self.cut_depth_m = self.force_reach_n = 0.0
-            return
-        self.cut_depth_m = cut_m
+            return 0.0, self._smooth_m_per_s, surface_m
         resist_n = (self._a_gamma[layer] * cut_m + self._a_cq[layer]) * cut_m
         resist_n *= self._strength[layer][j]
-        smooth = max(self._smooth_m_per_s, resist_n * self._inv_max_damping)
-        self.force_reach_n = -resist_n * math.tanh(reach_vel_m_per_s / smooth)
+        return resist_n, max(self._smooth_m_per_s, resist_n * self._inv_max_damping), surface_m
+
+    def drag_law(self, reach_m: float, height_m: float, reach_vel_m_per_s: float
+                 ) -> tuple[float, float]:
+        """(H, v_s') of the drag −H·tanh(v/v_s') a tip here would meet in the next step, in the
+        layer :meth:`step` will use (for the tine mount's horizontal solve)."""
+        j = self.cell_index(reach_m)
+        layer = self._layer(self._original[j] - self._prev_height_m)
+        resist_n, smooth, _ = self._resistance(j, layer, height_m, reach_vel_m_per_s)
+        return resist_n, smooth

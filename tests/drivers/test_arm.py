@@ -37,7 +37,7 @@ from rakectl.sim.rake_plant import PeakRecorder
 
 WS = Workspace(pivot_height_m=0.6, r_min_m=0.35, r_max_m=1.6, theta_min_rad=-0.2,
                theta_max_rad=1.3)
-ARM = ArmParams()
+ARM = ArmParams(counterweight_kg=0.0)  # unbalanced: its gravity is what most tests check
 FRICTIONLESS_ARM = dataclasses.replace(
     ARM, stop_stiffness_r_n_per_m=0.0, stop_damping_r_ns_per_m=0.0,
     stop_stiffness_theta_nm_per_rad=0.0, stop_damping_theta_nms_per_rad=0.0,
@@ -144,6 +144,80 @@ def test_energy_is_conserved_without_dissipation(
     h × the largest power exchanged between kinetic and potential energy.
     """
     drift, power = _energy_drift(1e-4, ArmState(r_m, theta_rad, r_vel, theta_vel), 2.0)
+    assert drift <= 1e-4 * power + 1e-6
+
+
+# --------------------------------------------------------------------------- counterweight
+
+BALANCED = dataclasses.replace(FRICTIONLESS_ARM, counterweight_kg=8.0, counterbalance_share=1.0)
+
+
+def test_the_counterweight_adds_its_mass_as_seen_through_the_linkage() -> None:
+    """By hand: it moves β·m/m_c as fast as the carriage, so it adds m_c·(β m/m_c)² =
+    β² m²/m_c to the mass along r and that times (r − L/2)² to θ's inertia."""
+    arm = dataclasses.replace(ARM, counterweight_kg=8.0, counterbalance_share=0.75)
+    added_kg = (0.75 * 4.0) ** 2 / 8.0
+    mass_r, inertia = joint_masses(arm, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, 1.3)
+    bare_r, bare_inertia = joint_masses(ARM, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, 1.3)
+    assert mass_r - bare_r == pytest.approx(added_kg, rel=1e-12)
+    assert inertia - bare_inertia == pytest.approx(added_kg * 0.5 ** 2, rel=1e-12)
+    assert gravity_joint_loads(arm, 1.3, 0.4) == pytest.approx(
+        tuple(0.25 * load for load in gravity_joint_loads(ARM, 1.3, 0.4)), rel=1e-12)
+
+
+@pytest.mark.parametrize(("r_m", "theta_rad"), [(0.5, 0.1), (1.2, 0.6), (1.55, -0.15)])
+def test_a_balanced_arm_stays_where_it_is_left(r_m: float, theta_rad: float) -> None:
+    """β = 1: the arm's centre of mass does not move with the joints, so an unpowered,
+    frictionless arm left at rest anywhere stays there."""
+    plant = _ideal_plant(BALANCED)
+    plant.set_bridges(Bridge.OPEN, Bridge.OPEN)
+    plant.set_pose_at_rest(r_m, theta_rad)
+    _run(plant, (0.0, 0.0), NoContact(), 0.5)
+    assert plant.r_m == pytest.approx(r_m, abs=1e-12)
+    assert plant.theta_rad == pytest.approx(theta_rad, abs=1e-12)
+
+
+def test_a_partly_balanced_arm_starts_to_fall_as_its_unbalanced_share() -> None:
+    """β = 0.6: from rest the joints accelerate as gravity's unbalanced 40 % over each
+    joint's mass with the counterweight (hand-computed), for the first milliseconds."""
+    arm = dataclasses.replace(FRICTIONLESS_ARM, counterweight_kg=8.0, counterbalance_share=0.6)
+    plant = _ideal_plant(arm)
+    plant.set_bridges(Bridge.OPEN, Bridge.OPEN)
+    r_m, theta_rad, t_s = 1.2, 0.3, 0.002
+    plant.set_pose_at_rest(r_m, theta_rad)
+    _run(plant, (0.0, 0.0), NoContact(), t_s)
+    mass_r, inertia = joint_masses(arm, _ideal(R_MOTOR_DEFAULT), _ideal(THETA_MOTOR_DEFAULT), r_m)
+    weight_n = 0.4 * 4.0 * 9.81
+    assert plant.r_vel_m_per_s == pytest.approx(weight_n * math.sin(theta_rad) / mass_r * t_s,
+                                                rel=1e-2)
+    assert plant.theta_vel_rad_per_s == pytest.approx(
+        weight_n * (r_m - 0.8) * math.cos(theta_rad) / inertia * t_s, rel=1e-2)
+
+
+@settings(max_examples=4, deadline=None)
+@given(r_m=r_inside, theta_rad=theta_inside, r_vel=st.floats(-0.5, 0.5),
+       theta_vel=st.floats(-1.5, 1.5))
+def test_energy_is_conserved_with_a_counterweight(r_m: float, theta_rad: float, r_vel: float,
+                                                  theta_vel: float) -> None:
+    """The same as without it, a third of the weight left unbalanced."""
+    arm = dataclasses.replace(FRICTIONLESS_ARM, counterweight_kg=6.0, counterbalance_share=0.7)
+    plant = _ideal_plant(arm, 1e-4)
+    plant.set_bridges(Bridge.OPEN, Bridge.OPEN)
+    plant.set_state(ArmState(r_m, theta_rad, r_vel, theta_vel))
+    energy_0, drift, power = plant.mechanical_energy_j(), 0.0, 0.0
+
+    def kinetic() -> float:
+        masses = joint_masses(arm, _ideal(R_MOTOR_DEFAULT), _ideal(THETA_MOTOR_DEFAULT),
+                              plant.r_m)
+        speeds = (plant.r_vel_m_per_s, plant.theta_vel_rad_per_s)
+        return 0.5 * sum(m * v * v for m, v in zip(masses, speeds, strict=True))
+
+    last = kinetic()
+    for _ in range(round(1.0 / STEP_S)):
+        plant.step(0.0, 0.0, NoContact(), STEP_S)
+        drift = max(drift, abs(plant.mechanical_energy_j() - energy_0))
+        power = max(power, abs(kinetic() - last) / STEP_S)
+        last = kinetic()
     assert drift <= 1e-4 * power + 1e-6
 
 

@@ -185,7 +185,7 @@ def test_bring_up_by_sdo_nmt_and_rpdo_then_hold_the_arm(rig: Any) -> None:
                                                      config.physics.motor_theta)
     assert r_position == pytest.approx(plant.r_m, abs=1e-4)
     assert theta_position == pytest.approx(plant.theta_rad, abs=1e-3)
-    assert -5.0 < theta_current_a < -0.3  # holding the rake up against its weight
+    assert -3.0 < theta_current_a < -0.1  # holding the half of the rake's weight left
     assert abs(r_current_a) < 3.0
     assert all(len(of(frames, 0x181)) == len(of(frames, 0x182)) == 1 for frames in history)
     assert emulator.stats.bad.total == 0 and emulator.r_node.stats.lost_syncs == 0

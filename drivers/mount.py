@@ -1,0 +1,371 @@
+"""The tines' compliant mount: massless tines on springs, solved implicitly each substep.
+
+The tines hang below the arm's tip on a spring-damper vertically (k_v, c_v) and,
+as a hardware requirement like the vertical one, sideways (k_h, c_h): whatever
+they press, they press through the mount, so no contact is stiffer than the
+mount along its normal (rakectl.core.clamp relies on it). The tines are
+massless: the mount's force equals the ground's, k·δ + c·δ̇, and the arm feels
+exactly what the mount carries.
+
+Vertically the compression d is solved against the ground's piecewise-linear
+laws (``drivers.soil.VerticalLaw``: the soil's interface with its saw-tooth
+collapse, objects' tops with their yield), backward Euler, with an active set
+(:meth:`TineMount._vertical`).
+
+Sideways the tines' offset e along the reach is solved with it: the soil's drag
+−H·tanh(v/v_s) on the tines (linearized at their last speed: one Newton step of
+a monotone law, so implicit and stable) and every object whose side or rounded
+edge the tines are in (``drivers.objects.NormalLaw``, F = K·p + B·ṗ along the
+normal n). An edge couples the two: eliminating e from the sideways balance
+leaves, for each such object, a vertical law whose stiffness and damping are
+scaled by γ = 1 − n_reach·E₁/n_up (E₁: how e moves with d), which the vertical
+solve takes as it takes any other; e then follows exactly from the sideways
+balance at the solved d (objects piecewise linear, never pulling). Objects the
+solution reaches that were not in the set join it and the substep is solved
+again (a side met within a substep is never read as a penetration spike).
+A side stiffness of 0 keeps the tines rigid sideways (the model before it).
+
+Massless tines on a lightly damped mount move fast once let go (F/c: a few m/s
+sideways); the laws are linearized where the tines were, and a rounded edge
+curves away from that line by s²/2ρ over a slide s. So a substep in which the
+tines slide more than ``MAX_SLIDE_M`` relative to the arm is solved again in as
+many parts (the arm's tip moving on at its speed), each met by the ground.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from drivers.objects import NormalLaw
+from drivers.soil import VerticalLaw
+
+# Rounds of the tine mount's active-set iteration (contacts, yields, soil collapses).
+_MOUNT_ITERATIONS = 16
+# Largest slide of the tines relative to the arm in one solve (a 20 µm slide strays
+# 0.07 µm off a 3 mm edge: under 1 N on a stone).
+MAX_SLIDE_M = 2e-5
+MAX_PARTS = 64
+# Rounds of taking the objects' laws again where the sideways solution put the tines.
+_SIDE_ROUNDS = 6
+# A linearized penetration this close to the ground's own reading is taken as settled
+# (0.1 µm: 1 N on a stone), and the drag's linearization once the tines' speed moved less
+# than this between rounds.
+_SETTLED_M = 1e-7
+_SETTLED_M_PER_S = 1e-4
+_NEWTON_STEPS = 60
+
+
+class _Coupled:
+    """An object's side or edge law linearized where the tines were: its force along the
+    normal is α − β·(n_reach·e + n_up·d), clipped to [0, cap]."""
+
+    __slots__ = ("_reference_m", "alpha", "beta", "cap_n", "damping_ns_per_m", "index",
+                 "n_reach", "n_up", "stiffness_n_per_m")
+
+    def __init__(self, index: int, law: NormalLaw, at: tuple[float, float],
+                 start: tuple[float, float], reach_vel: float, height_vel: float, h: float
+                 ) -> None:
+        """``law`` as read with the tines at offset ``at`` = (e, d); ``start``: the mount's
+        state at the start of the substep (the rate is taken from there)."""
+        n_x, n_z = law.n_reach, law.n_up
+        (e_at, d_at), (e0, d0) = at, start
+        k, b = law.stiffness_n_per_m, law.damping_ns_per_m
+        approach = -(n_x * reach_vel + n_z * height_vel)  # the arm's, before the mount
+        approach_x = max(0.0, -n_x * reach_vel)  # only INTO the face (see Body.vertical_law)
+        approach = approach_x - n_z * height_vel if n_z > 0.0 else approach
+        self.index, self.n_reach, self.n_up, self.cap_n = index, n_x, n_z, law.cap_n
+        self.stiffness_n_per_m, self.damping_ns_per_m = k, b
+        self.beta = k + b / h
+        self.alpha = (k * (law.depth_m + n_x * e_at + n_z * d_at) + b * approach
+                      + b * (n_x * e0 + n_z * d0) / h)
+        self._reference_m = law.depth_m + n_x * e_at + n_z * d_at
+
+    def penetration_m(self, e: float, d: float) -> float:
+        """The penetration this linearization gives with the tines at (e, d)."""
+        return self._reference_m - self.n_reach * e - self.n_up * d
+
+
+class _Drag:
+    """The soil's drag on the tines, −H·tanh(v/v_s), and what a linear solve takes of it."""
+
+    __slots__ = ("resist_n", "smooth_m_per_s")
+
+    def __init__(self, resist_n: float, smooth_m_per_s: float) -> None:
+        self.resist_n, self.smooth_m_per_s = resist_n, smooth_m_per_s
+
+    def at(self, v: float) -> tuple[float, float]:
+        """The drag at speed v and its slope there (≤ 0)."""
+        if self.resist_n <= 0.0:
+            return 0.0, 0.0
+        t = math.tanh(v / self.smooth_m_per_s)
+        return -self.resist_n * t, -self.resist_n * (1.0 - t * t) / self.smooth_m_per_s
+
+    def balance(self, k_h: float, c_h: float, e0: float, reach_vel: float, v_lin: float,
+                h: float) -> tuple[float, float]:
+        """(a, b) of the sideways balance a·e = b (+ Σ n_reach·f of the objects), the drag
+        linearized at the tines' speed ``v_lin``."""
+        force, slope = self.at(v_lin)
+        a = k_h + (c_h - slope) / h
+        b = (c_h - slope) * e0 / h + force + slope * (reach_vel - v_lin)
+        return a, b
+
+
+class TineMount:
+    """The mount's state (compression d, sideways offset e) and its implicit solves."""
+
+    def __init__(self, k_v: float, c_v: float, k_h: float, c_h: float, step_s: float
+                 ) -> None:
+        self.k_v, self.c_v, self.k_h, self.c_h = k_v, c_v, k_h, c_h
+        self.step_s = step_s  # the solves' time step: the arm's substep, or a part of it
+        self.compression_m = 0.0  # d > 0: tines pushed up
+        self.offset_m = 0.0  # e > 0: tines pushed away from the robot
+        self.tine_reach_vel_m_per_s = 0.0  # the tines' last speed along the reach
+
+    @property
+    def vertical(self) -> bool:
+        return self.k_v > 0.0
+
+    @property
+    def sideways(self) -> bool:
+        return self.k_h > 0.0
+
+    def reset(self) -> None:
+        self.compression_m = self.offset_m = self.tine_reach_vel_m_per_s = 0.0
+
+    def solve(self, ground: Any, reach_m: float, height_m: float, reach_vel: float,
+              height_vel: float) -> tuple[float, float]:
+        """(e, d) at the end of this substep; the state is not yet updated (see commit)."""
+        e0, d0, h = self.offset_m, self.compression_m, self.step_s
+        start = (e0, d0)
+        coupled = [_Coupled(i, law, start, start, reach_vel, height_vel, h)
+                   for i, law in ground.normal_laws(reach_m + e0, height_m + d0)]
+        v_lin = self.tine_reach_vel_m_per_s
+        d, e = d0, e0
+        laws_at = math.nan  # where the vertical laws were taken (the tines' reach)
+        for _ in range(_SIDE_ROUNDS):
+            drag = _Drag(*ground.drag_law(reach_m + e, height_m + d, v_lin))
+            a_e, b_e = drag.balance(self.k_h, self.c_h, e0, reach_vel, v_lin, h)
+            if math.isnan(laws_at):  # first round: where the linear solve puts the tines
+                e_0, e_1 = self._elimination(coupled, a_e, b_e)
+                laws_at = reach_m + e_0 - e_1 * d0
+            else:
+                laws_at = reach_m + e
+            d = self._coupled_vertical(ground, coupled, a_e, b_e, laws_at, height_m,
+                                       reach_vel, height_vel)
+            e = self._sideways(coupled, drag, reach_vel, d, e)
+            v_new = reach_vel + (e - e0) / h
+            same_cell = ground.soil.cell_index(laws_at) == ground.soil.cell_index(reach_m + e)
+            # the edges are curved and the drag is not linear: take every law again where
+            # the tines now are (objects they reach join; ones they left keep their last
+            # linearization) until what the solve assumed is what the ground will read
+            inside = {i: law for i, law in ground.normal_laws(reach_m + e, height_m + d)}
+            settled = (same_cell and len(inside) == len(coupled)
+                       and abs(v_new - v_lin) < _SETTLED_M_PER_S
+                       and all(c.index in inside and abs(c.penetration_m(e, d)
+                                                         - inside[c.index].depth_m) < _SETTLED_M
+                               for c in coupled))
+            if settled:
+                break
+            kept = [c for c in coupled if c.index not in inside]
+            coupled = kept + [_Coupled(i, law, (e, d), start, reach_vel, height_vel, h)
+                              for i, law in inside.items()]
+            v_lin = v_new
+        else:  # not settled: the tines sit on a soil cell's edge; keep them in the laws' cell
+            soil = ground.soil
+            low_m, high_m = soil.cell_edges_m(soil.cell_index(laws_at))
+            e = min(max(e, low_m - reach_m), math.nextafter(high_m, -math.inf) - reach_m)
+        return e, d
+
+    def commit(self, e: float, d: float, reach_vel: float) -> tuple[float, float]:
+        """Take (e, d) as the new state; the mount's forces (sideways, vertical) on the arm."""
+        h = self.step_s
+        rate_e, rate_d = (e - self.offset_m) / h, (d - self.compression_m) / h
+        self.offset_m, self.compression_m = e, d
+        self.tine_reach_vel_m_per_s = reach_vel + rate_e
+        side_n = self.k_h * e + self.c_h * rate_e
+        down_n = self.k_v * d + self.c_v * rate_d
+        return side_n, (down_n if down_n > 0.0 else 0.0)
+
+    def _elimination(self, coupled: list[_Coupled], a_e: float, b_e: float
+                     ) -> tuple[float, float]:
+        """(E₀, E₁) with e = E₀ − E₁·d, every coupled law taken as pressing and elastic."""
+        a, b, b_d = a_e, b_e, 0.0
+        for c in coupled:
+            a += c.beta * c.n_reach * c.n_reach
+            b += c.n_reach * c.alpha
+            b_d += c.beta * c.n_reach * c.n_up
+        return b / a, b_d / a
+
+    def _coupled_vertical(self, ground: Any, coupled: list[_Coupled], a_e: float, b_e: float,
+                          tine_reach_m: float, height_m: float, reach_vel: float,
+                          height_vel: float) -> float:
+        """d, with each edge's law folded through the sideways balance into a vertical one;
+        the soil's and the tops' laws where the tines are (``tine_reach_m``)."""
+        if not self.vertical:
+            return 0.0
+        d0, h = self.compression_m, self.step_s
+        e_0, e_1 = self._elimination(coupled, a_e, b_e)
+        laws: list[VerticalLaw] = ground.vertical_laws(
+            tine_reach_m, height_m, height_m + d0, reach_vel, edges=False)
+        for c in coupled:
+            if c.n_up <= 0.0:
+                continue  # a side: only the sideways balance feels it
+            gamma = 1.0 - c.n_reach * e_1 / c.n_up
+            if gamma <= 0.0:
+                continue
+            k_z = gamma * c.n_up * c.n_up * c.stiffness_n_per_m
+            b_z = gamma * c.n_up * c.n_up * c.damping_ns_per_m
+            constant_n = c.n_up * (c.alpha - c.beta * c.n_reach * e_0)
+            ref_m = height_m + (constant_n - b_z * (d0 / h - height_vel)) / k_z
+            laws.append(VerticalLaw(ref_m, k_z, b_z, c.cap_n * c.n_up, False))
+        return self._vertical(laws, height_m, height_vel)
+
+    def _sideways(self, coupled: list[_Coupled], drag: _Drag, reach_vel: float, d: float,
+                  guess: float) -> float:
+        """e from the sideways balance at this d, exactly: the mount, the drag (tanh) and the
+        coupled laws (each pressing, capped or slack). The residual rises strictly with e,
+        so Newton's steps are kept inside a bracket that always holds the root."""
+        e0, h = self.offset_m, self.step_s
+        stiff = self.k_h + self.c_h / h
+        lo, hi = -math.inf, math.inf
+        e = guess
+        for _ in range(_NEWTON_STEPS):
+            v = reach_vel + (e - e0) / h
+            force, slope = drag.at(v)
+            r = stiff * e - self.c_h * e0 / h - force
+            dr = stiff - slope / h
+            for c in coupled:
+                f = c.alpha - c.beta * (c.n_reach * e + c.n_up * d)
+                if f <= 0.0:
+                    continue
+                if f >= c.cap_n:
+                    r -= c.n_reach * c.cap_n
+                else:
+                    r -= c.n_reach * f
+                    dr += c.beta * c.n_reach * c.n_reach
+            if r == 0.0:
+                return e
+            if r > 0.0:
+                hi = e
+            else:
+                lo = e
+            step = e - r / dr
+            if not lo < step < hi:  # Newton left the bracket: halve it (widen it if open)
+                if math.isinf(lo) or math.isinf(hi):
+                    width = max(abs(r / dr), 1e-9)
+                    step = e - 2.0 * width if r > 0.0 else e + 2.0 * width
+                else:
+                    step = 0.5 * (lo + hi)
+            if abs(step - e) < 1e-13:
+                return step
+            e = step
+        return e
+
+    def _vertical(self, laws: list[VerticalLaw], height_m: float, height_vel_m_per_s: float
+               ) -> float:
+        """The mount's compression at the end of this substep (backward Euler).
+
+        The tines are massless: the mount's force k·δ + c·δ̇ equals the ground's, the
+        sum over the laws the tines are below of K (ref − z − δ) − B (ż + δ̇), each as the
+        ground itself computes it: an object's elastic part held at its cap where it
+        yields, the soil's interface lowered by whole steps of cap/K where it collapses
+        (:class:`drivers.soil.VerticalLaw`). The laws in contact, yielding, and the
+        collapsed interfaces are found by iteration (piecewise linear, active set); each
+        only changes one way within a substep, so a stiff top cannot make it chatter.
+        Solved implicitly, so a stiff ground (a stone, 10⁷ N/m) is stable at the
+        substep and meets the tines without a force spike.
+        """
+        h, k, c, d0 = self.step_s, self.k_v, self.c_v, self.compression_m
+        relaxed = c * d0 / (c + h * k)  # no ground force: the mount relaxes
+        d = relaxed
+        refs = [law.ref_m for law in laws]
+        active = [height_m + d0 < ref_m for ref_m in refs]
+        yielding = [False] * len(laws)
+        above = [False] * len(laws)  # the tines stay above it this substep
+        slack = [False] * len(laws)  # the tines leave it faster than it pushes: it reads 0
+        for _ in range(_MOUNT_ITERATIONS):
+            stiff = damp = force = 0.0
+            for law, ref_m, on, cap in zip(laws, refs, active, yielding, strict=True):
+                if on:
+                    damp += law.damping_ns_per_m
+                    if cap:
+                        force += law.cap_n
+                    else:
+                        stiff += law.stiffness_n_per_m
+                        force += law.stiffness_n_per_m * (ref_m - height_m)
+            if any(active):
+                force += (damp + c) * d0 / h - damp * height_vel_m_per_s
+                d = force / (stiff + k + (damp + c) / h)
+                if k * d + c * (d - d0) / h <= 0.0:  # the ground would pull: it lets go
+                    d = relaxed
+            changed = False
+            for i, law in enumerate(laws):
+                if not active[i]:
+                    if height_m + d < refs[i] and not above[i] and not slack[i]:
+                        active[i] = changed = True  # the solution reaches it: it joins
+                    continue
+                elastic_n = law.stiffness_n_per_m * (refs[i] - height_m - d)
+                if elastic_n < 0.0 and not changed:
+                    # in contact, yet the solution is above it: the contact force jumps at
+                    # the surface (damping). Either the tines rest on it this substep, or
+                    # the other laws already hold the mount above it there.
+                    rest = self._rest_on(refs[i], height_m, relaxed)
+                    if self._others_n(laws, refs, active, yielding, i, height_m,
+                                      height_vel_m_per_s, rest) < (
+                            k * rest + c * (rest - d0) / h):
+                        return rest
+                    active[i], above[i], changed = False, True, True
+                    break
+                held_n = law.cap_n if yielding[i] else elastic_n
+                if not changed and held_n < law.damping_ns_per_m * (
+                        height_vel_m_per_s + (d - d0) / h):
+                    # it would pull: a contact only pushes (Soil.step and Body.touch clip its
+                    # force at 0), so it carries nothing this substep and the others hold the
+                    # tines (else its damping pulled the mount down while the ground read the
+                    # others' force unrelieved: a tine lifted up a rounded edge out of the soil
+                    # read 90-170 N with the mount carrying 17-47 N, seed 7's lanes 429, 606,
+                    # 732, 735)
+                    active[i], slack[i], changed = False, True, True
+                    break
+                if yielding[i]:
+                    continue
+                if elastic_n > law.cap_n:
+                    changed = True
+                    if law.collapses:  # the soil gives way as Soil._push does
+                        steps = math.floor(elastic_n / law.cap_n)
+                        refs[i] -= steps * law.cap_n / law.stiffness_n_per_m
+                    else:
+                        yielding[i] = True
+            if not changed:
+                break
+        for i, ref_m in enumerate(refs):
+            if above[i] and height_m + d < ref_m:  # left out, yet reached: rest on it
+                return self._rest_on(ref_m, height_m, relaxed)
+        return d
+
+    @staticmethod
+    def _rest_on(ref_m: float, height_m: float, relaxed_m: float) -> float:
+        """The compression that puts the tines on ``ref_m``, not below it by a rounding (the
+        ground would read its damping at the speed they fell in this substep), and never
+        extending faster than the mount relaxes (its force stays ≥ 0)."""
+        d = max(ref_m - height_m, relaxed_m)
+        while height_m + d < ref_m:
+            d = math.nextafter(d, math.inf)
+        return d
+
+    def _others_n(self, laws: list[VerticalLaw], refs: list[float], active: list[bool],
+                  yielding: list[bool], skip: int, height_m: float, height_vel_m_per_s: float,
+                  d_m: float) -> float:
+        """The force of the active laws but ``skip`` on tines at compression ``d_m``."""
+        tine_m = height_m + d_m
+        rate_m_per_s = height_vel_m_per_s + (d_m - self.compression_m) / self.step_s
+        total_n = 0.0
+        for j, law in enumerate(laws):
+            if j == skip or not active[j] or tine_m >= refs[j]:
+                continue
+            elastic_n = (law.cap_n if yielding[j]
+                         else law.stiffness_n_per_m * (refs[j] - tine_m))
+            total_n += max(0.0, elastic_n - law.damping_ns_per_m * rate_m_per_s)
+        return total_n
+

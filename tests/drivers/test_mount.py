@@ -1,0 +1,198 @@
+"""The tines' mount sideways, against hand-computed and independent references.
+
+A stone's side met by the arm coasting along the reach (a mass meeting a
+spring-damper, integrated here with RK4, not the emulator's code), a steady
+drag through soil (the earthmoving equation by hand), a static press with a
+known motor current, and the mount's reading against the ground's own on a
+rounded edge.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+
+from drivers.arm import ArmParams, ArmPlant, ArmState, joint_masses
+from drivers.motor import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, Bridge, joint_load_band
+from drivers.objects import BuriedObjects, Ground, GroundParams, MineParams, StoneParams
+from drivers.soil import SoilLayer, SoilParams, cutting_force_n
+from rakectl.core import kinematics
+from rakectl.core.kinematics import Workspace
+from rakectl.sim.rake_plant import PeakRecorder
+
+WS = Workspace(pivot_height_m=0.6, r_min_m=0.35, r_max_m=1.6, theta_min_rad=-0.2,
+               theta_max_rad=1.3)
+ARM = ArmParams()
+STEP_S = 1e-3
+AIR = SoilParams(layers=(SoilLayer(stiffness_n_per_m=1.0, collapse_force_n=1e-3,
+                                   cohesion_pa=0.0, unit_weight_n_per_m3=1.0),),
+                 surface_slope=0.0, stiffness_rel_std=0.0, strength_rel_std=0.0,
+                 lane_reach_max_m=2.0)
+
+
+class _Sides(PeakRecorder):
+    """The ground as the rake loop passes it; per substep the ground's own reading along
+    the reach next to what the mount carried sideways."""
+
+    def __init__(self, ground: Ground) -> None:
+        super().__init__(ground)
+        self.readings: list[float] = []
+
+    def step(self, reach_m: float, height_m: float, reach_vel_m_per_s: float,
+             height_vel_m_per_s: float, dt_s: float) -> tuple[float, float]:
+        force = super().step(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s, dt_s)
+        self.readings.append(force[0])
+        return force
+
+
+def _coast_into_a_side(arm: ArmParams, speed_m_per_s: float) -> tuple[float, float, float]:
+    """θ = 0, r retracting at ``speed_m_per_s`` with its motor open, the tines 1 mm from a
+    stone's far side at mid-height: (peak side force on the stone, the largest mount
+    offset, the r joint's mass)."""
+    r_m, theta_rad = 1.2, 0.0
+    reach_m, height_m = kinematics.forward(WS, r_m, theta_rad)
+    stone = StoneParams(reach_m - 0.001 - 0.05, -(height_m + 0.02), 0.1, 0.06, edge_radius_m=0.0)
+    ground = Ground(GroundParams(soil=AIR, objects=BuriedObjects(stones=(stone,))), seed=0)
+    ideal = dataclasses.replace(R_MOTOR_DEFAULT, gear_efficiency=1.0, coulomb_friction_nm=0.0,
+                                viscous_friction_nms_per_rad=0.0)  # no friction to brake it
+    arm = dataclasses.replace(arm, damping_r_ns_per_m=0.0)
+    plant = ArmPlant(arm, ideal, THETA_MOTOR_DEFAULT, WS)
+    plant.set_state(ArmState(r_m, theta_rad, -speed_m_per_s, 0.0))
+    plant.set_bridges(Bridge.OPEN, Bridge.DRIVEN)  # r coasts; θ is held level
+    recorder = PeakRecorder(ground)
+    offset_m = 0.0
+    for _ in range(300):
+        plant.step(0.0, _servo(plant, r_m, theta_rad, 0.0, 0.0)[1], recorder, STEP_S)
+        offset_m = max(offset_m, plant.mount_offset_m)
+    mass_r = joint_masses(arm, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, r_m)[0]
+    return ground.bodies[0].peak_side_n, offset_m, mass_r
+
+
+def _mass_meets_spring_damper(mass_kg: float, stiffness: float, damping: float,
+                              speed_m_per_s: float) -> float:
+    """Peak force of a free mass arriving on a spring-damper (RK4, 1 µs), no push."""
+    h, x, v, peak = 1e-6, 0.0, speed_m_per_s, 0.0
+
+    def accel(x: float, v: float) -> float:
+        return -max(stiffness * x + damping * v, 0.0) / mass_kg
+
+    while True:
+        k1x, k1v = v, accel(x, v)
+        k2x, k2v = v + 0.5 * h * k1v, accel(x + 0.5 * h * k1x, v + 0.5 * h * k1v)
+        k3x, k3v = v + 0.5 * h * k2v, accel(x + 0.5 * h * k2x, v + 0.5 * h * k2v)
+        k4x, k4v = v + h * k3v, accel(x + h * k3x, v + h * k3v)
+        x += h * (k1x + 2 * k2x + 2 * k3x + k4x) / 6
+        v += h * (k1v + 2 * k2v + 2 * k3v + k4v) / 6
+        peak = max(peak, stiffness * x + damping * v)
+        if v < 0.0:
+            return peak
+
+
+@pytest.mark.parametrize("speed_m_per_s", [0.05, 0.2, 0.4])
+def test_a_side_met_coasting_peaks_as_a_mass_on_the_mount(speed_m_per_s: float) -> None:
+    """The arm coasting along the reach meets a stone's side (10⁷ N/m): the side force
+    peaks as the r joint's mass meeting the mount's spring-damper, the stone's own
+    stiffness in series (within 3 %); a rigid tine peaks far higher."""
+    peak_n, offset_m, mass_kg = _coast_into_a_side(ARM, speed_m_per_s)
+    k = 1.0 / (1.0 / ARM.tine_mount_side_stiffness_n_per_m + 1.0 / 1e7)
+    expected = _mass_meets_spring_damper(mass_kg, k, ARM.tine_mount_side_damping_ns_per_m,
+                                         speed_m_per_s)
+    assert peak_n == pytest.approx(expected, rel=0.03)
+    assert offset_m == pytest.approx(expected / ARM.tine_mount_side_stiffness_n_per_m, rel=0.05)
+    rigid_n, _, _ = _coast_into_a_side(
+        dataclasses.replace(ARM, tine_mount_side_stiffness_n_per_m=0.0), speed_m_per_s)
+    assert rigid_n > 5.0 * peak_n
+
+
+def _servo(plant: ArmPlant, r_ref: float, theta_ref: float, r_dot: float,
+           theta_dot: float) -> tuple[float, float]:
+    """Joint PD with velocity feed-forward on the true state: stiff enough to hold a path."""
+    return (3e3 * (r_ref - plant.r_m) + 60.0 * (r_dot - plant.r_vel_m_per_s) + 16.0 * r_dot,
+            3e3 * (theta_ref - plant.theta_rad) + 60.0 * (theta_dot - plant.theta_vel_rad_per_s)
+            + 7.0 * theta_dot)
+
+
+def test_a_steady_drag_deflects_the_mount_by_drag_over_stiffness() -> None:
+    """Dragged at a steady 0.05 m/s through homogeneous soil at a 10 mm cut, the tines trail
+    the arm by H/k_h, H from the earthmoving equation by hand, and the arm feels H."""
+    layer = SoilLayer(stiffness_n_per_m=2e5, collapse_force_n=1e4, cohesion_pa=5e3,
+                      damping_time_s=0.0)
+    soil = SoilParams(layers=(layer,), surface_slope=0.0, stiffness_rel_std=0.0,
+                      strength_rel_std=0.0, lane_reach_max_m=2.0)
+    ground = Ground(GroundParams(soil=soil), seed=0)
+    plant = ArmPlant(ARM, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, WS)
+    reach_m, depth_m, speed = 1.3, 0.010, 0.05
+    plant.set_state(ArmState(*kinematics.inverse(WS, reach_m, -depth_m)))
+    recorder = _Sides(ground)
+    for k in range(1500):
+        reach = reach_m - speed * min(k, 1400) * STEP_S
+        r, th = kinematics.inverse(WS, reach, -depth_m)
+        moving = -speed if k < 1400 else 0.0
+        plant.step(*_servo(plant, r, th, *_joint_rates(r, th, moving, 0.0)), recorder, STEP_S)
+        if k == 1300:
+            offset_m, side_n, reading_n = (plant.mount_offset_m, plant.last_tip_force_n[0],
+                                           recorder.readings[-1])
+    drag_n = cutting_force_n(layer, soil, depth_m)
+    assert offset_m == pytest.approx(drag_n / ARM.tine_mount_side_stiffness_n_per_m, rel=0.03)
+    assert side_n == pytest.approx(drag_n, rel=0.03)
+    assert reading_n == pytest.approx(drag_n, rel=0.03)
+
+
+def _joint_rates(r_m: float, theta_rad: float, reach_vel: float, height_vel: float
+                 ) -> tuple[float, float]:
+    j11, j12, j21, j22 = kinematics.jacobian(r_m, theta_rad)
+    det = j11 * j22 - j12 * j21
+    return ((j22 * reach_vel - j12 * height_vel) / det,
+            (-j21 * reach_vel + j11 * height_vel) / det)
+
+
+def test_a_static_side_press_is_the_motors_force_through_the_mount() -> None:
+    """θ = 0, the r motor at a known stalled current presses the tines on a stone's side:
+    the stone holds the motor's force (within its friction band) and the mount is
+    offset by that force over its stiffness."""
+    r_m, theta_rad = 1.2, 0.0
+    reach_m, height_m = kinematics.forward(WS, r_m, theta_rad)
+    stone = StoneParams(reach_m - 0.0005 - 0.05, -(height_m + 0.02), 0.1, 0.06,
+                        edge_radius_m=0.0)
+    ground = Ground(GroundParams(soil=AIR, objects=BuriedObjects(stones=(stone,))), seed=0)
+    plant = ArmPlant(ARM, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, WS)
+    plant.set_state(ArmState(r_m, theta_rad))
+    voltage_v = -0.6  # retract: push toward the robot, into the stone's far side
+    recorder = PeakRecorder(ground)
+    for _ in range(600):
+        plant.step(voltage_v, _servo(plant, r_m, theta_rad, 0.0, 0.0)[1], recorder, STEP_S)
+    current_a = voltage_v / R_MOTOR_DEFAULT.resistance_ohm
+    band = sorted(joint_load_band(R_MOTOR_DEFAULT, current_a))
+    side_n = ground.bodies[0].force_reach_n
+    assert -band[1] - 1.0 <= side_n <= -band[0] + 1.0  # it holds what the motor pushes
+    assert plant.mount_offset_m == pytest.approx(side_n / ARM.tine_mount_side_stiffness_n_per_m,
+                                                 rel=0.02)
+
+
+def test_on_a_rounded_edge_the_mount_carries_what_the_mine_reads() -> None:
+    """Dragged at 0.1 m/s into a mine's rim 1.5 mm under its plate, motors open: on every
+    substep the mine's own reading along its normal and what the mount carries agree."""
+    r_m, theta_rad = 1.2, 0.2
+    reach_m, height_m = kinematics.forward(WS, r_m, theta_rad)
+    mine = MineParams(reach_m - 0.0005 - 0.04, -(height_m + 0.0015), 0.08, 0.05,
+                      activation_force_n=1e4)
+    ground = Ground(GroundParams(soil=AIR, objects=BuriedObjects(mines=(mine,))), seed=0)
+    plant = ArmPlant(ARM, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, WS)
+    speed = 0.1
+    plant.set_state(ArmState(r_m, theta_rad, *_joint_rates(r_m, theta_rad, -speed, 0.0)))
+    plant.set_bridges(Bridge.OPEN, Bridge.OPEN)
+    recorder = _Sides(ground)
+    body = ground.bodies[0]
+    pairs = []
+    for _ in range(60):
+        plant.step(0.0, 0.0, recorder, STEP_S)
+        pairs.append((body.force_reach_n, body.force_up_n, *plant.last_tip_force_n))
+    touching = [p for p in pairs if p[0] != 0.0 or p[1] != 0.0]
+    assert touching, "the tines met the rim"
+    for own_x, own_up, mount_x, mount_up in touching:
+        assert mount_x == pytest.approx(own_x, rel=0.05, abs=0.5)
+        assert mount_up == pytest.approx(own_up, rel=0.05, abs=0.5)
+    assert max(math.hypot(p[0], p[1]) for p in touching) == pytest.approx(
+        max(body.peak_side_n, body.peak_down_n), rel=0.5)
