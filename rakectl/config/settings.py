@@ -103,8 +103,12 @@ class LaneSettings:
         0.03, "Adaptive: slowest stroke (supervision's caution level still holds the motion). "
         "Slower than ~3× the emulated drag's smoothing speed (0.01 m/s), a tine that the "
         "drag has lifted is let go and drops.", unit="m/s", gt=0, le=1)
-    max_stroke_speed_m_per_s: float = setting(0.25, "Adaptive: fastest stroke.", unit="m/s",
-                                              gt=0, le=1)
+    max_stroke_speed_m_per_s: float = setting(
+        0.15, "Adaptive: fastest stroke. The clamp's budget toward the robot shrinks with the "
+        "tip's speed (at 1.2 m with the 5 kN/m mount: 35 N at rest, 27 N at 0.1 m/s, 18 N at "
+        "0.15 m/s, none from 0.23 m/s): faster, a stroke at depth is cut until it rides up out "
+        "of its cut.", unit="m/s",
+        gt=0, le=1)
     max_plunge_speed_m_per_s: float = setting(
         0.02, "Adaptive: fastest plunge. Each plunge starts at plunge_speed_m_per_s and "
         "follows the stroke's force set point up to this, never slower than "
@@ -157,6 +161,10 @@ class JogSettings:
                                "(clients send every 0.1 s).", unit="s", ge=0.05, le=5)
     contact_depth_m: float = setting(-0.005, "Jog references deeper than this are treated as "
                                      "contact (α > 0).", unit="m", ge=-0.5, le=0.5)
+    max_lag_m: float = setting(
+        0.02, "The jog reference waits while it is this far from the measured tip and a step "
+        "would take it further (a tip blocked by something rigid, or held back by the clamp): "
+        "the joint loops are never asked to push on through it.", unit="m", gt=0, le=0.5)
 
 
 @dataclass(frozen=True)
@@ -216,8 +224,9 @@ class ClampSettings:
     """The voltage clamp: the last stage before a voltage is encoded (see rakectl.core.clamp)."""
 
     force_limit_n: float = setting(
-        FORCE_LIMIT_N, "Worst-case static vertical tip force the clamp allows. May be lowered, "
-        "never raised above 90 N (pressure-fused mines).", unit="N", gt=0, le=FORCE_LIMIT_N)
+        FORCE_LIMIT_N, "Largest force the tip may put on anything it meets, in any direction "
+        "(the ground, a buried object's top, side or edge). May be lowered, never raised above "
+        "90 N (pressure-fused mines).", unit="N", gt=0, le=FORCE_LIMIT_N)
     model_margin: float = setting(
         0.2, "Share of force_limit_n kept back for model error (masses, friction, k_t, η).",
         ge=0.05, lt=1)
@@ -235,13 +244,32 @@ class ClampSettings:
     platform_inertia_kgm2: float = setting(
         0.3, "The controller's model of the rotating platform's inertia about the pivot (for "
         "the tip's apparent mass).", unit="kg·m²", ge=0, le=1e3)
+    counterweight_kg: float = setting(
+        8.0, "The controller's model of the counterweight linked to the carriage (0: none).",
+        unit="kg", ge=0, le=1e3)
+    counterbalance_share: float = setting(
+        0.5, "The controller's model of the share of the rake's weight the counterweight "
+        "balances. A hardware requirement: with the θ gear's efficiency band (η = 0.68) an "
+        "unbalanced rake cannot be lifted at full reach within the every-direction budget, "
+        "and a fully balanced one presses down only through that band.",
+        ge=0, le=1.5)
     contact_stiffness_n_per_m: float = setting(
-        3.0e4, "Stiffest vertical contact the tines can meet: their compliant mount's stiffness, "
-        "in series with anything they press (a stone, a mine's plate). A rigid tine on a rigid "
-        "plate would make any descent speed an impact above 90 N.", unit="N/m", gt=0, le=1e9)
+        5.0e3, "Stiffest vertical contact the tines can meet: their compliant mount's stiffness, "
+        "in series with anything they press (a stone, a mine's plate). A hardware requirement "
+        "(90 N at 18 mm): a rigid tine on a rigid plate would make any descent speed an impact "
+        "above 90 N.", unit="N/m", gt=0, le=1e9)
     contact_damping_ns_per_m: float = setting(
-        50.0, "Damping in parallel with that stiffness (the mount's).", unit="N·s/m", ge=0,
+        7.5, "Damping in parallel with that stiffness (the mount's).", unit="N·s/m", ge=0,
         le=1e6)
+    side_contact_stiffness_n_per_m: float = setting(
+        5.0e3, "Stiffest horizontal contact the tines can meet: their mount's horizontal "
+        "stiffness (a hardware requirement, as the vertical one). A tine rigid sideways meets "
+        "a stone's side at 0.1 m/s with several hundred newtons; a mount softer sideways than "
+        "vertically stores energy a rounded edge turns into a vertical push √(k_v/k_h) times "
+        "larger, so the clamp's side budgets shrink by that factor.", unit="N/m", gt=0, le=1e9)
+    side_contact_damping_ns_per_m: float = setting(
+        7.5, "Damping in parallel with the horizontal stiffness (the mount's).", unit="N·s/m",
+        ge=0, le=1e6)
     reaction_latency_s: float = setting(
         0.002, "Time from a velocity measurement until the voltage chosen from it acts (the "
         "bus's one-tick delay and a tick of sampling).", unit="s", ge=0, le=0.1)

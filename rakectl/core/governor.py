@@ -22,7 +22,11 @@ e = min((F* − F)/F*, (L* − L)/L*), with asymmetric rates:
 
 clipped to [v_min, v_max], with r = SLOWDOWN_RATIO when the force is above
 its set point and r = 1 when only the lag is (slowing down abruptly makes the
-tip lurch, a lag is not a force). It never speeds up while F is above F* or
+tip lurch, a lag is not a force). A third margin, the tip riding above its
+reference depth R against R*, slows the stroke where the voltage clamp's
+budget cannot hold the tine down at that speed (the joints' velocity
+uncertainty grows with speed and takes budget): a tine riding high and then
+dropping reads as force in F̂. It never speeds up while F is above F* or
 L above L*, and it slows from the speed the reference actually has (after an
 acceleration ramp the limit may be above it). At F = 2 F* with the defaults
 (g = 2 /s, v_max = 0.25 m/s) the limit falls at 4 m/s², from full speed to
@@ -47,7 +51,7 @@ The depth of cut adapts too, once per cycle (:func:`next_depth_step_m`): a
 stroke that stayed well under its set points is followed by a deeper cut. On
 the benchmark's lane the strokes are a third of the time and the free-space
 return the largest part, so fewer, deeper cuts are what halves the time in soft
-soil; stroke speed alone cannot (see the README's "Benchmarks").
+soil; stroke speed alone cannot (see bench/BENCHMARKS.md).
 """
 
 from __future__ import annotations
@@ -79,13 +83,17 @@ class StrokeGovernor:
         return min(self.max_speed_m_per_s, max(self.min_speed_m_per_s, speed_m_per_s))
 
     def update(self, force_n: float, target_n: float, lag_m: float, lag_target_m: float,
-               reference_speed_m_per_s: float) -> float:
+               reference_speed_m_per_s: float, rise_m: float = 0.0,
+               rise_target_m: float = math.inf) -> float:
         """The new speed limit from this tick's force estimate ``force_n`` against its set
-        point ``target_n`` and the tip's lag ``lag_m`` against ``lag_target_m``;
+        point ``target_n``, the tip's lag ``lag_m`` against ``lag_target_m`` and how far it
+        rides above its reference depth, ``rise_m`` against ``rise_target_m``;
         ``reference_speed_m_per_s`` is the reference's speed now. A non-finite input or a
         non-positive set point counts as far above it."""
         force_margin = _margin(force_n, target_n)
         margin = min(force_margin, _margin(lag_m, lag_target_m))
+        if math.isfinite(rise_target_m):
+            margin = min(margin, _margin(rise_m, rise_target_m))
         step = self.gain_per_s * self.max_speed_m_per_s * self.dt_s
         if margin >= 0.0:
             speed = self.speed_m_per_s + step * margin

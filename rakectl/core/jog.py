@@ -3,8 +3,11 @@
 The operator's client sends a velocity every 100 ms; each command is good for
 ``deadman_s``. The reference moves at the commanded velocity, limited in
 speed and in acceleration (both ways: a stop decelerates, it does not jerk),
-and never leaves the workspace: at a joint limit it stops there. In task
-space the velocity is of the tip (reach, height); in joint space of (r, θ).
+and never leaves the workspace: at a joint limit it stops there. It waits
+for the tip: while the measured tip (:meth:`Jog.observe`) is more than
+``max_lag_m`` from the reference, a step that would take it further is not
+taken, so a tip blocked by something rigid is not pushed on through it. In
+task space the velocity is of the tip (reach, height); in joint space of (r, θ).
 Time comes in as the tick count, so this is pure and deterministic.
 """
 
@@ -26,8 +29,8 @@ class JogSpace(enum.Enum):
 class Jog:
     """A jog reference advanced once per tick."""
 
-    __slots__ = ("_accel", "_deadline_tick", "_target", "_velocity", "dt_s", "q", "settings",
-                 "space", "tick", "workspace")
+    __slots__ = ("_accel", "_deadline_tick", "_target", "_tip", "_velocity", "dt_s", "q",
+                 "settings", "space", "tick", "waiting", "workspace")
 
     def __init__(self, settings: JogSettings, workspace: kinematics.Workspace, dt_s: float,
                  r_m: float, theta_rad: float) -> None:
@@ -41,6 +44,8 @@ class Jog:
         self._accel = (0.0, 0.0)
         self.tick = 0
         self._deadline_tick = -1
+        self._tip: tuple[float, float] | None = None  # the measured tip (reach, height)
+        self.waiting = 0  # steps not taken: the tip lagged (reported by the daemon)
 
     def _limits(self, space: JogSpace) -> tuple[float, float]:
         s = self.settings
@@ -71,6 +76,10 @@ class Jog:
     def moving(self) -> bool:
         return self._velocity != (0.0, 0.0)
 
+    def observe(self, reach_m: float, depth_m: float) -> None:
+        """The measured tip, each tick before :meth:`step`."""
+        self._tip = (reach_m, -depth_m)
+
     def step(self) -> None:
         """Advance the reference by one tick."""
         self.tick += 1
@@ -97,7 +106,17 @@ class Jog:
                    min(ws.theta_max_rad, max(ws.theta_min_rad, q[1])))
         if clipped != q:
             self._velocity = (0.0, 0.0)
+        tip = self._tip
+        if tip is not None and self._lag_m(clipped, tip) > max(self.settings.max_lag_m,
+                                                               self._lag_m(self.q, tip)):
+            self.waiting += 1  # the tip cannot follow: wait for it
+            return
         self.q = clipped
+
+    def _lag_m(self, q: tuple[float, float], tip: tuple[float, float]) -> float:
+        """Distance from the reference at ``q`` to the measured tip (reach, height)."""
+        reach, height = kinematics.forward(self.workspace, *q)
+        return math.hypot(reach - tip[0], height - tip[1])
 
     def tip(self) -> tuple[float, float]:
         """The reference as (reach_m, depth_m)."""

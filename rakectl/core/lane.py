@@ -31,7 +31,7 @@ import enum
 import math
 
 from rakectl.config.settings import LaneSettings
-from rakectl.core.cut_profile import CutProfile
+from rakectl.core.cut_profile import FLOOR_TOLERANCE_M, CutProfile
 from rakectl.core.governor import StrokeGovernor
 
 # Free-space descent stops this far above the previous cycle's floor; the rest
@@ -53,6 +53,17 @@ SETTLE_TIMEOUT_S = 1.0
 # An adaptive stroke also keeps the tip's lag under this share of the stall error, so that
 # raking fast through stiff soil is not taken for a rigid object.
 LAG_TARGET_SHARE = 0.5
+# Every stroke's reference waits for a tip that lags it by more than this share of the
+# stall error: where the voltage clamp caps the push (deep cuts near the robot, a drag
+# that the side budget cannot pay at speed), the stroke slows to what the tip can do
+# instead of running away from it. A tip that advances less than STALL_PROGRESS_M in
+# STALL_WAIT_S of waiting has met something rigid.
+WAIT_SHARE = 0.5
+STALL_WAIT_S = 0.5
+STALL_PROGRESS_M = 0.002
+# Outside contact, a reference that waits this long for a tip that does not advance by
+# STALL_PROGRESS_M ends the lane: the arm cannot follow.
+BLOCKED_S = 2.0
 # The first ticks of a stroke still read the plunge: the tip settles onto the cut's depth
 # and F̂ reads its descent (K_e·α·v, 40 N after a 20 mm/s plunge, gone in about 60 ms).
 # The depth of the next cut is judged on the stroke's force after this.
@@ -87,9 +98,16 @@ class LanePlanner:
         self.stopped_by_force = False
         self.speed_m_per_s = 0.0  # along the path; trapezoidal, zero at every corner
         self.lag_m = 0.0  # how far the tip is from its reference on a stroke (check_stall)
+        self.rise_m = 0.0  # how far above its reference depth the tip rides (check_stall)
         self._tip_depths = [math.nan] * SETTLE_TICKS  # measured, the last ticks (a ring)
         self._tip_index = 0
         self._tip_reach_m = reach_m  # measured, the last tick
+        self._tip_depth_m = depth_m
+        self._observed = False  # whether observe() has been called (simulations that do not)
+        self._waiting_ticks = 0  # ticks the stroke's reference has waited for the tip
+        self._waiting_from_m = 0.0  # where the tip was when this wait's window began
+        self._blocked_ticks = 0  # outside strokes: ticks the reference has waited (_blocked)
+        self._blocked_from = (reach_m, depth_m)
         self._settling_ticks = 0
         self._stroke_ticks = 0
         self._caution_n = math.inf  # supervision's caution level, from govern()
@@ -114,29 +132,83 @@ class LanePlanner:
         return self.phase is LanePhase.DONE
 
     def observe(self, reach_m: float, depth_m: float) -> None:
-        """The measured tip, once per tick (see :meth:`check_stall`)."""
-        self.check_stall(reach_m, depth_m)
+        """The measured tip, once per tick (see :meth:`check_stall` and :meth:`_blocked`)."""
+        if not self.check_stall(reach_m, depth_m):
+            self._blocked(reach_m, depth_m)
+
+    def _blocked(self, reach_m: float, depth_m: float) -> None:
+        """Outside a stroke, a reference that has waited for a tip that does not come (see
+        :meth:`_far_behind`): in a plunge the tine can go no deeper (something rigid, or soil
+        harder than the push the clamp allows: found there); in free space the arm cannot
+        follow (the lane stops, as at supervision's hard level)."""
+        if self.phase in (LanePhase.STROKE, LanePhase.DONE) or not self._far_behind():
+            self._blocked_ticks = 0
+            return
+        if self._blocked_ticks == 0:
+            self._blocked_from = (reach_m, depth_m)
+        self._blocked_ticks += 1
+        plunge = self.phase is LanePhase.PLUNGE
+        if self._blocked_ticks * self.dt_s < (STALL_WAIT_S if plunge else BLOCKED_S):
+            return
+        moved_m = math.hypot(reach_m - self._blocked_from[0], depth_m - self._blocked_from[1])
+        self._blocked_ticks = 0
+        if moved_m >= STALL_PROGRESS_M:
+            return  # it comes, slowly: a new window
+        self.reach_m, self.depth_m, self.speed_m_per_s = reach_m, depth_m, 0.0
+        if plunge:
+            self.found_at = (reach_m, depth_m)
+        else:
+            self.stopped_by_force = True
+        self.phase = LanePhase.LIFT if self.phase is not LanePhase.LIFT else LanePhase.DONE
 
     def check_stall(self, reach_m: float, depth_m: float) -> bool:
-        """During a contact stroke, a tip lagging its reference by more than the stall error
-        has met something rigid: remember where, lift clear from where the tip IS (so the
-        reference stops pushing), and finish after the lift. Returns True on the find.
-        Every tick's measured depth is also kept to see the tip settle before a plunge."""
+        """During a contact stroke, a tip lagging its reference by more than the stall error,
+        or one the reference has waited for without it advancing, has met something rigid:
+        remember where, lift clear from where the tip IS (so the reference stops pushing),
+        and finish after the lift. Returns True on the find. Every tick's measured depth is
+        also kept to see the tip settle before a plunge."""
         self._tip_index = (self._tip_index + 1) % SETTLE_TICKS
         self._tip_depths[self._tip_index] = depth_m
-        self._tip_reach_m = reach_m
+        self._tip_reach_m, self._tip_depth_m, self._observed = reach_m, depth_m, True
         if self.phase is not LanePhase.STROKE or self.found_at is not None:
-            self.lag_m = 0.0
+            self.lag_m = self.rise_m = 0.0
+            self._waiting_ticks = 0
             return False
         self.lag_m = math.hypot(self.reach_m - reach_m, self.depth_m - depth_m)
+        self.rise_m = max(0.0, self.depth_m - depth_m)
         self.profile.record(reach_m, depth_m, self.lag_m)
-        if self.lag_m <= self.lane.stall_error_m:
+        if self.lag_m <= self.lane.stall_error_m and not self._stalled(reach_m):
             return False
         self.found_at = (reach_m, depth_m)
         self.reach_m, self.depth_m = reach_m, depth_m
         self.speed_m_per_s = 0.0
         self.phase = LanePhase.LIFT
         return True
+
+    def _stalled(self, reach_m: float) -> bool:
+        """Whether the reference has waited STALL_WAIT_S for a tip that did not advance."""
+        if self.lag_m <= WAIT_SHARE * self.lane.stall_error_m:
+            self._waiting_ticks = 0
+            return False
+        if self._waiting_ticks == 0:
+            self._waiting_from_m = reach_m
+        self._waiting_ticks += 1
+        if self._waiting_ticks * self.dt_s < STALL_WAIT_S:
+            return False
+        if self._waiting_from_m - reach_m < STALL_PROGRESS_M:
+            return True
+        self._waiting_ticks = 0  # it advances, slowly: a new window
+        return False
+
+    def _far_behind(self) -> bool:
+        """Outside a stroke, whether the measured tip lags the reference by more than
+        WAIT_SHARE of the stall error: where the clamp caps the push (a lift that also
+        pushes sideways, a fast return), the reference waits rather than run away, and the
+        joint loops are never asked for what the clamp will not give."""
+        if not self._observed or self.phase is LanePhase.STROKE:
+            return False
+        lag_m = math.hypot(self.reach_m - self._tip_reach_m, self.depth_m - self._tip_depth_m)
+        return lag_m > WAIT_SHARE * self.lane.stall_error_m
 
     def govern(self, force_n: float, caution_n: float) -> None:
         """The conservative force estimate of this tick (the larger of F̂ and the
@@ -152,7 +224,8 @@ class LanePlanner:
         if self.governor is not None and self.phase is LanePhase.STROKE:
             lane = self.lane
             self.governor.update(force_n, lane.force_target_share * caution_n, self.lag_m,
-                                 LAG_TARGET_SHARE * lane.stall_error_m, self.speed_m_per_s)
+                                 LAG_TARGET_SHARE * lane.stall_error_m, self.speed_m_per_s,
+                                 self.rise_m, FLOOR_TOLERANCE_M)
             self._stroke_ticks += 1
             if self._stroke_ticks * self.dt_s > PLUNGE_TAIL_S or not math.isfinite(force_n):
                 self.profile.record_force(self._tip_reach_m, force_n)
@@ -243,7 +316,10 @@ class LanePlanner:
         stroke = self.phase is LanePhase.STROKE  # along the profile: distance in reach
         distance = -d_reach if stroke else math.hypot(d_reach, d_depth)
         accel = self.lane.accel_m_per_s2
-        self.speed_m_per_s = min(top_speed, self.speed_m_per_s + accel * self.dt_s,
+        # a lower limit (the governor slowing) is met at the lane's acceleration too: the
+        # arm, whose braking the clamp bounds like any push, can follow the reference
+        slowed = max(top_speed, self.speed_m_per_s - accel * self.dt_s)
+        self.speed_m_per_s = min(slowed, self.speed_m_per_s + accel * self.dt_s,
                                  math.sqrt(2.0 * accel * distance))
         travel = max(self.speed_m_per_s, accel * self.dt_s) * self.dt_s
         if distance <= travel:
@@ -255,6 +331,9 @@ class LanePlanner:
                 return
             self._settling_ticks = 0
             self.phase = self._next_phase()
+            return
+        if (stroke and self._waiting_ticks) or self._far_behind():  # wait for the tip
+            self.speed_m_per_s = 0.0
             return
         if stroke:  # the path's speed, not the reach's, is the limit
             _, slope = self.profile.depth_and_slope_at(self.reach_m)

@@ -45,7 +45,8 @@ class ForceSupervisor:
         self._alpha = 1.0 - math.exp(-dt_s / supervision.current_filter_s)
         self._kt_r = motor_r.torque_constant_nm_per_a / joint_per_motor_rad(motor_r)
         self._kt_theta = motor_theta.torque_constant_nm_per_a / joint_per_motor_rad(motor_theta)
-        self._g = clamp.rake_mass_kg * clamp.gravity_m_per_s2
+        share = clamp.counterbalance_share if clamp.counterweight_kg > 0.0 else 0.0
+        self._g = (1.0 - share) * clamp.rake_mass_kg * clamp.gravity_m_per_s2
         self._half_length_m = 0.5 * clamp.rake_length_m
         self.caution_n = supervision.caution_force_n
         self.hard_n = supervision.hard_force_n

@@ -257,6 +257,7 @@ class Daemon:
         if self.supervisor.level is ForceLevel.CAUTION and moving:
             return self._ref[0], self._ref[1], True
         if state is DaemonState.JOG and self.jog is not None:
+            self.jog.observe(self.controller.reach_m, self.controller.depth_m)
             self.jog.step()
             if self.jog.expired and not self.jog.moving:
                 self.hold = self.jog.tip()

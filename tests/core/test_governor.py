@@ -192,8 +192,8 @@ def _stroke_speed_in(soil: str) -> tuple[float, float, LanePlanner]:
     # nothing in these three soils reaches it below 0.25 m/s (`rakectl bench --excavation`).
     settings = load_settings(
         f"config/scenarios/excavate-{soil}.yaml",
-        ["lane.reach_near_m=1.0", "lane.target_depth_m=0.01", "lane.force_target_share=0.3"],
-        root=Scenario)
+        ["lane.reach_near_m=1.0", "lane.target_depth_m=0.005", "lane.depth_step_m=0.005",
+         "lane.force_target_share=0.3"], root=Scenario)
     planner = build_reference(settings)
     assert isinstance(planner, LanePlanner)
     loop = RakeLoop(settings, planner.reach_m, planner.depth_m)
@@ -212,16 +212,17 @@ def _stroke_speed_in(soil: str) -> tuple[float, float, LanePlanner]:
 
 @pytest.mark.slow
 def test_in_the_full_chain_an_adaptive_stroke_is_faster_in_sand_than_in_clay() -> None:
+    """A 5 mm cut (clay's drag at 10 mm is more than the side budget lets the arm push):
+    sand's stroke runs near the top speed (0.15 m/s, the clamp's budget toward the robot
+    shrinks fast above it), clay's is held back by its load, and clay's
+    first stroke rides up more than 3 mm where it starts, which the planner strokes again."""
     sand_speed, sand_peak_n, sand = _stroke_speed_in("sand")
     clay_speed, clay_peak_n, clay = _stroke_speed_in("clay")
-    assert sand.done and sand.floor_m == pytest.approx(0.01) and sand.cycle == 1
+    assert sand.done and sand.floor_m == pytest.approx(0.005) and sand.cycle == 1
     assert sand.found_at is None and not sand.stopped_by_force
-    # Not mended: clay's first stroke rides up more than 3 mm where it starts, and the
-    # second stroke the planner then gives that place is stopped by the force supervision
-    # (a safe stop, but the lane is left unfinished; the full benchmark lane finishes).
-    assert clay.done and clay.found_at is None
-    assert clay.floor_m == pytest.approx(0.01) or clay.stopped_by_force
-    assert clay_speed < 0.93 * sand_speed  # measured: 0.162 against 0.189 m/s
+    assert clay.done and clay.found_at is None and not clay.stopped_by_force
+    assert clay.floor_m == pytest.approx(0.005)
+    assert clay_speed < 0.8 * sand_speed  # measured: 0.093 against 0.133 m/s (top 0.15)
     assert max(sand_peak_n, clay_peak_n) < 90.0
 
 

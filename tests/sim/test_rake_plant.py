@@ -71,20 +71,23 @@ def test_true_force_is_a_saw_tooth_in_the_telemetry() -> None:
 
 @pytest.mark.slow
 def test_raking_a_lane_finds_the_mine_and_stops() -> None:
-    """rake-lane-mine: strokes deepen by 10 mm; at 50 mm the tine meets the mine's far
-    face (its top is at 45 mm): the stroke stalls, the planner reports the find where
-    the tip is, lifts clear and ends. The plate is never pressed to its activation."""
+    """rake-lane-mine: strokes deepen by 10 mm; once deeper than the mine's top (25 mm)
+    the tine meets its far face: the stroke stalls, the planner reports the find where
+    the tip is (within 10 mm: the mount gives sideways), lifts clear and ends. The clamp
+    caps the push in every direction (the loam's drag takes most of it), so the tine
+    rides about 5 mm above each stroke's reference and meets the face one cycle later
+    than the plan's 30 mm. Neither the plate nor the side is pressed near the limit."""
     settings = _scenario("rake-lane-mine.yaml")
     result = run(settings)
     summary = result.summary()
     mine = settings.emulator.ground.objects.mines[0]
     assert summary["object_found"]
     assert summary["object_reach_m"] == pytest.approx(mine.reach_m + mine.width_m / 2, abs=0.01)
-    assert summary["object_depth_m"] == pytest.approx(0.05, abs=0.003)
-    assert summary["cycles"] == 5
+    assert mine.depth_m < summary["object_depth_m"] < mine.depth_m + mine.thickness_m
+    assert summary["cycles"] in (4, 5)
     assert not summary["mine_activated"]
     assert summary["mine_plate_force_max_n"] < mine.activation_force_n
-    assert summary["mine_side_force_max_n"] > 50.0  # the tine really hit it
+    assert 5.0 < summary["mine_side_force_max_n"] < 90.0  # it really met the side, gently
     depth = result.column("tip_depth_m")
     assert depth.max() < mine.depth_m + mine.thickness_m  # never below the mine's bottom
     assert summary["f_true_z_max_n"] < 90.0
