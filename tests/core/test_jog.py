@@ -82,3 +82,36 @@ def test_contact_flag_follows_depth() -> None:
     assert not jog.contact
     jog = _jog(r=1.0, theta=0.7)  # tip ~4 cm below ground
     assert jog.contact
+
+
+def test_the_reference_waits_for_a_blocked_tip() -> None:
+    """The tip stays where it is (something rigid): the reference runs ahead of it by
+    ``max_lag_m`` and no further; once the tip follows, the reference moves on."""
+    jog = _jog()
+    blocked = jog.tip()
+    for _ in range(10):  # 1 s at 0.1 m/s toward the robot
+        jog.command(JogSpace.TASK, -0.1, 0.0)
+        for _ in range(100):
+            jog.observe(*blocked)
+            jog.step()
+    reach, depth = jog.tip()
+    lag_m = math.hypot(reach - blocked[0], depth - blocked[1])
+    assert JOG.max_lag_m - 0.1 * DT <= lag_m <= JOG.max_lag_m + 1e-9
+    assert jog.waiting > 600
+    jog.command(JogSpace.TASK, -0.1, 0.0)
+    for _ in range(50):  # the tip catches up: the reference advances again
+        jog.observe(*jog.tip())
+        jog.step()
+    assert jog.tip()[0] < reach - 0.004
+
+
+def test_a_reference_behind_the_tip_may_always_move_back_toward_it() -> None:
+    """A tip pushed far from the reference (lag over the limit): a step that brings the
+    reference closer is taken."""
+    jog = _jog()
+    reach, depth = jog.tip()
+    jog.command(JogSpace.TASK, -0.1, 0.0)
+    for _ in range(300):
+        jog.observe(reach - 0.1, depth)  # the tip is 0.1 m nearer the robot
+        jog.step()
+    assert jog.tip()[0] < reach - 0.015 and jog.waiting == 0
