@@ -210,7 +210,7 @@ def _cmd_api_docs(args: argparse.Namespace) -> int:
 
 
 def _cmd_fuzz(args: argparse.Namespace) -> int:
-    from rakectl.sim.fuzz import main as fuzz_main
+    from rakectl.cli.fuzz import main as fuzz_main
 
     return fuzz_main(args.rest)
 

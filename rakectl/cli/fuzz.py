@@ -1,0 +1,90 @@
+"""``rakectl fuzz``: the closed-loop safety campaign from the command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from rakectl.limits import FORCE_LIMIT_N
+from rakectl.sim.campaign import WORST_CASE_FILE, Report, campaign, replay
+from rakectl.sim.progress import Progress
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="rakectl fuzz",
+        description="Closed-loop safety campaign: random grounds, commands (lanes, hostile "
+        "plunges and strokes, jogs at full speed) and faults (lost feedback and commands, "
+        "drive faults, controller stalls, SIGKILL) through the simulated robot, half with "
+        "the force supervision, half the clamp alone. Exit status 0 only if no tick's true "
+        f"vertical tip force exceeded {FORCE_LIMIT_N:g} N, no force on a mine (plate or "
+        "side) did and no mine fired; 1 otherwise (also when a replayed case does not "
+        "reproduce); 2 on usage errors.")
+    p.add_argument("--scenarios", type=int, default=100, help="number of cases (default 100)")
+    p.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
+    p.add_argument("--first", type=int, default=0,
+                   help="index of the first case (default 0): a large campaign in parts")
+    p.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--json", action="store_true", help="one JSON object on the last line")
+    p.add_argument("--out", type=Path, default=None, help=f"directory for {WORST_CASE_FILE}")
+    p.add_argument("--replay", type=Path, default=None,
+                   help="re-run a case file (a worst case, or tests/data/fuzz/*.json)")
+    return p
+
+
+def human(report: Report) -> str:
+    s = report.summary()
+    lines = [f"{s['scenarios']} scenarios in {s['wall_time_s']:.0f} s "
+             f"({s['scenarios_per_min']:.0f}/min)",
+             f"largest true vertical force on the ground: {s['f_true_z_max_n']:.1f} N "
+             f"(limit {FORCE_LIMIT_N:g} N)",
+             f"largest force on a mine: plate {s['f_mine_plate_max_n']:.1f} N, side "
+             f"{s['f_mine_side_max_n']:.1f} N (limit {FORCE_LIMIT_N:g} N)",
+             f"largest side force on a stone: {s['f_stone_side_max_n']:.1f} N, on a root: "
+             f"{s['f_root_side_max_n']:.1f} N",
+             f"ticks over the limit: {s['ticks_over_limit']}; unsafe cases: "
+             f"{s['unsafe_cases']}; mine activations: {s['mine_activations']}",
+             f"controller faults: {s['controller_faults']}; drive watchdog trips: "
+             f"{s['watchdog_trips']}"]
+    lines += [f"  {group}: {k}" for group, k in s["by_kind"].items()]
+    lines += [f"unsafe: {case}" for case in s["over_limit"]]
+    lines.append(f"worst: {s['worst_case']} → ground {report.worst.f_true_z_max_n:.1f} N, "
+                 f"mine {report.worst.f_mine_max_n:.1f} N")
+    if report.worst_case_path:
+        lines.append(f"worst case written to {report.worst_case_path}")
+    return "\n".join(lines)
+
+
+def _replay_main(path: Path, as_json: bool) -> int:
+    try:
+        now, recorded = replay(path)
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        print(f"rakectl fuzz: --replay {path}: not a case file ({e})", file=sys.stderr)
+        return 2
+    same = recorded is None or now == recorded
+    out = {"replayed": str(path), "same": same, "safe": now.safe, **now.to_dict()}
+    print(json.dumps(out) if as_json else
+          f"replay {path}: ground {now.f_true_z_max_n:.1f} N, mine {now.f_mine_max_n:.1f} N, "
+          f"{now.ticks_over_limit} ticks over, mine activated {now.mine_activated}; "
+          + ("no recorded result" if recorded is None else
+             "same" if same else "DIFFERENT") + " result")
+    return 0 if same and now.safe else 1
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    if args.replay is not None:
+        return _replay_main(args.replay, args.json)
+    if args.scenarios < 1 or args.workers < 1 or args.first < 0:
+        print("rakectl fuzz: --scenarios and --workers must be >= 1, --first >= 0",
+              file=sys.stderr)
+        return 2
+    report = campaign(args.scenarios, args.seed, args.workers, args.out, Progress("fuzz"),
+                      first=args.first)
+    print(human(report))
+    if args.json:
+        print(json.dumps(report.summary()))
+    return 0 if report.safe else 1

@@ -1,0 +1,480 @@
+"""The closed-loop safety campaign: each case through the full simulated chain, judged
+by the ground truth.
+
+A case (:mod:`rakectl.sim.cases`) runs through the daemon's own
+:class:`~rakectl.core.control.TipController`, the one-tick bus delay and drivers/
+physics (:class:`~rakectl.sim.rake_plant.RakeLoop`), with its faults injected
+between them (:class:`FaultyRakeLoop`). A case is safe when no tick's true
+vertical force on the ground exceeds 90 N, no force on a mine's plate or side
+exceeds 90 N and no mine fires. Side forces on stones and roots are reported.
+
+Faults as the robot would meet them: lost feedback (the controller keeps the
+previous measurement), a lost command (the drive applies the previous voltages
+again), a drive fault episode (both motors at 0 V for its length), a controller
+stall and a SIGKILL (no tick runs: the drives apply the last command until their
+command watchdog, ``drives.watchdog_timeout_ms``, expires, then 0 V, latched). A
+latched drive fault or a controller fault (as the daemon's: a non-finite number,
+an infeasible clamp) leaves both motors at 0 V for :data:`AFTER_FAULT_S` more,
+the rake falling onto whatever is below it; that is judged too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivers.objects import Contact
+from drivers.soil import original_surface_height_m
+from rakectl.config.settings import LaneSettings
+from rakectl.core import kinematics
+from rakectl.core.clamp import VoltageClamp
+from rakectl.core.jog import Jog, JogSpace
+from rakectl.core.lane import LanePlanner
+from rakectl.core.supervision import ForceLevel
+from rakectl.limits import FORCE_LIMIT_N
+from rakectl.sim.cases import CommandKind, Faults, FuzzCase, case_from_dict, from_plain, generate
+from rakectl.sim.parallel import fork_map
+from rakectl.sim.rake_plant import RakeLoop
+from rakectl.sim.scenario import PlantKind, PlantSettings, Scenario, TrajectoryKind
+from rakectl.sim.simulate import HOLD_AFTER_DONE_S, Reference
+
+WORST_CASE_FILE = "worst-case.json"
+AFTER_FAULT_S = 1.0  # simulated at 0 V after a latched fault
+JOG_COMMAND_PERIOD_S = 0.1  # the operator's client repeats its jog this often
+
+
+@dataclass(frozen=True)
+class CaseResult:
+    seed: int
+    index: int
+    kind: str
+    f_true_z_max_n: float  # largest per-tick peak of the true vertical force
+    f_true_z_max_t_s: float
+    ticks_over_limit: int  # ticks whose true vertical force peak exceeds 90 N
+    mine_activated: bool
+    object_found: bool
+    duration_s: float
+    faults: tuple[str, ...]
+    feedback_lost_ticks: int
+    commands_lost_ticks: int
+    drive_fault_ticks: int
+    clamped_ticks: int
+    controller_fault: str
+    f_mine_plate_max_n: float = 0.0
+    f_mine_side_max_n: float = 0.0
+    f_stone_side_max_n: float = 0.0
+    f_root_side_max_n: float = 0.0
+    supervised: bool = False
+    stalled_ticks: int = 0  # ticks the controller did not run (stall, kill)
+    watchdog_tripped: bool = False
+
+    @property
+    def safe(self) -> bool:
+        """No vertical force over 90 N, none on a mine from any side, no mine fired."""
+        return (self.ticks_over_limit == 0 and not self.mine_activated
+                and max(self.f_mine_plate_max_n, self.f_mine_side_max_n) <= FORCE_LIMIT_N)
+
+    @property
+    def f_mine_max_n(self) -> float:
+        return max(self.f_mine_plate_max_n, self.f_mine_side_max_n)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+def result_from_dict(data: dict[str, Any]) -> CaseResult:
+    result: CaseResult = from_plain(CaseResult, data)
+    return result
+
+
+# --------------------------------------------------------------------------- references
+
+
+class PlungeReference:
+    """Straight down at a fixed reach and constant speed, then hold (a hostile command)."""
+
+    def __init__(self, reach_m: float, start_depth_m: float, end_depth_m: float,
+                 speed_m_per_s: float, dt_s: float, contact: bool) -> None:
+        self.reach_m, self.depth_m = reach_m, start_depth_m
+        self._end_m, self._step_m, self._contact = end_depth_m, speed_m_per_s * dt_s, contact
+
+    @property
+    def contact(self) -> bool:
+        return self._contact
+
+    @property
+    def done(self) -> bool:
+        return self.depth_m >= self._end_m
+
+    def observe(self, reach_m: float, depth_m: float) -> None:
+        pass
+
+    def step(self) -> None:
+        self.depth_m = min(self._end_m, self.depth_m + self._step_m)
+
+
+class JogReference:
+    """The daemon's jog (:class:`~rakectl.core.jog.Jog`) as an operator drives it: the
+    same velocity every 0.1 s for ``jog_s``, then silence; the dead-man stops it."""
+
+    def __init__(self, case: FuzzCase, settings: Scenario, workspace: kinematics.Workspace,
+                 r_m: float, theta_rad: float) -> None:
+        c = case.command
+        dt_s = 1.0 / settings.rate_hz
+        self._jog = Jog(settings.jog, workspace, dt_s, r_m, theta_rad)
+        self._space = JogSpace(c.jog_space)
+        if self._space is JogSpace.TASK:  # (reach, height): 0 rad is straight down
+            self._velocity = (-math.sin(c.jog_angle_rad) * 10.0,
+                              -math.cos(c.jog_angle_rad) * 10.0)
+        else:  # (r, θ); the jog clips each to its highest speed
+            self._velocity = (math.cos(c.jog_angle_rad) * 10.0, math.sin(c.jog_angle_rad) * 10.0)
+        self._period = round(JOG_COMMAND_PERIOD_S / dt_s)
+        self._commands = max(1, round(c.jog_s / JOG_COMMAND_PERIOD_S))
+        self._tick = 0
+        self.reach_m, self.depth_m = self._jog.tip()
+
+    @property
+    def contact(self) -> bool:
+        return self._jog.contact
+
+    @property
+    def done(self) -> bool:
+        return self._jog.expired and not self._jog.moving
+
+    def observe(self, reach_m: float, depth_m: float) -> None:
+        self._jog.observe(reach_m, depth_m)
+
+    def step(self) -> None:
+        if self._tick % self._period == 0 and self._tick // self._period < self._commands:
+            self._jog.command(self._space, *self._velocity)
+        self._tick += 1
+        self._jog.step()
+        self.reach_m, self.depth_m = self._jog.tip()
+
+
+class HoldReference:
+    """Where the force supervision's hard level leaves a plunge or a jog: backed off."""
+
+    def __init__(self, reach_m: float, depth_m: float) -> None:
+        self.reach_m, self.depth_m = reach_m, depth_m
+
+    contact = False
+    done = True
+
+    def observe(self, reach_m: float, depth_m: float) -> None:
+        pass
+
+    def step(self) -> None:
+        pass
+
+
+# --------------------------------------------------------------------------- the loop
+
+
+class FaultyRakeLoop(RakeLoop):
+    """RakeLoop with the case's faults injected between controller, bus and drives."""
+
+    def __init__(self, settings: Scenario, start_reach_m: float, start_depth_m: float,
+                 faults: Faults, clamp: VoltageClamp | None = None) -> None:
+        super().__init__(settings, start_reach_m, start_depth_m, clamp)
+        self.faults = faults
+        self._rng = np.random.default_rng(faults.seed)
+        self._armed = False
+        self._tick_index = 0
+        self._last = self.arm.measure()
+        self._silent_ticks = 0  # since the drives last received a command
+        self._watchdog_ticks = round(settings.drives.watchdog_timeout_ms * 1e-3 / self.dt_s)
+        self.latched = False  # the drives hold 0 V from now on (watchdog or a fault)
+        self.feedback_lost = self.commands_lost = self.drive_fault_ticks = 0
+        self.stalled_ticks = 0
+        self.watchdog_tripped = False
+
+    def arm_faults(self) -> None:
+        self._armed = True
+
+    def _controller_runs(self, t_s: float) -> bool:
+        f = self.faults
+        if not self._armed:
+            return True
+        if 0.0 <= f.kill_at_s <= t_s:
+            return False
+        return not (f.stall_s > 0.0 and f.stall_start_s <= t_s < f.stall_start_s + f.stall_s)
+
+    def _tick(self, reach_ref_m: float, depth_ref_m: float) -> None:
+        f = self.faults
+        t_s = self._tick_index * self.dt_s
+        runs = self._controller_runs(t_s) and not self.fault
+        if runs:
+            m = self.arm.measure()
+            if self._armed and self._rng.uniform() < f.feedback_loss_probability:
+                m, self.feedback_lost = self._last, self.feedback_lost + 1
+            self._last = m
+            voltages = self.controller.step(reach_ref_m, depth_ref_m, m.r_m, m.theta_rad,
+                                            m.r_vel_m_per_s, m.theta_vel_rad_per_s)
+            if self.controller.clamp.infeasible and not self.fault:  # as the daemon does
+                self.fault = "the voltage clamp cannot meet its bound"
+        else:
+            self.stalled_ticks += not self.fault
+        self.contact.peak_down_n = 0.0
+        applied = self._pending_v
+        if self._armed and f.drive_fault_start_s <= t_s < f.drive_fault_start_s + f.drive_fault_s:
+            applied, self.drive_fault_ticks = (0.0, 0.0), self.drive_fault_ticks + 1
+        if self.latched or self.fault:
+            applied = (0.0, 0.0)
+        self.arm.step(applied[0], applied[1], self.contact, self.dt_s)
+        if not runs:  # no command this tick: the drive's watchdog counts
+            self._silent_ticks += 1
+            if self._silent_ticks >= self._watchdog_ticks and not self.latched:
+                self.latched = self.watchdog_tripped = True
+        elif self._armed and self._rng.uniform() < f.command_loss_probability:
+            self.commands_lost += 1  # the drive keeps applying the previous voltages
+        else:
+            self._pending_v, self._silent_ticks = voltages, 0
+        if self._armed:
+            self._tick_index += 1
+
+
+# --------------------------------------------------------------------------- running
+
+
+def scenario_of(case: FuzzCase) -> Scenario:
+    c = case.command
+    base = Scenario()
+    lane = LaneSettings(reach_far_m=c.reach_far_m, reach_near_m=min(c.reach_near_m,
+                                                                      c.reach_far_m - 0.01),
+                        depth_step_m=c.depth_step_m if c.depth_step_m > 0 else 0.01,
+                        target_depth_m=c.target_depth_m if c.target_depth_m > 0 else 0.05,
+                        clearance_m=max(0.005, c.start_height_m),
+                        stroke_speed_m_per_s=min(max(c.speed_m_per_s, 1e-3), 1.0),
+                        plunge_speed_m_per_s=max(c.plunge_speed_m_per_s, 1e-3))
+    if c.travel_speed_m_per_s > 0.0:
+        lane = dataclasses.replace(lane, travel_speed_m_per_s=c.travel_speed_m_per_s)
+    if c.adaptive:  # the case's speed is the top one, if above the default's
+        defaults = LaneSettings()
+        lane = dataclasses.replace(
+            lane, adaptive=True,
+            max_stroke_speed_m_per_s=max(defaults.max_stroke_speed_m_per_s,
+                                         lane.stroke_speed_m_per_s),
+            max_plunge_speed_m_per_s=max(defaults.max_plunge_speed_m_per_s,
+                                         lane.plunge_speed_m_per_s),
+            max_depth_step_m=max(defaults.max_depth_step_m, lane.depth_step_m))
+    emulator = dataclasses.replace(base.emulator, ground=case.ground, seed=case.ground_seed)
+    return dataclasses.replace(base, plant=PlantSettings(kind=PlantKind.RAKE), lane=lane,
+                               trajectory=dataclasses.replace(base.trajectory,
+                                                              kind=TrajectoryKind.LANE),
+                               duration_s=case.duration_s, emulator=emulator)
+
+
+def _start(case: FuzzCase, settings: Scenario) -> tuple[float, float]:
+    """The start pose (reach, depth) above (or, for a jog, maybe in) the local surface."""
+    c = case.command
+    surface_m = original_surface_height_m(case.ground.soil, c.reach_far_m)
+    return c.reach_far_m, -(surface_m + c.start_height_m)
+
+
+def _reference(case: FuzzCase, settings: Scenario, loop: RakeLoop) -> Reference:
+    c, dt_s = case.command, 1.0 / settings.rate_hz
+    reach_m, depth_m = loop.start
+    if c.kind is CommandKind.PLUNGE:
+        return PlungeReference(reach_m, depth_m, c.target_depth_m, c.speed_m_per_s, dt_s,
+                               c.contact)
+    if c.kind is CommandKind.JOG:
+        m = loop.arm.measure()
+        return JogReference(case, settings, loop.workspace, m.r_m, m.theta_rad)
+    lane = settings.lane
+    return LanePlanner(lane, dt_s, lane.reach_far_m, depth_m)
+
+
+def run_case(case: FuzzCase, clamp: VoltageClamp | None = None) -> CaseResult:
+    """Run one case through the full chain; ``clamp`` replaces the real one (tests)."""
+    settings = scenario_of(case)
+    loop = FaultyRakeLoop(settings, *_start(case, settings), case.faults, clamp)
+    loop.reset()
+    reference = _reference(case, settings, loop)
+    loop.arm_faults()
+    dt_s = loop.dt_s
+    peak_n, peak_t_s, over, hold = 0.0, 0.0, 0, round(HOLD_AFTER_DONE_S / dt_s)
+    after_fault = round(AFTER_FAULT_S / dt_s)
+    back_off_m = settings.supervision.back_off_m
+    ticks = round(case.duration_s / dt_s)
+    k = 0
+    while k < ticks:
+        loop.step(reference.reach_m, reference.depth_m, reference.contact)
+        f_n = loop.contact.peak_down_n
+        over += f_n > FORCE_LIMIT_N
+        if f_n > peak_n:
+            peak_n, peak_t_s = f_n, k * dt_s
+        k += 1
+        if loop.fault or loop.latched:  # 0 V from now on: see where the rake falls
+            ticks = min(ticks, k + after_fault) if after_fault else k
+            after_fault = 0
+            continue
+        reach_m, depth_m = loop.measured_tip()
+        reference.observe(reach_m, depth_m)
+        level = loop.force_level if case.supervised else ForceLevel.OK
+        if level is ForceLevel.HARD and not isinstance(reference, HoldReference):
+            if isinstance(reference, LanePlanner):
+                reference.force_stop(reach_m, depth_m)
+            else:
+                reference = HoldReference(reach_m, depth_m - back_off_m)
+        if isinstance(reference, LanePlanner):  # an adaptive lane's governor (else: nothing)
+            reference.govern(loop.force_estimate_n, loop.caution_n)
+        if level is not ForceLevel.CAUTION:  # caution holds the reference where it is
+            reference.step()
+        hold -= reference.done
+        if hold < 0:
+            break
+    return _result(case, loop, reference, (peak_n, peak_t_s, over, k * dt_s))
+
+
+def _result(case: FuzzCase, loop: FaultyRakeLoop, reference: Reference,
+            figures: tuple[float, float, int, float]) -> CaseResult:
+    found = isinstance(reference, LanePlanner) and reference.found_at is not None
+    kind = str(case.command.kind) + (" (adaptive)" if case.command.adaptive else "")
+
+    def peak(kind: Contact, attribute: str) -> float:
+        return max((getattr(b, attribute) for b in loop.ground.bodies if b.kind is kind),
+                   default=0.0)
+
+    return CaseResult(case.seed, case.index, kind, figures[0], figures[1],
+                      figures[2], loop.ground.truth.mine_activated, found, figures[3],
+                      case.faults.kinds(), loop.feedback_lost, loop.commands_lost,
+                      loop.drive_fault_ticks, loop.controller.clamp.clamped, loop.fault,
+                      f_mine_plate_max_n=peak(Contact.MINE, "peak_down_n"),
+                      f_mine_side_max_n=peak(Contact.MINE, "peak_side_n"),
+                      f_stone_side_max_n=peak(Contact.STONE, "peak_side_n"),
+                      f_root_side_max_n=peak(Contact.ROOT, "peak_side_n"),
+                      supervised=case.supervised, stalled_ticks=loop.stalled_ticks,
+                      watchdog_tripped=loop.watchdog_tripped)
+
+
+# --------------------------------------------------------------------------- campaign
+
+
+@dataclass(frozen=True)
+class Report:
+    scenarios: int
+    results: tuple[CaseResult, ...]
+    worst: CaseResult  # the largest force on the ground or a mine
+    worst_case: FuzzCase
+    wall_time_s: float
+    worst_case_path: str = ""
+
+    @property
+    def f_true_z_max_n(self) -> float:
+        return max(r.f_true_z_max_n for r in self.results)
+
+    @property
+    def f_mine_max_n(self) -> float:
+        return max(r.f_mine_max_n for r in self.results)
+
+    @property
+    def ticks_over_limit(self) -> int:
+        return sum(r.ticks_over_limit for r in self.results)
+
+    @property
+    def mine_activations(self) -> int:
+        return sum(r.mine_activated for r in self.results)
+
+    @property
+    def unsafe(self) -> tuple[CaseResult, ...]:
+        return tuple(r for r in self.results if not r.safe)
+
+    @property
+    def safe(self) -> bool:
+        return not self.unsafe
+
+    def by_kind(self) -> dict[str, dict[str, float | int]]:
+        """Per command kind, fault kind and supervision: cases, worst forces, unsafe."""
+        out: dict[str, dict[str, float | int]] = {}
+        for r in self.results:
+            groups = [r.kind, *(f"fault: {f}" for f in r.faults or ("none",)),
+                      "supervision on" if r.supervised else "supervision off"]
+            for group in groups:
+                k = out.setdefault(group, {"cases": 0, "f_true_z_max_n": 0.0,
+                                           "f_mine_max_n": 0.0, "f_stone_side_max_n": 0.0,
+                                           "unsafe": 0})
+                k["cases"] += 1
+                k["f_true_z_max_n"] = max(k["f_true_z_max_n"], r.f_true_z_max_n)
+                k["f_mine_max_n"] = max(k["f_mine_max_n"], r.f_mine_max_n)
+                k["f_stone_side_max_n"] = max(k["f_stone_side_max_n"], r.f_stone_side_max_n)
+                k["unsafe"] += not r.safe
+        return out
+
+    def over_limit(self) -> list[str]:
+        """Every unsafe case: 'seed/index kind ground F N, mine F N [mine fired]'."""
+        return [f"{self.worst_case.seed}/{r.index} {r.kind} ground {r.f_true_z_max_n:.1f} N, "
+                f"mine {r.f_mine_max_n:.1f} N" + (" mine fired" if r.mine_activated else "")
+                for r in self.unsafe]
+
+    def summary(self) -> dict[str, Any]:
+        results = self.results
+        return {"scenarios": self.scenarios, "f_true_z_max_n": self.f_true_z_max_n,
+                "f_mine_max_n": self.f_mine_max_n,
+                "f_mine_side_max_n": max(r.f_mine_side_max_n for r in results),
+                "f_mine_plate_max_n": max(r.f_mine_plate_max_n for r in results),
+                "f_stone_side_max_n": max(r.f_stone_side_max_n for r in results),
+                "f_root_side_max_n": max(r.f_root_side_max_n for r in results),
+                "ticks_over_limit": self.ticks_over_limit,
+                "unsafe_cases": len(self.unsafe), "over_limit": self.over_limit(),
+                "mine_activations": self.mine_activations,
+                "controller_faults": sum(bool(r.controller_fault) for r in results),
+                "watchdog_trips": sum(r.watchdog_tripped for r in results),
+                "by_kind": self.by_kind(),
+                "worst": self.worst.to_dict(), "worst_case": self.worst_case.describe(),
+                "worst_case_path": self.worst_case_path, "wall_time_s": self.wall_time_s,
+                "scenarios_per_min": 60.0 * self.scenarios / max(self.wall_time_s, 1e-9)}
+
+
+def _run_index(job: tuple[int, int]) -> CaseResult:
+    return run_case(generate(*job))
+
+
+def _severity(r: CaseResult) -> float:
+    return max(r.f_true_z_max_n, r.f_mine_max_n)
+
+
+def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None = None,
+             progress: Callable[[int, int], None] | None = None, first: int = 0) -> Report:
+    """Run cases ``first`` … ``first + scenarios − 1`` of ``seed``; write the worst one
+    (the largest force on the ground or on a mine) to ``out_dir``."""
+    if scenarios < 1:
+        raise ValueError("scenarios must be >= 1")
+    started = time.perf_counter()
+    results: list[CaseResult] = []
+    jobs = [(seed, first + i) for i in range(scenarios)]
+    for result in fork_map(_run_index, jobs, workers, ordered=False):
+        results.append(result)
+        if progress is not None:
+            progress(len(results), scenarios)
+    results.sort(key=lambda r: r.index)
+    worst = max(results, key=_severity)
+    report = Report(scenarios, tuple(results), worst, generate(seed, worst.index),
+                    time.perf_counter() - started)
+    if out_dir is None:
+        return report
+    path = write_case(out_dir / WORST_CASE_FILE, report.worst_case, worst)
+    return dataclasses.replace(report, worst_case_path=str(path))
+
+
+def write_case(path: Path, case: FuzzCase, result: CaseResult) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"case": case.to_dict(), "result": result.to_dict()},
+                               indent=2) + "\n")
+    return path
+
+
+def replay(path: Path) -> tuple[CaseResult, CaseResult | None]:
+    """Re-run a case file (a campaign's worst case, or a regression case): (result now,
+    result recorded in the file, if any)."""
+    data = json.loads(Path(path).read_text())
+    recorded = result_from_dict(data["result"]) if "result" in data else None
+    return run_case(case_from_dict(data["case"])), recorded
