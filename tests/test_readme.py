@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from rakectl.api.server import api_reference
+from rakectl.api.schema import api_reference
 from rakectl.cli.docs import configuration_reference
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from rakectl.api import server as api
+from rakectl.api.schema import SERVICE_RUNTIME_DIR
 from rakectl.config.settings import BusSettings
 
 SYSTEMD = Path(__file__).resolve().parents[1] / "systemd"
@@ -110,7 +110,7 @@ def test_service_is_real_time_capable_and_hardened(service: Sections) -> None:
 
 def test_service_agrees_with_the_code(service: Sections) -> None:
     runtime = Path("/run") / value(service, "Service", "RuntimeDirectory")
-    assert runtime == api.SERVICE_RUNTIME_DIR
+    assert runtime == SERVICE_RUNTIME_DIR
     sysusers = (SYSTEMD / "rakectl.sysusers").read_text().splitlines()
     users = [line.split()[1] for line in sysusers if line.startswith("u ")]
     assert users == [value(service, "Service", "User")]

@@ -15,7 +15,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
-from rakectl.api.server import DEAD_MAN_PERIOD_S, Client, call, socket_path
+from rakectl.api.client import Client, call, socket_path
+from rakectl.api.schema import DEAD_MAN_PERIOD_S
 
 POLL_S = 0.2
 Ops = Callable[[argparse.Namespace], int]

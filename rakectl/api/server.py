@@ -1,26 +1,15 @@
-"""The daemon's command API on a Unix socket: schema, non-blocking server, client.
-
-One JSON object per line (UTF-8) each way. A request is ``{"cmd": NAME, ARG: VALUE …}``
-with an optional ``"id"`` (string or integer) that the reply echoes; a reply is
-``{"ok": true, …}`` or ``{"ok": false, "error": "<one sentence>"}``. Commands and
-their arguments are declared once, in :data:`COMMANDS`: validation and
-:func:`api_reference` both read that table. A request that fails validation never
-reaches the handler.
+"""The daemon's command API on a Unix socket: the non-blocking server.
 
 The 1 kHz loop owns the server's thread: it calls :meth:`CommandServer.poll` in the
-slack of a tick with a time budget, and poll never blocks.
+slack of a tick with a time budget, and poll never blocks. Requests are decoded and
+validated by :mod:`rakectl.api.schema`; peers are checked by their credentials.
 """
 
 from __future__ import annotations
 
 import collections
 import contextlib
-import dataclasses
-import difflib
-import enum
 import grp
-import json
-import math
 import os
 import pwd
 import select
@@ -28,381 +17,32 @@ import socket
 import stat
 import struct
 import time
-import types
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
-from rakectl.config.declare import Bounds
-from rakectl.config.settings import LaneSettings
-from rakectl.errors import ApiError, CommandRejected, DaemonUnreachable, RakeError
+from rakectl.api.schema import (
+    MAX_REQUEST_BYTES,
+    ErrorKind,
+    Handler,
+    Peer,
+    Refusal,
+    Request,
+    decode_request,
+    error_reply,
+    ok_reply,
+    sentence,
+    too_large_message,
+)
+from rakectl.errors import ApiError, RakeError
 
-MAX_REQUEST_BYTES = 4096  # one request line, without its newline
 MAX_CLIENTS = 16
 MAX_BACKLOG_BYTES = 256 * 1024  # replies queued for a client that does not read them
 IDLE_TIMEOUT_S = 60.0  # a client silent this long is closed
-DEAD_MAN_PERIOD_S = 0.1  # a jog is repeated this often while it should go on
-JOG_SPEED_LIMIT_M_PER_S = 0.25
-JOG_RATE_LIMIT_RAD_PER_S = 0.5
-SOCKET_NAME = "rakectl.sock"
-SOCKET_ENV = "RAKECTL_SOCKET"
-SERVICE_RUNTIME_DIR = Path("/run/rakectl")  # systemd's RuntimeDirectory=rakectl
 _RECV_BYTES = 8192
-_ID_MAX_CHARS = 128
-_MAX_REPLY_BYTES = 1 << 20  # the client's limit on one reply line
 _SO_PEERGROUPS = getattr(socket, "SO_PEERGROUPS", 59)  # Linux >= 4.13; 59 in asm-generic
 _POLLIN = select.POLLIN
 _POLLOUT = select.POLLOUT
-
-
-# --------------------------------------------------------------------------- schema (pure)
-
-
-class Command(enum.StrEnum):
-    STATUS = "status"
-    ARM = "arm"
-    DISARM = "disarm"
-    STOP = "stop"
-    ESTOP = "estop"
-    RESET = "reset"
-    DUMP = "dump"
-    JOG = "jog"
-    EXCAVATE = "excavate"
-    TIMING_RESET = "timing_reset"
-    SHUTDOWN = "shutdown"
-
-
-class JogSpace(enum.StrEnum):
-    TASK = "task"  # velocities of the rake's tip: reach (horizontal) and height
-    JOINT = "joint"  # velocities of the joints r and θ
-
-
-class ArgKind(enum.StrEnum):
-    NUMBER = "number"  # a finite JSON number, given to the handler as float
-    STRING = "string"
-
-
-ArgValue = float | str
-
-
-@dataclass(frozen=True)
-class Arg:
-    """One argument of a command, declared once for validation and the reference."""
-
-    name: str
-    kind: ArgKind
-    doc: str
-    unit: str = ""
-    bounds: Bounds = Bounds()
-    required: bool = False
-    default: float | None = None  # given to the handler when the argument is absent
-    choices: type[enum.StrEnum] | None = None  # the handler gets the enum member
-    only_with: tuple[str, str] | None = None  # (argument, value): allowed only then
-    max_chars: int = 1024
-
-
-@dataclass(frozen=True)
-class CommandSpec:
-    command: Command
-    doc: str
-    args: tuple[Arg, ...] = ()
-    check: Callable[[Mapping[str, ArgValue]], str | None] | None = None  # across arguments
-
-
-def _lane_arg(name: str, required: bool) -> Arg:
-    """An excavate argument declared by the lane option of the same name in settings."""
-    meta = {f.name: f for f in dataclasses.fields(LaneSettings)}[name].metadata
-    doc = meta["doc"] if required else f"{meta['doc']} Default: the configured lane.{name}."
-    return Arg(name, ArgKind.NUMBER, doc, meta["unit"], meta["bounds"], required=required)
-
-
-def _jog_arg(name: str, unit: str, limit: float, space: JogSpace, doc: str) -> Arg:
-    return Arg(name, ArgKind.NUMBER, doc, unit, Bounds(ge=-limit, le=limit), default=0.0,
-               only_with=("space", space.value))
-
-
-def _far_beyond_near(args: Mapping[str, ArgValue]) -> str | None:
-    far, near = args["reach_far_m"], args["reach_near_m"]
-    if isinstance(far, float) and isinstance(near, float) and not far > near:
-        return f"reach_far_m must be > reach_near_m ({near:g}), got {far:g}"
-    return None
-
-
-_SPECS = (
-    CommandSpec(Command.STATUS, "The daemon's state, pose and counters (changes nothing)."),
-    CommandSpec(Command.ARM, "Enable the drives and hold the present pose."),
-    CommandSpec(Command.DISARM, "Stop any motion and disable the drives."),
-    CommandSpec(Command.STOP, "Stop the jog or excavation and hold the pose; stays armed."),
-    CommandSpec(Command.ESTOP, "Emergency stop: quick-stop both drives now and latch it "
-                "until `reset`."),
-    CommandSpec(Command.RESET, "Clear a latched emergency stop or fault; stays disarmed."),
-    CommandSpec(Command.DUMP, "Write the flight recorder's recent history to a file.", (
-        Arg("path", ArgKind.STRING, "File to write, on the daemon's machine. Default: a new "
-            "file in the daemon's state directory."),)),
-    CommandSpec(Command.JOG, "Move at the given velocities while the requests keep coming: "
-                f"repeat it every {DEAD_MAN_PERIOD_S:g} s (dead-man); the daemon stops "
-                "when they stop. Absent velocities are 0.", (
-        Arg("space", ArgKind.STRING, "task: tip velocities; joint: joint velocities.",
-            required=True, choices=JogSpace),
-        _jog_arg("reach_m_per_s", "m/s", JOG_SPEED_LIMIT_M_PER_S, JogSpace.TASK,
-                 "Horizontal tip velocity, positive away from the robot."),
-        _jog_arg("height_m_per_s", "m/s", JOG_SPEED_LIMIT_M_PER_S, JogSpace.TASK,
-                 "Vertical tip velocity, positive up."),
-        _jog_arg("r_m_per_s", "m/s", JOG_SPEED_LIMIT_M_PER_S, JogSpace.JOINT,
-                 "Velocity of the sliding joint r, positive extending."),
-        _jog_arg("theta_rad_per_s", "rad/s", JOG_RATE_LIMIT_RAD_PER_S, JogSpace.JOINT,
-                 "Velocity of the rotary joint θ, positive lowering the rake."),
-    )),
-    CommandSpec(Command.EXCAVATE, "Rake a lane: contact strokes from reach_far_m to "
-                "reach_near_m, deeper each cycle down to target_depth_m.", (
-        _lane_arg("reach_far_m", True), _lane_arg("reach_near_m", True),
-        _lane_arg("target_depth_m", True), _lane_arg("depth_step_m", False),
-        _lane_arg("stroke_speed_m_per_s", False),
-    ), _far_beyond_near),
-    CommandSpec(Command.TIMING_RESET, "Start the loop's timing statistics afresh (benchmarks)."),
-    CommandSpec(Command.SHUTDOWN, "Stop, disarm and end the daemon (tests and bench set-ups; "
-                "under systemd use `systemctl stop rakectl`). Needs the same credentials as "
-                "every command."),
-)
-COMMANDS: Mapping[Command, CommandSpec] = types.MappingProxyType(
-    {spec.command: spec for spec in _SPECS})
-_KNOWN = ", ".join(COMMANDS)
-
-
-@dataclass(frozen=True)
-class Peer:
-    """Credentials of the process at the other end of a connection (SO_PEERCRED)."""
-
-    pid: int
-    uid: int
-    gid: int
-    groups: frozenset[int] = frozenset()
-
-
-@dataclass(frozen=True)
-class Request:
-    """A validated request: every argument checked, defaults filled in."""
-
-    cmd: Command
-    args: Mapping[str, ArgValue] = field(default_factory=lambda: types.MappingProxyType({}))
-    id: str | int | None = None
-    client: int = 0  # serial number of the connection; 0: not from a socket
-    peer: Peer | None = None
-
-    def number(self, name: str) -> float | None:
-        value = self.args.get(name)
-        return value if isinstance(value, float) else None
-
-    def text(self, name: str) -> str | None:
-        value = self.args.get(name)
-        return value if isinstance(value, str) else None
-
-
-class ErrorKind(enum.StrEnum):
-    TOO_LARGE = "too_large"  # a request line over MAX_REQUEST_BYTES
-    MALFORMED = "malformed"  # not UTF-8, or not JSON
-    INVALID = "invalid"  # JSON, but not a request of the schema
-    REJECTED = "rejected"  # the handler refused it (raised a RakeError)
-    INTERNAL = "internal"  # the handler crashed or returned an unusable reply
-    PERMISSION = "permission"  # a peer without the credentials was turned away
-    BUSY = "busy"  # a peer beyond the client limit was turned away
-    SLOW = "slow"  # a client that did not read its replies was dropped
-    IDLE = "idle"  # a silent client was closed after the idle timeout
-    SOCKET = "socket"  # an OS error on accept, recv or send
-
-
-@dataclass(frozen=True)
-class Refusal:
-    """Why a request line was refused; ``error`` is the reply's sentence."""
-
-    kind: ErrorKind
-    error: str
-    id: str | int | None = None
-
-
-_MISSING = object()
-
-
-class _Invalid(Exception):
-    def __init__(self, kind: ErrorKind, error: str) -> None:
-        super().__init__(error)
-        self.kind, self.error = kind, error
-
-
-def too_large_message(size_bytes: int, complete: bool = True) -> str:
-    size = f"{size_bytes} bytes" if complete else f"at least {size_bytes} bytes"
-    return f"request too large ({size}, limit {MAX_REQUEST_BYTES})"
-
-
-def decode_request(line: bytes, client: int = 0, peer: Peer | None = None) -> Request | Refusal:
-    """A request line (without its newline) as a validated Request, or why not (pure)."""
-    if len(line) > MAX_REQUEST_BYTES:
-        return Refusal(ErrorKind.TOO_LARGE, too_large_message(len(line)))
-    request_id: str | int | None = None
-    try:
-        obj = _parse(line)
-        request_id = _request_id(obj.pop("id", None))
-        spec = _spec(obj.pop("cmd", _MISSING))
-        args = _validate(spec, obj)
-    except _Invalid as exc:
-        return Refusal(exc.kind, exc.error, request_id)
-    return Request(spec.command, types.MappingProxyType(args), request_id, client, peer)
-
-
-def _show(value: Any) -> str:
-    text = json.dumps(value)
-    return text if len(text) <= 40 else text[:39] + "…"
-
-
-def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
-    obj: dict[str, Any] = {}
-    for key, item in pairs:
-        if key in obj:
-            raise _Invalid(ErrorKind.MALFORMED, f"malformed JSON: key {_show(key)} is given twice")
-        obj[key] = item
-    return obj
-
-
-_DECODER = json.JSONDecoder(object_pairs_hook=_unique_keys)
-
-
-def _parse(line: bytes) -> dict[str, Any]:
-    try:
-        obj = _DECODER.decode(line.decode("utf-8"))
-    except UnicodeDecodeError as exc:
-        raise _Invalid(ErrorKind.MALFORMED, f"request is not UTF-8 (byte 0x{line[exc.start]:02x}"
-                       f" at offset {exc.start})") from None
-    except json.JSONDecodeError as exc:
-        raise _Invalid(ErrorKind.MALFORMED,
-                       f"malformed JSON: {exc.msg} at column {exc.colno}") from None
-    except RecursionError:
-        raise _Invalid(ErrorKind.MALFORMED, "malformed JSON: nested too deeply") from None
-    except ValueError as exc:
-        raise _Invalid(ErrorKind.MALFORMED, f"malformed JSON: {exc}") from None
-    if not isinstance(obj, dict):
-        names = {list: "an array", str: "a string", bool: "a boolean", type(None): "null"}
-        raise _Invalid(ErrorKind.INVALID,
-                       f"a request must be a JSON object, got {names.get(type(obj), 'a number')}")
-    return obj
-
-
-def _request_id(value: Any) -> str | int | None:
-    ok = value is None or (isinstance(value, int) and not isinstance(value, bool)) or (
-        isinstance(value, str) and len(value) <= _ID_MAX_CHARS)
-    if not ok:
-        raise _Invalid(ErrorKind.INVALID, f'"id" must be an integer or a string of at most '
-                       f"{_ID_MAX_CHARS} characters, got {_show(value)}")
-    return value  # type: ignore[no-any-return]
-
-
-def _suggest(word: str, known: list[str]) -> str:
-    """A known name close to ``word``; also one it begins (a name without its unit)."""
-    close = [name for name in known if word and name.startswith(word + "_")]
-    close = close or difflib.get_close_matches(word, known, n=1)
-    return f" (did you mean {close[0]}?)" if close else ""
-
-
-def _spec(cmd: Any) -> CommandSpec:
-    if cmd is _MISSING:
-        raise _Invalid(ErrorKind.INVALID, f'a request needs "cmd", one of: {_KNOWN}')
-    if not isinstance(cmd, str) or cmd not in COMMANDS:
-        hint = _suggest(cmd, list(COMMANDS)) if isinstance(cmd, str) else ""
-        raise _Invalid(ErrorKind.INVALID,
-                       f"unknown command {_show(cmd)}{hint}; known commands: {_KNOWN}")
-    return COMMANDS[Command(cmd)]
-
-
-def _validate(spec: CommandSpec, given: Mapping[str, Any]) -> dict[str, ArgValue]:
-    known = {arg.name: arg for arg in spec.args}
-    for name in given:
-        if name not in known:
-            takes = ", ".join(known) or "no arguments"
-            raise _Invalid(ErrorKind.INVALID, f"{spec.command}: unknown argument {_show(name)}"
-                           f"{_suggest(name, list(known))}; {spec.command} takes {takes}")
-    args: dict[str, ArgValue] = {}
-    for arg in spec.args:
-        _raise_if(spec, _take(arg, given, args))
-    _raise_if(spec, spec.check(args) if spec.check is not None else None)
-    return args
-
-
-def _raise_if(spec: CommandSpec, problem: str | None) -> None:
-    if problem is not None:
-        raise _Invalid(ErrorKind.INVALID, f"{spec.command}: {problem}")
-
-
-def _take(arg: Arg, given: Mapping[str, Any], args: dict[str, ArgValue]) -> str | None:
-    """Check one argument into ``args``; why it is wrong, or None."""
-    active = arg.only_with is None or args.get(arg.only_with[0]) == arg.only_with[1]
-    if arg.name not in given:
-        if active and arg.required:
-            return f"{arg.name} is required"
-        if active and arg.default is not None:
-            args[arg.name] = arg.default
-        return None
-    if not active and arg.only_with is not None:
-        return f"{arg.name} is only allowed with {arg.only_with[0]}={arg.only_with[1]}"
-    value, problem = _coerce(arg, given[arg.name])
-    if problem is None:
-        args[arg.name] = value
-    return problem
-
-
-def _coerce(arg: Arg, value: Any) -> tuple[ArgValue, str | None]:
-    if arg.kind is ArgKind.NUMBER:
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            return 0.0, f"{arg.name} must be a number, got {_show(value)}"
-        try:
-            number = float(value)
-        except OverflowError:  # an integer beyond the float range
-            number = math.inf
-        problem = arg.bounds.violation(number)
-        return number, f"{arg.name} {problem}" if problem else None
-    if not isinstance(value, str):
-        return "", f"{arg.name} must be a string, got {_show(value)}"
-    if arg.choices is not None:
-        if value not in arg.choices.__members__.values():
-            return "", f"{arg.name} must be one of {', '.join(arg.choices)}, got {_show(value)}"
-        return arg.choices(value), None
-    if not value or "\0" in value or len(value) > arg.max_chars:
-        return "", (f"{arg.name} must be a non-empty string of at most {arg.max_chars} "
-                    f"characters without NUL, got {_show(value)}")
-    return value, None
-
-
-def api_reference() -> str:
-    """Markdown reference of the protocol and every command, from :data:`COMMANDS`."""
-    lines = [
-        "One JSON object per line, UTF-8, on the Unix socket (default "
-        f"`{SERVICE_RUNTIME_DIR / SOCKET_NAME}` for the service). Request: "
-        '`{"cmd": "<command>", <arguments>…}`, optionally with `"id"` (an integer or a string), '
-        'echoed in the reply. Reply: `{"ok": true, …}` or `{"ok": false, "error": "…"}`. '
-        f"A request is at most {MAX_REQUEST_BYTES} bytes; a larger one is answered with an "
-        "error and the connection is closed. An invalid request changes nothing. Peers must be "
-        "root, the daemon's user or members of the socket's group.", "",
-        "| command | arguments | meaning |", "|---|---|---|",
-    ]
-    for spec in COMMANDS.values():
-        args = ", ".join(f"`{a.name}`" if a.required else f"[`{a.name}`]" for a in spec.args)
-        lines.append(f"| `{spec.command}` | {args or '—'} | {spec.doc} |")
-    for spec in COMMANDS.values():
-        if spec.args:
-            lines += ["", f"#### `{spec.command}`", "", spec.doc, "", *_arg_table(spec.args)]
-    return "\n".join(lines)
-
-
-def _arg_table(args: tuple[Arg, ...]) -> list[str]:
-    rows = ["| argument | type | required | unit | bounds | meaning |", "|---|---|---|---|---|---|"]
-    for a in args:
-        kind = " \\| ".join(f"`{c}`" for c in a.choices) if a.choices else a.kind.value
-        need = "yes" if a.required else (f"no (default {a.default:g})"
-                                        if a.default is not None else "no")
-        when = f" Only with {a.only_with[0]}={a.only_with[1]}." if a.only_with else ""
-        rows.append(f"| `{a.name}` | {kind} | {need} | {a.unit} | {a.bounds.describe()} "
-                    f"| {a.doc}{when} |")
-    return rows
-
 
 # --------------------------------------------------------------------------- credentials, paths
 
@@ -425,80 +65,6 @@ def _peer(sock: socket.socket) -> Peer:
             groups = frozenset()
     return Peer(pid, uid, gid, groups)
 
-
-def default_socket_path(environ: Mapping[str, str] | None = None) -> Path:
-    """Where the daemon listens when nobody says otherwise.
-
-    The service's ``$RUNTIME_DIRECTORY`` (set by systemd), else /run/rakectl when the
-    service has created it, else ``$XDG_RUNTIME_DIR/rakectl``, else ``/tmp/rakectl-<uid>``.
-    """
-    env = os.environ if environ is None else environ
-    runtime = env.get("RUNTIME_DIRECTORY", "").split(":")[0]
-    if runtime:
-        return Path(runtime) / SOCKET_NAME
-    if SERVICE_RUNTIME_DIR.is_dir():
-        return SERVICE_RUNTIME_DIR / SOCKET_NAME
-    xdg = env.get("XDG_RUNTIME_DIR", "")
-    if xdg.startswith("/"):
-        return Path(xdg) / "rakectl" / SOCKET_NAME
-    return Path(f"/tmp/rakectl-{os.geteuid()}") / SOCKET_NAME
-
-
-def socket_path(explicit: str | Path | None = None,
-                environ: Mapping[str, str] | None = None) -> Path:
-    """The explicit path, else ``$RAKECTL_SOCKET``, else :func:`default_socket_path`."""
-    env = os.environ if environ is None else environ
-    if explicit:
-        return Path(explicit)
-    if env.get(SOCKET_ENV):
-        return Path(env[SOCKET_ENV])
-    return default_socket_path(env)
-
-
-# --------------------------------------------------------------------------- replies
-
-
-def _encode(message: Mapping[str, Any]) -> bytes:
-    try:
-        text = json.dumps(message, allow_nan=False, separators=(",", ":"))
-    except ValueError:  # NaN or infinity: strict JSON has none, they go out as null
-        text = json.dumps(_finite(message), separators=(",", ":"))
-    return text.encode() + b"\n"
-
-
-def _finite(value: Any) -> Any:
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, Mapping):
-        return {key: _finite(item) for key, item in value.items()}
-    if isinstance(value, list | tuple):
-        return [_finite(item) for item in value]
-    return value
-
-
-def _sentence(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
-
-
-def error_reply(error: str, request_id: str | int | None = None) -> bytes:
-    reply: dict[str, Any] = {"ok": False}
-    if request_id is not None:
-        reply["id"] = request_id
-    reply["error"] = error
-    return _encode(reply)
-
-
-def ok_reply(payload: Mapping[str, Any], request_id: str | int | None = None) -> bytes:
-    if not isinstance(payload, Mapping):
-        raise TypeError(f"the handler returned {type(payload).__name__}, not a mapping")
-    for key in ("ok", "id", "error"):
-        if key in payload:
-            raise ValueError(f"the handler's reply uses the reserved key {key!r}")
-    head: dict[str, Any] = {"ok": True} if request_id is None else {"ok": True, "id": request_id}
-    return _encode(head | dict(payload))
-
-
-Handler = Callable[[Request], Mapping[str, Any]]
 
 
 # --------------------------------------------------------------------------- server
@@ -747,10 +313,10 @@ class CommandServer:
             return ok_reply(self._handler(request), request.id)
         except RakeError as exc:
             self._count(ErrorKind.REJECTED)
-            return error_reply(_sentence(exc), request.id)
+            return error_reply(sentence(exc), request.id)
         except Exception as exc:  # a bug in the handler must not end the server
             self._count(ErrorKind.INTERNAL)
-            error = f"internal error: {type(exc).__name__}: {_sentence(exc)}"
+            error = f"internal error: {type(exc).__name__}: {sentence(exc)}"
             return error_reply(error, request.id)
 
     def _count(self, kind: ErrorKind) -> None:
@@ -863,131 +429,3 @@ def _remove_stale(path: Path) -> None:
     raise ApiError(f"another daemon is already listening at {path}")
 
 
-# --------------------------------------------------------------------------- client
-
-_STOP: Mapping[str, str] = types.MappingProxyType({"cmd": Command.STOP.value})
-
-
-class Client:
-    """One connection for several requests, one at a time (the jog dead-man)."""
-
-    def __init__(self, path: Path, timeout_s: float = 2.0) -> None:
-        self.path, self._timeout_s = Path(path), timeout_s
-        self._sock = _connect(self.path, timeout_s)
-        self._inbuf = bytearray()
-
-    def __enter__(self) -> Client:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def close(self) -> None:
-        self._sock.close()
-
-    def request(self, request: Mapping[str, Any]) -> dict[str, Any]:
-        """Send one request, return its reply; raise CommandRejected on an error reply."""
-        try:
-            line = json.dumps(dict(request), allow_nan=False).encode() + b"\n"
-        except (TypeError, ValueError) as exc:
-            raise ApiError(f"cannot send {request!r}: {exc}") from exc
-        try:
-            self._sock.settimeout(self._timeout_s)
-            with contextlib.suppress(BrokenPipeError, ConnectionResetError):
-                self._sock.sendall(line)  # if it fails, the daemon may have said why: read on
-            return _check_reply(self._read_line(time.monotonic() + self._timeout_s), self.path)
-        except ApiError:
-            raise
-        except TimeoutError as exc:
-            self.close()
-            raise DaemonUnreachable(f"the rakectl daemon at {self.path} did not answer within "
-                                    f"{self._timeout_s:g} s") from exc
-        except OSError as exc:
-            self.close()
-            raise DaemonUnreachable(f"lost the connection to the rakectl daemon at {self.path}: "
-                                    f"{exc.strerror or exc}") from exc
-
-    def hold(self, request: Mapping[str, Any], duration_s: float, *,
-             period_s: float = DEAD_MAN_PERIOD_S, clock: Callable[[], float] = time.monotonic,
-             sleep: Callable[[float], object] = time.sleep) -> int:
-        """Repeat ``request`` every ``period_s`` for ``duration_s`` (a jog), then send stop.
-
-        On any error or Ctrl-C, stop goes out on a new connection before the error
-        propagates. Returns the number of requests sent.
-        """
-        start_s, sent = clock(), 0
-        try:
-            while clock() - start_s < duration_s:
-                self.request(request)
-                sent += 1
-                sleep(max(0.0, start_s + sent * period_s - clock()))
-        except BaseException:
-            with contextlib.suppress(ApiError):
-                call(self.path, _STOP, self._timeout_s)
-            raise
-        self.request(_STOP)
-        return sent
-
-    def _read_line(self, deadline_s: float) -> bytes:
-        while b"\n" not in self._inbuf:
-            remaining_s = deadline_s - time.monotonic()
-            if remaining_s <= 0:
-                raise TimeoutError
-            self._sock.settimeout(remaining_s)
-            chunk = self._sock.recv(65536)
-            if not chunk:
-                raise DaemonUnreachable(f"the rakectl daemon at {self.path} closed the "
-                                        "connection without answering")
-            self._inbuf += chunk
-            if len(self._inbuf) > _MAX_REPLY_BYTES:
-                raise ApiError(f"the reply of the daemon at {self.path} is over "
-                               f"{_MAX_REPLY_BYTES} bytes")
-        line, _, self._inbuf = self._inbuf.partition(b"\n")
-        return bytes(line)
-
-
-def call(path: Path, request: Mapping[str, Any], timeout_s: float = 2.0) -> dict[str, Any]:
-    """One request, one reply, on a connection of its own.
-
-    Raises DaemonUnreachable (no daemon, no answer), CommandRejected (an error reply,
-    with the daemon's sentence) or ApiError (an unusable reply).
-    """
-    with Client(path, timeout_s) as client:
-        return client.request(request)
-
-
-def _connect(path: Path, timeout_s: float) -> socket.socket:
-    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    sock.settimeout(timeout_s)
-    try:
-        sock.connect(str(path))
-    except OSError as exc:
-        sock.close()
-        raise DaemonUnreachable(f"cannot reach the rakectl daemon at {path}: "
-                                f"{_why(exc, timeout_s)}") from exc
-    return sock
-
-
-def _why(exc: OSError, timeout_s: float) -> str:
-    if isinstance(exc, FileNotFoundError):
-        return "no such file (is `rakectl run` or the service running?)"
-    if isinstance(exc, ConnectionRefusedError):
-        return "connection refused (is `rakectl run` or the service running?)"
-    if isinstance(exc, PermissionError):
-        return ("permission denied (is your user in group rakectl? `sudo usermod -aG rakectl "
-                "$USER`, then log in again)")
-    if isinstance(exc, TimeoutError | BlockingIOError):
-        return f"no answer within {timeout_s:g} s (the daemon is busy)"
-    return exc.strerror or str(exc)
-
-
-def _check_reply(line: bytes, path: Path) -> dict[str, Any]:
-    try:
-        reply = json.loads(line)
-    except ValueError as exc:
-        raise ApiError(f"unusable reply from the rakectl daemon at {path}: {exc}") from exc
-    if not isinstance(reply, dict) or not isinstance(reply.get("ok"), bool):
-        raise ApiError(f"unusable reply from the rakectl daemon at {path}: {_show(reply)}")
-    if not reply["ok"]:
-        raise CommandRejected(str(reply.get("error") or "the daemon refused without a reason"))
-    return reply

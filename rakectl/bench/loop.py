@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rakectl.api.server import Client
+from rakectl.api.client import Client
 from rakectl.bench.cyclictest import run_cyclictest
 from rakectl.errors import RakeError
 from rakectl.sim.rig import emulated_bench, namespaces_unavailable

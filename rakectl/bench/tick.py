@@ -33,7 +33,7 @@ import numpy as np
 
 from drivers.emulator import Emulator
 from drivers.settings import EmulatorConfig
-from rakectl.api.server import Request, decode_request
+from rakectl.api.schema import Request, decode_request
 from rakectl.config.settings import BusInterface, BusSettings, Settings
 from rakectl.core.lane import LanePhase
 from rakectl.daemon.handlers import make_handler

@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 
 from drivers.settings import EmulatorConfig, EmulatorSettings
-from rakectl.api.server import api_reference
+from rakectl.api.schema import api_reference
 from rakectl.config.reference import reference, table
 from rakectl.config.settings import Settings
 from rakectl.sim.scenario import Scenario

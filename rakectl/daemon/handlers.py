@@ -13,7 +13,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from rakectl.api.server import Command, JogSpace, Request
+from rakectl.api.schema import ApiCommand, JogSpace, Request
 from rakectl.core import kinematics
 from rakectl.core.jog import Jog
 from rakectl.core.jog import JogSpace as JogFrame
@@ -129,31 +129,31 @@ def make_handler(daemon: Daemon) -> Callable[[Request], Reply]:
 
     def handle(request: Request) -> Reply:
         cmd = request.cmd
-        if cmd is Command.STATUS:
+        if cmd is ApiCommand.STATUS:
             return status(daemon)
-        if cmd is Command.ARM:
+        if cmd is ApiCommand.ARM:
             if daemon.client.stale_feedback(daemon.settings.drives.feedback_timeout_cycles):
                 raise CommandRejected("cannot arm: the drives' feedback is stale")
             return _simple(daemon, Event.ARM, "arm", daemon.arm)
-        if cmd is Command.DISARM:
+        if cmd is ApiCommand.DISARM:
             return _simple(daemon, Event.DISARM, "disarm", daemon.disarm)
-        if cmd is Command.STOP:
+        if cmd is ApiCommand.STOP:
             return _simple(daemon, Event.STOP, "stop", daemon.hold_here)
-        if cmd is Command.ESTOP:
+        if cmd is ApiCommand.ESTOP:
             daemon.estop()
             return {"state": daemon.state.name.lower()}
-        if cmd is Command.RESET:
+        if cmd is ApiCommand.RESET:
             return _simple(daemon, Event.RESET, "reset", daemon.start_reset)
-        if cmd is Command.DUMP:
+        if cmd is ApiCommand.DUMP:
             return _dump(daemon, request)
-        if cmd is Command.JOG:
+        if cmd is ApiCommand.JOG:
             return _jog(daemon, request)
-        if cmd is Command.EXCAVATE:
+        if cmd is ApiCommand.EXCAVATE:
             return _excavate(daemon, request)
-        if cmd is Command.TIMING_RESET:
+        if cmd is ApiCommand.TIMING_RESET:
             daemon.timing.reset()
             return {"state": daemon.state.name.lower()}
-        if cmd is Command.SHUTDOWN:
+        if cmd is ApiCommand.SHUTDOWN:
             daemon.request_stop()
             return {"state": daemon.state.name.lower(), "stopping": True}
         raise CommandRejected(f"{cmd} is not implemented")  # pragma: no cover

@@ -19,7 +19,8 @@ from types import FrameType
 
 import structlog
 
-from rakectl.api.server import CommandServer, socket_path
+from rakectl.api.client import socket_path
+from rakectl.api.server import CommandServer
 from rakectl.config.loader import load_settings
 from rakectl.config.settings import Settings
 from rakectl.daemon.handlers import make_handler

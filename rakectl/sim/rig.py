@@ -21,7 +21,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from rakectl.api.server import call
+from rakectl.api.client import call
 from rakectl.errors import ApiError, CommsTimeout, RakeError
 
 NAMESPACE_SETUP = ("ip link set lo up && ip link set lo multicast on && "

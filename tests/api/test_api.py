@@ -27,25 +27,21 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from rakectl.api import server as api
-from rakectl.api.server import (
+from rakectl.api import client as api_client
+from rakectl.api.client import Client, call, default_socket_path, socket_path
+from rakectl.api.schema import (
     COMMANDS,
     MAX_REQUEST_BYTES,
-    Client,
-    Command,
-    CommandServer,
+    ApiCommand,
     ErrorKind,
     JogSpace,
     Peer,
     Refusal,
     Request,
     api_reference,
-    call,
     decode_request,
-    default_socket_path,
-    peer_allowed,
-    socket_path,
 )
+from rakectl.api.server import CommandServer, peer_allowed
 from rakectl.errors import ApiError, CommandRejected, DaemonUnreachable, RakeError
 
 JOG_TASK = {"cmd": "jog", "space": "task", "reach_m_per_s": 0.1}
@@ -218,7 +214,7 @@ def test_request_too_large_is_answered_then_closed(
     assert [r["ok"] for r in replies] == [True, False]
     assert replies[1]["error"] == f"request too large ({len(big)} bytes, limit 4096)"
     assert closed
-    assert [r.cmd for r in recorder.requests] == [Command.ARM]  # estop after it was not read
+    assert [r.cmd for r in recorder.requests] == [ApiCommand.ARM]  # estop after it was not read
     assert server.stats.errors[ErrorKind.TOO_LARGE] == 1
 
 
@@ -269,7 +265,8 @@ def test_several_requests_in_one_packet_are_answered_in_order(
     payload = b'{"cmd":"status","id":1}\n{"cmd":"arm","id":2}\n\n  \r\n{"cmd":"stop","id":3}\n'
     replies = _exchange(server, payload, 3)
     assert [r["id"] for r in replies] == [1, 2, 3]
-    assert [r.cmd for r in recorder.requests] == [Command.STATUS, Command.ARM, Command.STOP]
+    assert [r.cmd for r in recorder.requests] == [ApiCommand.STATUS, ApiCommand.ARM,
+                                                  ApiCommand.STOP]
     assert server.stats.requests == 3
 
 
@@ -340,7 +337,7 @@ def test_one_flooding_client_does_not_starve_another(sock_path: Path, recorder: 
         other.sendall(b'{"cmd": "estop"}\n')
         first = server.poll(1e-4)
         assert 0 < first < 20  # the budget holds
-        assert Command.ESTOP in [r.cmd for r in recorder.requests]
+        assert ApiCommand.ESTOP in [r.cmd for r in recorder.requests]
         while server.poll(1e-4):
             pass
         assert len(recorder.requests) == 201
@@ -392,7 +389,7 @@ def test_handler_failure_is_answered_and_the_server_goes_on(
     sock_path: Path, reply: Any, error: str, kind: ErrorKind
 ) -> None:
     def handler(request: Request) -> Mapping[str, Any]:
-        if request.cmd is Command.STATUS:
+        if request.cmd is ApiCommand.STATUS:
             return {"state": "disarmed"}
         if isinstance(reply, Exception):
             raise reply
@@ -652,7 +649,7 @@ def test_dead_man_hold_repeats_the_jog_then_stops(
         assert server.is_connected(recorder.requests[0].client)
     assert 3 <= sent <= 5
     cmds = [r.cmd for r in recorder.requests]
-    assert cmds == [Command.JOG] * sent + [Command.STOP]
+    assert cmds == [ApiCommand.JOG] * sent + [ApiCommand.STOP]
     assert len({r.client for r in recorder.requests}) == 1  # one connection
 
 
@@ -662,14 +659,14 @@ def test_dead_man_sends_stop_when_interrupted(server: CommandServer, recorder: R
 
     with _serving(server), Client(server.path) as client, pytest.raises(KeyboardInterrupt):
         client.hold(JOG_TASK, duration_s=10.0, sleep=interrupt)
-    assert [r.cmd for r in recorder.requests] == [Command.JOG, Command.STOP]
+    assert [r.cmd for r in recorder.requests] == [ApiCommand.JOG, ApiCommand.STOP]
 
 
 # --------------------------------------------------------------------------- paths, docs
 
 
 def test_socket_path_precedence(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(api, "SERVICE_RUNTIME_DIR", tmp_path / "absent")
+    monkeypatch.setattr(api_client, "SERVICE_RUNTIME_DIR", tmp_path / "absent")
     env = {"RAKECTL_SOCKET": "/srv/r.sock", "XDG_RUNTIME_DIR": "/run/user/1000"}
     assert socket_path("/x/y.sock", env) == Path("/x/y.sock")
     assert socket_path(None, env) == Path("/srv/r.sock")
@@ -678,7 +675,7 @@ def test_socket_path_precedence(tmp_path: Path, monkeypatch: pytest.MonkeyPatch)
     assert default_socket_path({}) == Path(f"/tmp/rakectl-{os.geteuid()}/rakectl.sock")
     assert default_socket_path({"RUNTIME_DIRECTORY": "/run/rakectl:/run/other"}) == Path(
         "/run/rakectl/rakectl.sock")
-    monkeypatch.setattr(api, "SERVICE_RUNTIME_DIR", tmp_path)  # the service's directory exists
+    monkeypatch.setattr(api_client, "SERVICE_RUNTIME_DIR", tmp_path)  # the service's directory
     assert default_socket_path({"XDG_RUNTIME_DIR": "/run/user/1000"}) == tmp_path / "rakectl.sock"
 
 
