@@ -10,7 +10,7 @@ COB-ID, send what they answer, run their timers, advance the physics if it is
 due. Tests call it between their own sends; :meth:`Emulator.run` loops on it.
 
 Bus filters pass only SYNC, NMT, the drives' RPDO1 and SDO requests and
-heartbeats, so udp_multicast's echo of our own frames is dropped by the bus. A
+heartbeats, so udp_multicast's echo of its own frames is dropped by the bus. A
 frame nobody listens to, or a remote, error, extended-ID or FD frame, is
 counted in :attr:`Emulator.stats`; the drives count bad content. Counts are
 logged at most once per second per kind (structlog ``bad_frame``).
@@ -49,7 +49,7 @@ from can.typechecking import CanFilter
 
 from drivers.arm import ArmPlant
 from drivers.node import BadInput, DriveKind, DriveNode, DriveSpec, Frame, InputStats
-from drivers.objects import Ground
+from drivers.objects import Contact, Ground
 from drivers.settings import EmulatorConfig, TimingMode
 from rakectl.core.kinematics import Workspace
 from rakectl.core.motor_model import MotorParams, joint_per_motor_rad
@@ -62,8 +62,10 @@ TRUTH_COLUMNS: Final = (
     "t_s", "sync_counter", "r_m", "theta_rad", "voltage_r_v", "voltage_theta_v", "current_r_a",
     "current_theta_a", "tip_reach_m", "tip_height_m", "force_down_n", "force_drag_n",
     "contact", "mine_activated", "r_state", "r_nmt", "theta_state", "theta_nmt",
+    "mine_plate_max_n", "mine_side_max_n",
 )
-_TRUTH_ROW: Final = "%.6f,%d,%.7f,%.7f,%.4f,%.4f,%.5f,%.5f,%.6f,%.6f,%.4f,%.4f,%s,%d,%s,%s,%s,%s\n"
+_TRUTH_ROW: Final = ("%.6f,%d,%.7f,%.7f,%.4f,%.4f,%.5f,%.5f,%.6f,%.6f,%.4f,%.4f,%s,%d,%s,%s,%s,%s,"
+                     "%.4f,%.4f\n")
 
 
 class EmulatorStats:
@@ -158,6 +160,7 @@ class Emulator:
         self.workspace = workspace(config)
         physics = config.physics
         self.ground = Ground(physics.ground, physics.seed)
+        self._mines = [b for b in self.ground.bodies if b.kind is Contact.MINE]
         self._plant_motors = self._motors()
         self.plant = self._new_plant()
         self.plant.set_pose_at_rest(config.drives.start_r_m, config.drives.start_theta_rad)
@@ -347,11 +350,14 @@ class Emulator:
         assert self._truth is not None
         plant, truth, (r, theta) = self.plant, self.ground.truth, self.nodes
         reach_m, height_m = plant.tip_m()
+        plate_n = side_n = 0.0  # the largest so far on any mine
+        for mine in self._mines:
+            plate_n, side_n = max(plate_n, mine.peak_down_n), max(side_n, mine.peak_side_n)
         self._truth.add(_TRUTH_ROW % (
             self.time_s, self.sync_counter, plant.r_m, plant.theta_rad, r.output_voltage_v,
             theta.output_voltage_v, plant.current_r_a, plant.current_theta_a, reach_m, height_m,
             truth.force_down_n, truth.force_drag_n, truth.contact.value, truth.mine_activated,
-            r.state.name, r.nmt.name, theta.state.name, theta.nmt.name))
+            r.state.name, r.nmt.name, theta.state.name, theta.nmt.name, plate_n, side_n))
 
     # ------------------------------------------------------------------- bus edge
 

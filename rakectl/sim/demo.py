@@ -36,14 +36,19 @@ def _config(name: str) -> Path:
 
 
 def truth_figures(truth_csv: Path) -> dict[str, Any]:
-    """Largest true vertical force (sampled every 1 ms) and mine activation, from the emulator."""
-    f_max, activated, rows = 0.0, False, 0
+    """From the emulator: the largest true vertical force on the ground (sampled every
+    1 ms), the largest force on a mine's plate and on its side, and mine activation."""
+    f_max = plate_n = side_n = 0.0
+    activated, rows = False, 0
     with open(truth_csv, newline="") as f:
         for row in csv.DictReader(f):
             rows += 1
             f_max = max(f_max, float(row["force_down_n"]))
+            plate_n = max(plate_n, float(row["mine_plate_max_n"]))
+            side_n = max(side_n, float(row["mine_side_max_n"]))
             activated = activated or row["mine_activated"] == "1"
-    return {"f_true_z_max_n": f_max, "mine_activated": activated, "truth_rows": rows}
+    return {"f_true_z_max_n": f_max, "f_mine_plate_max_n": plate_n,
+            "f_mine_side_max_n": side_n, "mine_activated": activated, "truth_rows": rows}
 
 
 def run_demo(out: Path, as_json: bool) -> int:
@@ -78,6 +83,8 @@ def _summary(final: dict[str, Any], truth: dict[str, Any]) -> dict[str, Any]:
         "cycles": ex.get("cycle", 0),
         "f_hat_z_max_n": final["force"]["f_hat_max_n"],
         "f_true_z_max_n": truth["f_true_z_max_n"],
+        "f_mine_plate_max_n": truth["f_mine_plate_max_n"],
+        "f_mine_side_max_n": truth["f_mine_side_max_n"],
         "object_found": found,
         "mine_activated": truth["mine_activated"],
         "clamped_ticks": final["force"]["clamped_ticks"],
@@ -102,6 +109,8 @@ def _report(summary: dict[str, Any], out: Path, as_json: bool) -> None:
         f"object found       {where}",
         f"max vertical force estimated {summary['f_hat_z_max_n']:.1f} N, true "
         f"{summary['f_true_z_max_n']:.1f} N (limit {FORCE_LIMIT_N:g} N)",
+        f"force on the mine  plate {summary['f_mine_plate_max_n']:.1f} N, side "
+        f"{summary['f_mine_side_max_n']:.1f} N (limit {FORCE_LIMIT_N:g} N)",
         f"mine activated     {'YES' if summary['mine_activated'] else 'no'}",
         f"plot               {out / 'demo.png'}",
     ]
