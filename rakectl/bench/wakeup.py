@@ -1,13 +1,13 @@
 """Latency benchmark of the 1 kHz loop against cyclictest, measured in the same run.
 
 ``python -m rakectl.bench.wakeup --seconds 10`` runs, in interleaved rounds:
-cyclictest (Debian ``rt-tests``), our `TickTimer` loop with the real-time
+cyclictest (Debian ``rt-tests``), the daemon's `TickTimer` loop with the real-time
 set-up of `rakectl.daemon.rt`, the same loop without it, and the loop with the set-up
 but no spin (sleep only); then the hot-path micro-benchmarks
 (`FlightRecorder.record_row` and the alternatives tried, `TimingStats.record`,
 a chunked dump). It prints the figures.
 
-Wake-up latency is ``actual wake − deadline``. Our loop sleeps to
+Wake-up latency is ``actual wake − deadline``. The daemon's loop sleeps to
 ``spin_threshold`` before the deadline and spins the rest, so its latency
 hides the sleep's own error; that error ("sleep overshoot", how late
 ``time.sleep`` returned) is printed too and is the figure that compares with
@@ -36,7 +36,7 @@ from rakectl.daemon.timing import (
     percentiles_ns,
 )
 
-# --- our loop ------------------------------------------------------------------------------
+# --- the daemon's loop -------------------------------------------------------------------
 
 
 def _dummy_tick(k: int) -> float:
@@ -46,7 +46,7 @@ def _dummy_tick(k: int) -> float:
 
 
 class WakeupPhase:
-    """One configuration of our loop; each `run` adds ticks, `result` summarizes them all.
+    """One configuration of the daemon's loop; each `run` adds ticks, `result` summarizes them all.
 
     ``load`` runs in each tick's slack. The real-time set-up (``rt_mode``,
     ``request``) is applied to this thread for each run and reverted after it.
@@ -124,7 +124,7 @@ class WakeupPhase:
 def bench_wakeup(
     duration_s: float, rt_mode: RtMode, load: Callable[[], None] | None = None, **options: Any
 ) -> dict[str, Any]:
-    """Run our loop for ``duration_s`` (options: those of `WakeupPhase`) and summarize it."""
+    """Run the daemon's loop for ``duration_s`` (options: those of `WakeupPhase`); summarize."""
     phase = WakeupPhase(rt_mode, load, capacity_s=duration_s, **options)
     phase.run(duration_s)
     return phase.result()
@@ -153,7 +153,7 @@ def format_comparison(
     cyclictest: Mapping[str, Any] | None,
     cyclictest_reason: str = "",
 ) -> str:
-    """Our runs and cyclictest side by side, with the ratio of p99s (goal: ≤ 2×)."""
+    """The loop's runs and cyclictest side by side, with the ratio of p99s (goal: ≤ 2×)."""
     runs = [ours] if isinstance(ours, Mapping) else list(ours)
     lines = [f"{'wake-up latency, µs':<44}{'p50':>8}{'p99':>8}{'p99.9':>8}{'max':>8}"]
     if cyclictest is not None:
@@ -230,7 +230,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="garbage: leave a reference cycle per tick, in the slack",
     )
     parser.add_argument(
-        "--gc", choices=("off", "on"), default="off", help="cyclic GC in our runs (off: no_gc)"
+        "--gc", choices=("off", "on"), default="off", help="cyclic GC in the runs (off: no_gc)"
     )
     parser.add_argument("--spin-us", type=float, default=DEFAULT_SPIN_THRESHOLD_S * 1e6)
     args = parser.parse_args(argv)

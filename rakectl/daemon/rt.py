@@ -2,7 +2,7 @@
 
 `apply_rt` runs the steps of an `RtRequest` on the *calling thread* (Linux
 scheduling policy, affinity and timer slack are per thread; threads started
-afterwards inherit them, so start helper threads first or reset theirs):
+afterwards inherit them, so start other threads first or reset theirs):
 
 1. SCHED_FIFO at a priority (``os.sched_setscheduler``);
 2. ``mlockall(MCL_CURRENT | MCL_FUTURE)`` so no page fault stalls a tick;

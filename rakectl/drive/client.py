@@ -561,13 +561,13 @@ class DriveClient:
     def bring_up(self, boot_timeout_s: float = 2.0) -> tuple[DriveInfo, DriveInfo]:
         """Configure, verify and start both drives (blocking; see the module docstring)."""
         network = canopen.Network(self._bus)
-        session = BringUp(network, self._drives, self._motors, boot_timeout_s)
+        sequence = BringUp(network, self._drives, self._motors, boot_timeout_s)
         notifier = can.Notifier(self._bus, network.listeners, timeout=_NOTIFIER_POLL_S)
         try:
-            infos = session.run()
+            infos = sequence.run()
         finally:
             notifier.stop(_NOTIFIER_JOIN_S)
-            session.close()
+            sequence.close()
         self.infos = infos
         self._heard_s = [self._clock(), self._clock()]
         self._rebooted = [False, False]

@@ -45,7 +45,7 @@ figure (IEC 61800-7-201 / CiA 402-2)::
     15    FAULT → SWITCH_ON_DISABLED                              FAULT_RESET
     16    QUICK_STOP_ACTIVE → OPERATION_ENABLED                   ENABLE_OPERATION
 
-A command the table has no entry for, in a given state, is ignored. Our drives
+A command the table has no entry for, in a given state, is ignored. The emulated drives
 apply 0 V in QUICK_STOP_ACTIVE and stay there (as quick-stop option code 6
 does) until DISABLE_VOLTAGE (12) or ENABLE_OPERATION (16); transition 12 is
 never automatic.

@@ -376,7 +376,7 @@ class ErrorRegister(enum.IntFlag):
 
 
 class EmcyCode(enum.IntEnum):
-    """EMCY error codes our drives send: CiA 301/402 codes where one fits, else 0xFFxx.
+    """EMCY error codes the emulated drives send: CiA 301/402 codes where one fits, else 0xFFxx.
 
     Each is a fault: the drive applies 0 V and goes through FAULT_REACTION_ACTIVE
     to FAULT (CiA 402 transitions 13, 14), stores the code in 0x603F and sends

@@ -246,7 +246,7 @@ def test_bad_frames_are_counted_never_raised(bus: FakeBus, client: DriveClient) 
     bus.rx.append(can.Message(arbitration_id=0x181, is_remote_frame=True, is_extended_id=False))
     bus.rx.append(can.Message(arbitration_id=canbus_busoff(), is_error_frame=True,
                               is_extended_id=False, data=bytes(8)))
-    bus.feed(*sync(1))  # an echo of our own frame (udp_multicast)
+    bus.feed(*sync(1))  # an echo of the client's own frame (udp_multicast)
     assert client.receive() == 10
     s = client.stats
     assert (s.frames_bad_length, s.frames_invalid, s.frames_unknown, s.frames_own) == (2, 2, 3, 1)
@@ -596,18 +596,18 @@ def fake_drives(network: LoopbackNetwork) -> tuple[FakeDrive, FakeDrive]:
     return (FakeDrive(network, Joint.R, R_NODE), FakeDrive(network, Joint.THETA, THETA_NODE))
 
 
-def _announce_and_run(session: BringUp, drives: tuple[FakeDrive, ...]) -> Any:
+def _announce_and_run(bring_up: BringUp, drives: tuple[FakeDrive, ...]) -> Any:
     for drive in drives:
         drive.announce()
-    return session.run()
+    return bring_up.run()
 
 
 def test_bring_up_configures_verifies_and_starts_both_drives(
     network: LoopbackNetwork, fake_drives: tuple[FakeDrive, FakeDrive]
 ) -> None:
-    session = make_bring_up(network)
-    r_info, theta_info = _announce_and_run(session, fake_drives)
-    session.close()
+    bring_up = make_bring_up(network)
+    r_info, theta_info = _announce_and_run(bring_up, fake_drives)
+    bring_up.close()
     assert (r_info.joint, r_info.node_id, theta_info.node_id) == (Joint.R, 1, 2)
     assert (r_info.identity.product_code, theta_info.identity.product_code) == (1, 2)
     assert r_info.identity.revision == 0x00010000
@@ -678,11 +678,11 @@ def test_an_sdo_abort_is_one_line_raised_from_the_abort(
 
 def test_a_silent_node_times_out_naming_it(network: LoopbackNetwork,
                                            fake_drives: tuple[FakeDrive, FakeDrive]) -> None:
-    session = make_bring_up(network)
+    bring_up = make_bring_up(network)
     fake_drives[0].announce()
     with pytest.raises(CommsTimeout, match=r"^θ drive \(node 2\): no heartbeat or boot-up "
                                            r"within 0.05 s$"):
-        session.run()
+        bring_up.run()
 
 
 def test_a_node_that_does_not_reset_times_out(network: LoopbackNetwork) -> None:

@@ -1,7 +1,7 @@
 """Hardware-in-the-loop on real SocketCAN: the emulator and the daemon as processes on vcan0.
 
 Run with ``pytest -m vcan`` where vcan0 exists (a robot computer, a Linux
-machine with root: see the README), or ``tests/vcan/run-in-vm.sh``, which
+machine with root: see docs/development.md), or ``tests/vcan/run-in-vm.sh``, which
 boots a kernel with SocketCAN in a VM when this one has none. Elsewhere they
 skip, saying why.
 

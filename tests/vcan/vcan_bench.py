@@ -187,7 +187,7 @@ def _stop_daemon(daemon: subprocess.Popen[bytes], socket_path: Path) -> None:
 
 
 def _terminate(process: subprocess.Popen[bytes]) -> None:
-    """SIGTERM, then SIGKILL after 60 s, to the process's own session."""
+    """SIGTERM, then SIGKILL after 60 s, to the process's own process group."""
     if process.poll() is None:
         os.killpg(process.pid, signal.SIGTERM)
         try:
