@@ -56,7 +56,9 @@ direction's limit is F_L·√(k_u/k_max), k_max the stiffest direction's. With t
 isotropic mount the defaults declare (k_v = k_h = 5 kN/m, c = 7.5 N·s/m both,
 a hardware requirement) the factor is 1 in every direction; a mount ten times
 stiffer vertically than sideways would cut the side budgets by √10, to about
-10 N, too little to hold the rake's weight near the robot. v_u is the measured speed along u, plus its uncertainty (the joints'
+10 N, too little to hold the rake's weight near the robot.
+
+v_u is the measured speed along u, plus its uncertainty (the joints'
 velocity margins through g_u), plus what a push of F_u ≤ F_L/2 adds during the
 reaction latency (F_L/2 /m_u · t); only approach counts (a tip moving away is
 judged again each tick, before it can come back). Since F_u(P̂) = |P| for a push
@@ -94,7 +96,8 @@ fault. Braking while moving is not a fault: 0 V would let the rake fall.
 What it does not cover: the current's electrical transient after a command drops
 (L/R ≈ 0.3 ms), which the margin absorbs; a mount stiffer than configured (the
 clamp is only as true as ``contact_stiffness_n_per_m`` and
-``side_contact_stiffness_n_per_m``: the bring-up self-test checks them); the
+``side_contact_stiffness_n_per_m``, and of the counterweight: nothing on the
+robot measures them yet, they are hardware requirements to verify at assembly); the
 tines' own mass below the mount (its impulse is ignored). A non-finite input
 gives 0 V and sets ``non_finite`` (the caller must fault): it is never silently
 replaced.

@@ -407,7 +407,8 @@ class Report:
                 k["f_mine_max_n"] = max(k["f_mine_max_n"], r.f_mine_max_n)
                 k["f_stone_side_max_n"] = max(k["f_stone_side_max_n"], r.f_stone_side_max_n)
                 k["unsafe"] += not r.safe
-        return out
+        return dict(sorted(out.items(), key=lambda item: (item[0].startswith(("fault", "super")),
+                                                          item[0])))
 
     def over_limit(self) -> list[str]:
         """Every unsafe case: 'seed/index kind ground F N, mine F N [mine fired]'."""
