@@ -20,7 +20,8 @@ import can
 
 from rakectl.config.settings import BusInterface, BusSettings, DrivesSettings, MotorsSettings
 from rakectl.drive.canbus import TraceRecorder, open_bus
-from rakectl.drive.client import DriveClient, node_ids, receive_ids
+from rakectl.drive.client import DriveClient
+from rakectl.drive.joints import node_ids, receive_ids
 from rakectl.protocol.codec import FunctionCode, cob_id, pack_tpdo1_into
 
 _WARM_UP_TICKS = 200

@@ -41,7 +41,8 @@ from rakectl.daemon.loop import Daemon
 from rakectl.daemon.sdnotify import Notifier
 from rakectl.daemon.states import DaemonState
 from rakectl.drive.canbus import open_bus
-from rakectl.drive.client import DriveClient, receive_ids
+from rakectl.drive.client import DriveClient
+from rakectl.drive.joints import receive_ids
 from rakectl.errors import RakeError
 
 # (stage, what is timed), in the order of the tick

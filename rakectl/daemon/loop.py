@@ -43,7 +43,8 @@ from rakectl.daemon.sdnotify import Notifier
 from rakectl.daemon.states import ARMED_STATES, DaemonState, Event, next_state
 from rakectl.daemon.timing import LoopTiming, TickTimer
 from rakectl.drive.canbus import TraceRecorder
-from rakectl.drive.client import DriveClient, Joint
+from rakectl.drive.client import DriveClient
+from rakectl.drive.joints import Joint
 from rakectl.errors import CommsTimeout
 from rakectl.protocol.cia402 import DriveCommand, DriveState, path_to_enabled
 from rakectl.protocol.codec import NmtState

@@ -28,7 +28,8 @@ from rakectl.daemon.loop import Daemon
 from rakectl.daemon.rt import RtMode, RtRequest, apply_rt, freeze_gc
 from rakectl.daemon.sdnotify import Notifier
 from rakectl.drive.canbus import open_bus, open_trace
-from rakectl.drive.client import DriveClient, receive_ids
+from rakectl.drive.client import DriveClient
+from rakectl.drive.joints import receive_ids
 
 
 def configure_logging() -> None:

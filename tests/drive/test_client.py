@@ -33,16 +33,10 @@ from drivers.settings import EmulatorConfig
 from rakectl.config.settings import BusInterface, BusSettings, DrivesSettings, MotorsSettings
 from rakectl.core.motor_model import joint_per_motor_rad, joint_resolution
 from rakectl.drive import canbus
+from rakectl.drive.bringup import BringUp
 from rakectl.drive.canbus import BusError, TraceRecorder
-from rakectl.drive.client import (
-    BringUp,
-    DriveClient,
-    Joint,
-    drive_parameters,
-    load_drive_od,
-    own_ids,
-    receive_ids,
-)
+from rakectl.drive.client import DriveClient
+from rakectl.drive.joints import Joint, drive_parameters, load_drive_od, own_ids, receive_ids
 from rakectl.errors import CommsTimeout, ConfigError, DriveFault, NonFiniteError
 from rakectl.protocol import cia402, codec
 from rakectl.protocol.cia402 import DriveCommand, DriveState

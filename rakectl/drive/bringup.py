@@ -1,0 +1,226 @@
+"""The drives' bring-up over CANopen (blocking, once before the loop).
+
+Bring-up (:meth:`DriveClient.bring_up`, blocking, run once before the loop):
+a ``canopen.Network`` on the injected bus whose listeners are fed by a
+*temporary* ``can.Notifier``, stopped and joined before bring-up returns: no
+thread survives it. :class:`BringUp` does the work through the network alone,
+so a test can run it on a bus-less network without any thread. For each drive
+in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.settings.DrivesSettings`:
+
+1. wait for a heartbeat or boot-up of the node (``boot_timeout_s``;
+   :class:`~rakectl.errors.CommsTimeout` naming the node);
+2. NMT reset communication, and wait for its boot-up (the node is then
+   PRE-OPERATIONAL with the EDS defaults of its communication objects);
+3. SDO read the identity 0x1018: vendor-ID and product code must be those of
+   the drive type's EDS (``rakectl/protocol/eds/*.eds``, read with ``importlib.resources``),
+   revision and serial number are recorded;
+4. SDO write the limits: 0x2001 max voltage [mV] (``motors.<joint>.supply_voltage_v``),
+   0x2002 current limit [mA] (``motors.<joint>.current_limit_a``), 0x2003 command
+   watchdog [ms] (``drives.watchdog_timeout_ms``), 0x2004 encoder counts per turn,
+   0x1017 producer heartbeat [ms] (``drives.heartbeat_period_ms``) and 0x1016:1
+   consumer heartbeat of the controller (``controller_node_id << 16 | heartbeat_timeout_ms``);
+   a value outside the EDS's data type or limits is a ConfigError before anything is sent;
+5. SDO read every one of them back and compare.
+
+Then the statusword 0x6041 of each (the CiA 402 state the hot path starts
+from: the TPDO2 a drive sends on entering OPERATIONAL may reach the bring-up
+Notifier instead), and NMT start for each node (OPERATIONAL). Start ticking right away: an
+enabled drive faults when RPDO1 or SYNC stop for 0x2003 ms, and every drive
+once the controller's heartbeat (first sent with the first SYNC) stops.
+
+Every failure is one line naming the drive, e.g.
+``DriveFault("r drive (node 1): wrong identity: product code 2, expected 1 (dc_servo_drive.eds)")``,
+``DriveFault("θ drive (node 2): read-back mismatch: 0x2003 watchdog timeout: wrote 20 ms,
+read 15 ms")``, ``DriveFault("r drive (node 1): SDO abort 0x06090030 writing 0x2003
+watchdog timeout = 20 ms: Value range of parameter exceeded")``
+(raised ``from`` the canopen error), ``CommsTimeout`` when a node or an SDO
+answer does not come. The power stage is NOT enabled here: that is the
+controlword sent cyclically in RPDO1 (:meth:`DriveClient.command`), and the
+daemon enables the drives only while it is armed.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from typing import TypeVar
+
+import can
+import canopen
+from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+from rakectl.config.settings import DrivesSettings, MotorsSettings
+from rakectl.drive.canbus import BusError
+from rakectl.drive.joints import (
+    EDS_FILES,
+    JOINTS,
+    DriveInfo,
+    DriveLimits,
+    Identity,
+    Joint,
+    Parameter,
+    allowed_range,
+    drive_label,
+    drive_parameters,
+    load_drive_od,
+    node_ids,
+    od_variable,
+)
+from rakectl.errors import CommsTimeout, ConfigError, DriveFault, FrameError
+from rakectl.protocol.cia402 import DriveState, decode_statusword
+from rakectl.protocol.codec import (
+    NMT_COB_ID,
+    FunctionCode,
+    NmtCommand,
+    NmtState,
+    cob_id,
+    encode_nmt,
+)
+
+NOTIFIER_POLL_S = 0.02  # bring-up Notifier's recv timeout: how fast it stops
+NOTIFIER_JOIN_S = 2.0
+_T = TypeVar("_T")
+SDO_RETRIES = 3  # canopen repeats an unanswered SDO request this often at bring-up
+
+
+class BringUp:
+    """The bring-up sequence of the module docstring, over any ``canopen.Network``.
+
+    Subscribes to the drives' heartbeats on construction (heartbeats that arrive
+    from then on count), so a test can let its fake drives announce themselves
+    before :meth:`run`. It sends through ``network.send_message`` and waits on
+    events that the network's callbacks set, so it works with a Notifier thread
+    and with a network that delivers synchronously.
+    """
+
+    def __init__(self, network: canopen.Network, drives: DrivesSettings,
+                 motors: MotorsSettings, boot_timeout_s: float) -> None:
+        self._network = network
+        self._drives = drives
+        self._motors = motors
+        self._boot_timeout_s = boot_timeout_s
+        self._joint_of_node = {node: joint for joint, node in zip(JOINTS, node_ids(drives),
+                                                                  strict=True)}
+        self._heard = {joint: threading.Event() for joint in JOINTS}
+        self._booted = {joint: threading.Event() for joint in JOINTS}
+        self._nodes: dict[Joint, canopen.RemoteNode] = {}
+        self._node_id = dict(zip(JOINTS, node_ids(drives), strict=True))
+        for joint, node_id in self._node_id.items():
+            node = canopen.RemoteNode(node_id, load_drive_od(joint, node_id))
+            node.sdo.RESPONSE_TIMEOUT = drives.sdo_timeout_s
+            node.sdo.MAX_RETRIES = SDO_RETRIES  # a lossy bus loses the odd request
+            network.add_node(node)
+            network.subscribe(cob_id(FunctionCode.HEARTBEAT, node_id), self._on_heartbeat)
+            self._nodes[joint] = node
+
+    def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        joint = self._joint_of_node[can_id & 0x7F]
+        self._heard[joint].set()
+        if len(data) == 1 and data[0] == NmtState.BOOT_UP:
+            self._booted[joint].set()
+
+    def close(self) -> None:
+        """Unsubscribe from the network."""
+        for node_id in self._node_id.values():
+            self._network.unsubscribe(cob_id(FunctionCode.HEARTBEAT, node_id), self._on_heartbeat)
+            del self._network[node_id]
+
+    def run(self) -> tuple[DriveInfo, DriveInfo]:
+        """Configure and verify both drives, read their statusword, start them (OPERATIONAL)."""
+        configured = [self._configure(joint) for joint in JOINTS]
+        statuswords = [self._read(joint, 0x6041, 0, "statusword") for joint in JOINTS]
+        for joint in JOINTS:
+            self._nmt(joint, NmtCommand.START)
+        r_info, theta_info = (
+            DriveInfo(joint, self._node_id[joint], identity, limits, statusword,
+                      self._state_of(joint, statusword))
+            for joint, (identity, limits), statusword in zip(JOINTS, configured, statuswords,
+                                                             strict=True))
+        return r_info, theta_info
+
+    def _label(self, joint: Joint) -> str:
+        return drive_label(joint, self._node_id[joint])
+
+    def _state_of(self, joint: Joint, statusword: int) -> DriveState:
+        try:
+            return decode_statusword(statusword)
+        except FrameError as error:
+            raise DriveFault(f"{self._label(joint)}: {error}") from error
+
+    def _configure(self, joint: Joint) -> tuple[Identity, DriveLimits]:
+        self._wait(self._heard[joint], joint, "no heartbeat or boot-up")
+        self._booted[joint].clear()
+        self._nmt(joint, NmtCommand.RESET_COMMUNICATION)
+        self._wait(self._booted[joint], joint, "no boot-up after NMT reset communication")
+        identity = self._check_identity(joint)
+        parameters = drive_parameters(joint, self._drives, self._motors)
+        for p in parameters:
+            self._check_range(joint, p)
+        for p in parameters:
+            self._write(joint, p)
+        read_back = [self._read(joint, p.index, p.subindex, p.name) for p in parameters]
+        for p, value in zip(parameters, read_back, strict=True):
+            if value != p.value:
+                unit = f" {p.unit}" if p.unit else ""
+                raise DriveFault(f"{self._label(joint)}: read-back mismatch: {p.where()} {p.name}: "
+                                 f"wrote {p.value}{unit}, read {value}{unit}")
+        return identity, DriveLimits(*read_back)
+
+    def _wait(self, event: threading.Event, joint: Joint, what: str) -> None:
+        if not event.wait(self._boot_timeout_s):
+            raise CommsTimeout(f"{self._label(joint)}: {what} within {self._boot_timeout_s:g} s")
+
+    def _nmt(self, joint: Joint, command: NmtCommand) -> None:
+        try:
+            self._network.send_message(NMT_COB_ID, encode_nmt(command, self._node_id[joint]))
+        except can.CanError as error:
+            raise BusError(f"{self._label(joint)}: cannot send NMT {command.name}: "
+                           f"{error}") from error
+
+    def _check_identity(self, joint: Joint) -> Identity:
+        info = self._nodes[joint].object_dictionary.device_information
+        identity = Identity(*(self._read(joint, 0x1018, sub, "identity") for sub in (1, 2, 3, 4)))
+        expected = {"vendor-ID": info.vendor_number, "product code": info.product_number}
+        found = {"vendor-ID": identity.vendor_id, "product code": identity.product_code}
+        for name, value in found.items():
+            if expected[name] is not None and value != expected[name]:
+                raise DriveFault(f"{self._label(joint)}: wrong identity: {name} {value}, "
+                                 f"expected {expected[name]} ({EDS_FILES[joint]})")
+        return identity
+
+    def _check_range(self, joint: Joint, p: Parameter) -> None:
+        var = od_variable(self._nodes[joint].object_dictionary, p.index, p.subindex)
+        low, high = allowed_range(var)
+        if not low <= p.value <= high:
+            raise ConfigError(f"{p.setting}: {self._label(joint)} {p.where()} {p.name} = "
+                              f"{p.value} {p.unit} is outside {low}..{high} of {EDS_FILES[joint]}")
+
+    def _read(self, joint: Joint, index: int, subindex: int, name: str) -> int:
+        node = self._nodes[joint]
+        what = f"reading 0x{index:04X}:{subindex} {name}"
+        data = self._sdo(joint, what, lambda: node.sdo.upload(index, subindex))
+        value = od_variable(node.object_dictionary, index, subindex).decode_raw(data)
+        if not isinstance(value, int):
+            raise DriveFault(f"{self._label(joint)}: {what}: not an integer: {value!r}")
+        return value
+
+    def _write(self, joint: Joint, p: Parameter) -> None:
+        node = self._nodes[joint]
+        data = od_variable(node.object_dictionary, p.index, p.subindex).encode_raw(p.value)
+        what = f"writing {p.where()} {p.name} = {p.value}{' ' + p.unit if p.unit else ''}"
+        self._sdo(joint, what, lambda: node.sdo.download(p.index, p.subindex, data))
+
+    def _sdo(self, joint: Joint, what: str, transfer: Callable[[], _T]) -> _T:
+        label = self._label(joint)
+        try:
+            return transfer()
+        except SdoAbortedError as error:
+            text = SdoAbortedError.CODES.get(error.code, "unknown abort code")
+            raise DriveFault(f"{label}: SDO abort 0x{error.code:08X} {what}: {text}") from error
+        except SdoCommunicationError as error:
+            if "No SDO response" in str(error):
+                raise CommsTimeout(f"{label}: no SDO response {what} within "
+                                   f"{self._drives.sdo_timeout_s:g} s") from error
+            raise DriveFault(f"{label}: SDO error {what}: {error}") from error
+        except can.CanError as error:
+            raise BusError(f"{label}: bus error {what}: {error}") from error

@@ -1,0 +1,158 @@
+"""The two drives as the controller knows them: joints, node-IDs, the frames it listens
+to, identities, limits and the parameters written at bring-up (from their EDS files)."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import canopen
+from canopen.objectdictionary import ObjectDictionary, ODVariable, datatypes
+
+from rakectl.config.settings import DrivesSettings, MotorsSettings
+from rakectl.core.motor_model import MotorParams
+from rakectl.errors import ConfigError
+from rakectl.protocol.cia402 import DriveState
+from rakectl.protocol.codec import (
+    NMT_COB_ID,
+    SYNC_COB_ID,
+    FunctionCode,
+    cob_id,
+)
+from rakectl.protocol.files import EDS_DIR
+
+
+class Joint(enum.IntEnum):
+    """The two joints, each driven by one drive; the value indexes per-drive lists."""
+
+    R = 0
+    THETA = 1
+
+
+JOINTS = (Joint.R, Joint.THETA)
+EDS_FILES = {Joint.R: "dc_servo_drive.eds", Joint.THETA: "geared_motor_drive.eds"}
+_LABEL = {Joint.R: "r", Joint.THETA: "θ"}
+
+
+def node_ids(drives: DrivesSettings) -> tuple[int, int]:
+    """(r drive, θ drive) node-IDs."""
+    return drives.r_node_id, drives.theta_node_id
+
+
+def drive_label(joint: Joint, node_id: int) -> str:
+    """How messages name a drive: ``r drive (node 1)``."""
+    return f"{_LABEL[joint]} drive (node {node_id})"
+
+
+def receive_ids(drives: DrivesSettings) -> tuple[int, ...]:
+    """COB-IDs the controller receives: TPDO1, TPDO2, EMCY, heartbeat and SDO response per drive."""
+    functions = (FunctionCode.TPDO1, FunctionCode.TPDO2, FunctionCode.EMCY,
+                 FunctionCode.HEARTBEAT, FunctionCode.SDO_RESPONSE)
+    return tuple(cob_id(f, node) for node in node_ids(drives) for f in functions)
+
+
+def own_ids(drives: DrivesSettings) -> tuple[int, ...]:
+    """COB-IDs the controller sends (udp_multicast echoes them back)."""
+    per_node = [cob_id(f, node) for node in node_ids(drives)
+                for f in (FunctionCode.RPDO1, FunctionCode.SDO_REQUEST)]
+    controller = cob_id(FunctionCode.HEARTBEAT, drives.controller_node_id)
+    return (NMT_COB_ID, SYNC_COB_ID, controller, *per_node)
+
+
+# =========================================================================== bring-up
+
+
+@dataclass(frozen=True)
+class Identity:
+    """Identity object 0x1018 of a drive."""
+
+    vendor_id: int
+    product_code: int
+    revision: int
+    serial: int
+
+
+@dataclass(frozen=True)
+class DriveLimits:
+    """The configuration written at bring-up, as read back from the drive."""
+
+    max_voltage_mv: int  # 0x2001
+    current_limit_ma: int  # 0x2002
+    watchdog_timeout_ms: int  # 0x2003
+    encoder_counts_per_rev: int  # 0x2004
+    heartbeat_period_ms: int  # 0x1017
+    consumer_heartbeat: int  # 0x1016:1, controller node-ID << 16 | timeout ms
+
+
+@dataclass(frozen=True)
+class DriveInfo:
+    """A drive after bring-up: who it is and the limits it verifiably holds."""
+
+    joint: Joint
+    node_id: int
+    identity: Identity
+    limits: DriveLimits
+    statusword: int  # 0x6041 read just before NMT start
+    state: DriveState
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One object written at bring-up, with the setting it comes from."""
+
+    index: int
+    subindex: int
+    name: str
+    unit: str
+    value: int
+    setting: str
+
+    def where(self) -> str:
+        return f"0x{self.index:04X}" + (f":{self.subindex}" if self.subindex else "")
+
+
+def motor_of(motors: MotorsSettings, joint: Joint) -> MotorParams:
+    return motors.r if joint is Joint.R else motors.theta
+
+
+def drive_parameters(joint: Joint, drives: DrivesSettings,
+                     motors: MotorsSettings) -> tuple[Parameter, ...]:
+    """What bring-up writes to the drive of ``joint``, in :class:`DriveLimits` order."""
+    motor, key = motor_of(motors, joint), f"motors.{joint.name.lower()}"
+    consumer = drives.controller_node_id << 16 | drives.heartbeat_timeout_ms
+    return (
+        Parameter(0x2001, 0, "max voltage", "mV", round(motor.supply_voltage_v * 1000),
+                  f"{key}.supply_voltage_v"),
+        Parameter(0x2002, 0, "current limit", "mA", round(motor.current_limit_a * 1000),
+                  f"{key}.current_limit_a"),
+        Parameter(0x2003, 0, "watchdog timeout", "ms", drives.watchdog_timeout_ms,
+                  "drives.watchdog_timeout_ms"),
+        Parameter(0x2004, 0, "encoder counts/rev", "", motor.encoder_counts_per_rev,
+                  f"{key}.encoder_counts_per_rev"),
+        Parameter(0x1017, 0, "producer heartbeat", "ms", drives.heartbeat_period_ms,
+                  "drives.heartbeat_period_ms"),
+        Parameter(0x1016, 1, "consumer heartbeat", "", consumer,
+                  "drives.controller_node_id/heartbeat_timeout_ms"),
+    )
+
+
+def load_drive_od(joint: Joint, node_id: int) -> ObjectDictionary:
+    """The object dictionary of the drive type of ``joint``, from its EDS file."""
+    return canopen.import_od(str(EDS_DIR / EDS_FILES[joint]), node_id)
+
+
+def od_variable(od: ObjectDictionary, index: int, subindex: int) -> ODVariable:
+    var = od.get_variable(index, subindex)
+    if var is None:
+        raise ConfigError(f"0x{index:04X}:{subindex} is not in the drive's EDS")
+    return var
+
+
+def allowed_range(var: ODVariable) -> tuple[int, int]:
+    bits = len(var)
+    signed = var.data_type in (datatypes.INTEGER8, datatypes.INTEGER16, datatypes.INTEGER32)
+    low, high = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if signed else (0, (1 << bits) - 1)
+    return (low if var.min is None else max(low, var.min),
+            high if var.max is None else min(high, var.max))
+
+
