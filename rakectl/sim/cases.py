@@ -17,7 +17,9 @@ covered at its bounds:
 * ``stroke`` (hostile): one lane cycle at a fixed depth with a fast stroke.
 * ``jog``: the operator's jog at the highest speed the jog admits, in task or
   joint space, in any direction (mostly into the ground), from above or within
-  the soil, for 0.3–3 s, then silence (the dead-man stops it).
+  the soil (at least 10 mm from any object: a rake cannot start inside one; the
+  other kinds start at least 10 mm above whatever sticks out of a sloped ground),
+  for 0.3–3 s, then silence (the dead-man stops it).
 
 Grounds: one to three soil layers two decades of stiffness apart; a fifth
 of them a hard crust over soft soil, a sixth of them out of the reference
@@ -48,11 +50,12 @@ from typing import Any
 import numpy as np
 
 from drivers.objects import BuriedObjects, GroundParams, MineParams, RootParams, StoneParams
-from drivers.soil import SoilLayer, SoilParams, SurfaceWave
+from drivers.soil import SoilLayer, SoilParams, SurfaceWave, original_surface_height_m
 
 PLUNGE_END_DEPTH_M = 0.15
 LANE_DURATION_S = 12.0  # cap of one lane or stroke case (simulated)
 JOG_HOLD_S = 1.0  # simulated after the jog's last command
+START_CLEARANCE_M = 0.01  # a jog that starts in the soil starts this far from any object
 FAULT_KINDS = ("feedback", "command", "drive", "stall", "kill")
 
 
@@ -208,6 +211,30 @@ def _objects(rng: np.random.Generator, near_m: float, far_m: float,
     return BuriedObjects(stones, roots, tuple(mines))
 
 
+def _clear_of(objects: BuriedObjects, reach_m: float, depth_m: float,
+              margin_m: float = START_CLEARANCE_M) -> BuriedObjects:
+    """``objects`` less those within ``margin_m`` of a tip at (reach, depth): a rake
+    cannot start inside a stone or a mine."""
+    def clear(o: StoneParams | RootParams | MineParams) -> bool:
+        beside = abs(reach_m - o.reach_m) > 0.5 * o.width_m + margin_m
+        above_or_below = not (o.depth_m - margin_m < depth_m
+                              < o.depth_m + o.thickness_m + margin_m)
+        return beside or above_or_below
+
+    return BuriedObjects(tuple(o for o in objects.stones if clear(o)),
+                         tuple(o for o in objects.roots if clear(o)),
+                         tuple(o for o in objects.mines if clear(o)))
+
+
+def _height_clear_of(objects: BuriedObjects, reach_m: float, surface_m: float,
+                     margin_m: float = START_CLEARANCE_M) -> float:
+    """The least height above the surface at ``surface_m`` from which a tip at ``reach_m``
+    is ``margin_m`` above every object under it (objects' depths are from level 0)."""
+    tops = [-o.depth_m for o in (*objects.stones, *objects.roots, *objects.mines)
+            if abs(reach_m - o.reach_m) <= 0.5 * o.width_m + margin_m]
+    return max((top + margin_m - surface_m for top in tops), default=-math.inf)
+
+
 def _cut_depths(command: MotionCommand) -> tuple[float, ...]:
     """The depths a lane's (or stroke's) strokes cut at, first to last."""
     step, target = command.depth_step_m, command.target_depth_m
@@ -277,7 +304,14 @@ def generate(seed: int, index: int) -> FuzzCase:
         objects = _objects(rng, command.reach_far_m - 0.15, command.reach_far_m + 0.15)
     else:
         objects = _objects(rng, command.reach_near_m, command.reach_far_m, _cut_depths(command))
-    ground = GroundParams(_soil(rng), objects)
+    soil = _soil(rng)
+    surface_m = original_surface_height_m(soil, command.reach_far_m)
+    if kind is CommandKind.JOG and command.start_height_m < 0.0:  # it starts in the soil
+        objects = _clear_of(objects, command.reach_far_m, -(surface_m + command.start_height_m))
+    else:  # above the ground, and above whatever sticks out of it there (a sloped surface)
+        command = dataclasses.replace(command, start_height_m=max(
+            command.start_height_m, _height_clear_of(objects, command.reach_far_m, surface_m)))
+    ground = GroundParams(soil, objects)
     if kind is CommandKind.PLUNGE:
         travel_m = command.start_height_m + PLUNGE_END_DEPTH_M + 0.1
         duration_s = travel_m / command.speed_m_per_s + 1.0
