@@ -6,7 +6,7 @@ import dataclasses
 import math
 
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from drivers.arm import (
@@ -197,28 +197,27 @@ def test_a_partly_balanced_arm_starts_to_fall_as_its_unbalanced_share() -> None:
 @settings(max_examples=4, deadline=None)
 @given(r_m=r_inside, theta_rad=theta_inside, r_vel=st.floats(-0.5, 0.5),
        theta_vel=st.floats(-1.5, 1.5))
+@example(r_m=1.53125, theta_rad=0.875, r_vel=0.0, theta_vel=-1.1875)  # 6.8e-4 J at 0.1 ms
 def test_energy_is_conserved_with_a_counterweight(r_m: float, theta_rad: float, r_vel: float,
                                                   theta_vel: float) -> None:
-    """The same as without it, a third of the weight left unbalanced."""
+    """The same as without it, a third of the weight left unbalanced: the energy error is
+    the integrator's first-order one (it halves with the substep), not a drift of the
+    counterweight's terms."""
     arm = dataclasses.replace(FRICTIONLESS_ARM, counterweight_kg=6.0, counterbalance_share=0.7)
-    plant = _ideal_plant(arm, 1e-4)
-    plant.set_bridges(Bridge.OPEN, Bridge.OPEN)
-    plant.set_state(ArmState(r_m, theta_rad, r_vel, theta_vel))
-    energy_0, drift, power = plant.mechanical_energy_j(), 0.0, 0.0
 
-    def kinetic() -> float:
-        masses = joint_masses(arm, _ideal(R_MOTOR_DEFAULT), _ideal(THETA_MOTOR_DEFAULT),
-                              plant.r_m)
-        speeds = (plant.r_vel_m_per_s, plant.theta_vel_rad_per_s)
-        return 0.5 * sum(m * v * v for m, v in zip(masses, speeds, strict=True))
+    def error_j(substep_s: float) -> float:
+        plant = _ideal_plant(arm, substep_s)
+        plant.set_bridges(Bridge.OPEN, Bridge.OPEN)
+        plant.set_state(ArmState(r_m, theta_rad, r_vel, theta_vel))
+        energy_0, drift = plant.mechanical_energy_j(), 0.0
+        for _ in range(round(1.0 / STEP_S)):
+            plant.step(0.0, 0.0, NoContact(), STEP_S)
+            drift = max(drift, abs(plant.mechanical_energy_j() - energy_0))
+        return drift
 
-    last = kinetic()
-    for _ in range(round(1.0 / STEP_S)):
-        plant.step(0.0, 0.0, NoContact(), STEP_S)
-        drift = max(drift, abs(plant.mechanical_energy_j() - energy_0))
-        power = max(power, abs(kinetic() - last) / STEP_S)
-        last = kinetic()
-    assert drift <= 1e-4 * power + 1e-6
+    coarse, fine = error_j(1e-4), error_j(5e-5)
+    assert fine <= 0.6 * coarse + 1e-7
+    assert coarse <= 2e-3
 
 
 def test_energy_error_is_the_integrators_first_order_error() -> None:

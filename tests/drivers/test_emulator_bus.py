@@ -193,7 +193,8 @@ def test_bring_up_by_sdo_nmt_and_rpdo_then_hold_the_arm(rig: Any) -> None:
     lines = truth.getvalue().splitlines()
     assert lines[0].split(",") == list(TRUTH_COLUMNS)
     assert len(lines) == 1 + emulator.stats.physics_steps
-    assert lines[-1].endswith("OPERATION_ENABLED,OPERATIONAL,OPERATION_ENABLED,OPERATIONAL")
+    assert lines[-1].endswith("OPERATION_ENABLED,OPERATIONAL,OPERATION_ENABLED,OPERATIONAL,"
+                              "0.0000,0.0000")  # no mine pressed
 
 
 def test_silence_faults_both_drives_within_the_watchdog_and_the_arm_brakes(rig: Any) -> None:
