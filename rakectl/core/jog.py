@@ -21,7 +21,7 @@ from rakectl.core import kinematics
 from rakectl.errors import KinematicsError
 
 
-class JogSpace(enum.Enum):
+class JogFrame(enum.Enum):
     TASK = "task"  # tip reach and height
     JOINT = "joint"  # r and θ
 
@@ -38,7 +38,7 @@ class Jog:
         self.workspace = workspace
         self.dt_s = dt_s
         self.q = (r_m, theta_rad)  # the reference, in joint space
-        self.space = JogSpace.TASK
+        self.space = JogFrame.TASK
         self._target = (0.0, 0.0)
         self._velocity = (0.0, 0.0)
         self._accel = (0.0, 0.0)
@@ -47,13 +47,13 @@ class Jog:
         self._tip: tuple[float, float] | None = None  # the measured tip (reach, height)
         self.waiting = 0  # steps not taken: the tip lagged (reported by the daemon)
 
-    def _limits(self, space: JogSpace) -> tuple[float, float]:
+    def _limits(self, space: JogFrame) -> tuple[float, float]:
         s = self.settings
-        if space is JogSpace.TASK:
+        if space is JogFrame.TASK:
             return s.max_tip_speed_m_per_s, s.max_tip_speed_m_per_s
         return s.max_r_speed_m_per_s, s.max_theta_speed_rad_per_s
 
-    def command(self, space: JogSpace, a: float, b: float) -> None:
+    def command(self, space: JogFrame, a: float, b: float) -> None:
         """A velocity (reach, height) or (r, θ) from the operator, good for ``deadman_s``.
 
         Changing space brings the reference to rest first (the new velocity
@@ -91,7 +91,7 @@ class Jog:
 
     def _move(self) -> None:
         va, vb = self._velocity
-        if self.space is JogSpace.JOINT:
+        if self.space is JogFrame.JOINT:
             q = (self.q[0] + va * self.dt_s, self.q[1] + vb * self.dt_s)
         else:
             reach, height = kinematics.forward(self.workspace, *self.q)

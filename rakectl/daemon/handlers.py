@@ -15,8 +15,7 @@ from typing import Any
 
 from rakectl.api.schema import ApiCommand, JogSpace, Request
 from rakectl.core import kinematics
-from rakectl.core.jog import Jog
-from rakectl.core.jog import JogSpace as JogFrame
+from rakectl.core.jog import Jog, JogFrame
 from rakectl.core.lane import LanePlanner
 from rakectl.daemon.loop import Daemon
 from rakectl.daemon.states import ARMED_STATES, DaemonState, Event, next_state

@@ -36,7 +36,7 @@ from drivers.soil import original_surface_height_m
 from rakectl.config.settings import LaneSettings
 from rakectl.core import kinematics
 from rakectl.core.clamp import VoltageClamp
-from rakectl.core.jog import Jog, JogSpace
+from rakectl.core.jog import Jog, JogFrame
 from rakectl.core.lane import LanePlanner
 from rakectl.core.supervision import ForceLevel
 from rakectl.limits import FORCE_LIMIT_N
@@ -130,8 +130,8 @@ class JogReference:
         c = case.command
         dt_s = 1.0 / settings.rate_hz
         self._jog = Jog(settings.jog, workspace, dt_s, r_m, theta_rad)
-        self._space = JogSpace(c.jog_space)
-        if self._space is JogSpace.TASK:  # (reach, height): 0 rad is straight down
+        self._space = JogFrame(c.jog_space)
+        if self._space is JogFrame.TASK:  # (reach, height): 0 rad is straight down
             self._velocity = (-math.sin(c.jog_angle_rad) * 10.0,
                               -math.cos(c.jog_angle_rad) * 10.0)
         else:  # (r, θ); the jog clips each to its highest speed

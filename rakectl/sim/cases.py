@@ -230,8 +230,9 @@ def _height_clear_of(objects: BuriedObjects, reach_m: float, surface_m: float,
                      margin_m: float = START_CLEARANCE_M) -> float:
     """The least height above the surface at ``surface_m`` from which a tip at ``reach_m``
     is ``margin_m`` above every object under it (objects' depths are from level 0)."""
-    tops = [-o.depth_m for o in (*objects.stones, *objects.roots, *objects.mines)
-            if abs(reach_m - o.reach_m) <= 0.5 * o.width_m + margin_m]
+    bodies: tuple[StoneParams | RootParams | MineParams, ...] = (
+        *objects.stones, *objects.roots, *objects.mines)
+    tops = [-o.depth_m for o in bodies if abs(reach_m - o.reach_m) <= 0.5 * o.width_m + margin_m]
     return max((top + margin_m - surface_m for top in tops), default=-math.inf)
 
 

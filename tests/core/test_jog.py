@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from rakectl.config.settings import JogSettings
 from rakectl.core import kinematics
-from rakectl.core.jog import Jog, JogSpace
+from rakectl.core.jog import Jog, JogFrame
 
 WS = kinematics.Workspace(0.6, 0.35, 1.6, -0.2, 1.3)
 DT = 1e-3
@@ -23,7 +23,7 @@ def _jog(r: float = 1.0, theta: float = 0.5) -> Jog:
 
 def test_dead_man_stops_the_motion_after_the_timeout() -> None:
     jog = _jog()
-    jog.command(JogSpace.TASK, 0.05, 0.0)
+    jog.command(JogFrame.TASK, 0.05, 0.0)
     for _ in range(200):
         jog.step()
     assert jog.moving
@@ -36,7 +36,7 @@ def test_commands_repeated_in_time_keep_it_moving() -> None:
     jog = _jog()
     start = jog.tip()
     for _ in range(30):  # 3 s of commands every 100 ms
-        jog.command(JogSpace.TASK, -0.05, 0.0)
+        jog.command(JogFrame.TASK, -0.05, 0.0)
         for _ in range(100):
             jog.step()
     assert jog.moving
@@ -45,20 +45,20 @@ def test_commands_repeated_in_time_keep_it_moving() -> None:
 
 
 @settings(max_examples=50, deadline=None)
-@given(st.sampled_from(list(JogSpace)), st.floats(-10, 10), st.floats(-10, 10))
-def test_speed_and_acceleration_are_limited(space: JogSpace, a: float, b: float) -> None:
+@given(st.sampled_from(list(JogFrame)), st.floats(-10, 10), st.floats(-10, 10))
+def test_speed_and_acceleration_are_limited(space: JogFrame, a: float, b: float) -> None:
     jog = _jog()
-    limit_a, limit_b = ((JOG.max_tip_speed_m_per_s,) * 2 if space is JogSpace.TASK
+    limit_a, limit_b = ((JOG.max_tip_speed_m_per_s,) * 2 if space is JogFrame.TASK
                         else (JOG.max_r_speed_m_per_s, JOG.max_theta_speed_rad_per_s))
     previous = (0.0, 0.0)
     for k in range(400):
         if k % 100 == 0:
             jog.command(space, a, b)
-        before = jog.q if space is JogSpace.JOINT else jog.tip()
+        before = jog.q if space is JogFrame.JOINT else jog.tip()
         jog.step()
-        after = jog.q if space is JogSpace.JOINT else jog.tip()
+        after = jog.q if space is JogFrame.JOINT else jog.tip()
         velocity = ((after[0] - before[0]) / DT, (after[1] - before[1]) / DT)
-        if space is JogSpace.TASK:
+        if space is JogFrame.TASK:
             velocity = (velocity[0], -velocity[1])  # tip() gives depth; commands give height
         assert abs(velocity[0]) <= limit_a * 1.001 + 1e-9
         assert abs(velocity[1]) <= limit_b * 1.001 + 1e-9
@@ -69,7 +69,7 @@ def test_speed_and_acceleration_are_limited(space: JogSpace, a: float, b: float)
 def test_stops_at_the_workspace_edge() -> None:
     jog = _jog(r=1.55, theta=0.5)
     for _ in range(50):
-        jog.command(JogSpace.JOINT, 0.1, 0.0)
+        jog.command(JogFrame.JOINT, 0.1, 0.0)
         for _ in range(100):
             jog.step()
     assert jog.q[0] == WS.r_max_m
@@ -90,7 +90,7 @@ def test_the_reference_waits_for_a_blocked_tip() -> None:
     jog = _jog()
     blocked = jog.tip()
     for _ in range(10):  # 1 s at 0.1 m/s toward the robot
-        jog.command(JogSpace.TASK, -0.1, 0.0)
+        jog.command(JogFrame.TASK, -0.1, 0.0)
         for _ in range(100):
             jog.observe(*blocked)
             jog.step()
@@ -98,7 +98,7 @@ def test_the_reference_waits_for_a_blocked_tip() -> None:
     lag_m = math.hypot(reach - blocked[0], depth - blocked[1])
     assert JOG.max_lag_m - 0.1 * DT <= lag_m <= JOG.max_lag_m + 1e-9
     assert jog.waiting > 600
-    jog.command(JogSpace.TASK, -0.1, 0.0)
+    jog.command(JogFrame.TASK, -0.1, 0.0)
     for _ in range(50):  # the tip catches up: the reference advances again
         jog.observe(*jog.tip())
         jog.step()
@@ -110,7 +110,7 @@ def test_a_reference_behind_the_tip_may_always_move_back_toward_it() -> None:
     reference closer is taken."""
     jog = _jog()
     reach, depth = jog.tip()
-    jog.command(JogSpace.TASK, -0.1, 0.0)
+    jog.command(JogFrame.TASK, -0.1, 0.0)
     for _ in range(300):
         jog.observe(reach - 0.1, depth)  # the tip is 0.1 m nearer the robot
         jog.step()
