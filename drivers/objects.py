@@ -253,6 +253,11 @@ class Body:
         reach_approach_m_per_s = max(0.0, -n_reach * reach_vel_m_per_s)
         ref_m = (at_m + depth_m / n_up
                  + damping * reach_approach_m_per_s / (self.stiffness_n_per_m * n_up))
+        if n_reach == 0.0:  # a flat top's surface is its top exactly: at_m + depth_m can
+            # round a bit below it, where tines put on the reference would be inside by
+            # 1e-18 m and read the damping at their arrival speed (20261125/5: 238 N on a
+            # plate the mount carried nothing to)
+            ref_m = max(ref_m, self.top_m)
         return VerticalLaw(ref_m, self.stiffness_n_per_m * n_up * n_up,
                            damping * n_up * n_up, self.yield_force_n * n_up, False)
 

@@ -238,3 +238,20 @@ def test_a_mines_law_for_the_tine_mount_is_what_it_reads(
         assert mine.force_up_n == pytest.approx(expected_n, rel=1e-9, abs=1e-6)
     else:
         assert mine.force_up_n <= expected_n + 1e-6
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(0.965, 1.035), st.floats(-0.05, 0.05), st.floats(1e-12, 1e-3))
+@example(1.0, -0.013953458466873759, 1e-9)  # the plate of 20261125/5, judged 1 nm under it
+def test_tines_put_on_a_flat_tops_reference_are_not_inside_it(
+        reach_m: float, top_m: float, under_m: float) -> None:
+    """A flat top's law puts its reference on the surface exactly, never a rounding below:
+    tines resting there read no contact, so not the damping at the speed they arrived with
+    (the reference came out 2e-18 m under a mine's plate, read 238 N for one substep while
+    the mount carried nothing)."""
+    mine = Body(Contact.MINE, MineParams(reach_m=1.0, depth_m=-top_m, width_m=0.08))
+    height_m = top_m - under_m
+    law = mine.vertical_law(reach_m, height_m, height_m)
+    assert law is not None and law.ref_m >= mine.top_m
+    assert mine._contact(reach_m, law.ref_m) is None
+    assert not mine.touch(reach_m, law.ref_m, 0.0, -0.24) and mine.force_up_n == 0.0
