@@ -190,10 +190,15 @@ def test_a_tine_meeting_a_root_under_its_top_rides_up_it() -> None:
 
 @settings(max_examples=200, deadline=None)
 @given(st.floats(0.991, 1.009), st.floats(-0.0299, -0.0101), st.floats(-0.5, 0.5))
+@example(0.998046875, -0.010100000000000001, -0.5)  # above its curve, falling (found by CI)
 def test_a_roots_law_for_the_tine_mount_is_what_it_reads(reach_m: float, height_m: float,
                                                          height_vel: float) -> None:
     """Where the root gives the tine mount a vertical law, that law's force at the tip is the
-    vertical force the root itself reads there (the mount carries what the ground reads)."""
+    vertical force the root itself reads there (the mount carries what the ground reads).
+    Above its curved top, within its box, the root reads nothing; the law, judged on its
+    surface, may already carry the damping of the fall into it (B·n_up²·v: the force of
+    the contact about to begin; its elastic part is ≤ 0 above the surface), as a mine's
+    rim does."""
     root = Body(Contact.ROOT, RootParams(reach_m=1.0, depth_m=0.01))
     law = root.vertical_law(reach_m, height_m, height_m)
     touching = root.touch(reach_m, height_m, 0.0, height_vel)
@@ -202,6 +207,10 @@ def test_a_roots_law_for_the_tine_mount_is_what_it_reads(reach_m: float, height_
         return
     elastic_n = min(law.stiffness_n_per_m * (law.ref_m - height_m), law.cap_n)
     expected_n = max(0.0, elastic_n - law.damping_ns_per_m * height_vel)
+    if root._contact(reach_m, height_m) is None:
+        assert not touching and root.force_up_n == 0.0
+        assert expected_n <= law.damping_ns_per_m * max(0.0, -height_vel) + 1e-6
+        return
     assert touching or expected_n == 0.0
     assert root.force_up_n == pytest.approx(expected_n, rel=1e-9, abs=1e-9)
 
