@@ -48,9 +48,11 @@ import structlog
 from can.typechecking import CanFilter
 
 from drivers.arm import ArmPlant
-from drivers.node import BadInput, DriveKind, DriveNode, DriveSpec, Frame, InputStats
+from drivers.dictionary import DriveKind, DriveSpec, Frame
+from drivers.node import DriveNode
 from drivers.objects import Contact, Ground
 from drivers.settings import EmulatorConfig, TimingMode
+from drivers.stats import BadInput, InputStats
 from rakectl.core.kinematics import Workspace
 from rakectl.core.motor_model import MotorParams, joint_per_motor_rad
 from rakectl.protocol.codec import SYNC_COB_ID, SYNC_COUNTER_MAX, EmcyCode

@@ -9,64 +9,9 @@ physics' latest sample; each returns the frames to send as ``(can_id, data)``.
 on its next call (send it, or copy it, before then). The physics reads
 :attr:`~DriveNode.output_voltage_v` and :attr:`~DriveNode.motor_params`.
 
-NMT (CiA 301). At power-on (:meth:`~DriveNode.boot`) and after NMT reset node
-or reset communication the drive sends its boot-up heartbeat (state 0) and is
-PRE-OPERATIONAL; then it sends a heartbeat 0x700+id every 0x1017 ms in every
-state. START → OPERATIONAL, STOP → STOPPED, ENTER_PRE_OPERATIONAL →
-PRE-OPERATIONAL; node-ID 0 addresses every node. Reset node restores every
-object to its power-on value and the CiA 402 state to SWITCH_ON_DISABLED
-(faults cleared); reset communication restores 0x1000–0x1FFF only. PDOs
-(SYNC → TPDO1, RPDO1, TPDO2) work only in OPERATIONAL; SDO and EMCY in
-PRE-OPERATIONAL and OPERATIONAL; in STOPPED only NMT and heartbeats. Entering
-OPERATIONAL sends TPDO2 once; leaving it drops the latched voltage to 0 V
-(the command watchdog then faults an enabled drive).
-
-SDO. canopen's ``LocalNode`` over the drive type's EDS is the SDO server: the
-drive passes each 8-byte request to ``Network.notify`` of a never-connected
-``canopen.Network`` whose ``send_message`` (the override point canopen
-documents) collects the response into the frames returned. LocalNode's own NMT
-slave is left out (it would start a heartbeat thread when 0x1017 is written).
-Live objects (0x6041, 0x6064 …) are served by a read callback; a write callback
-checks the EDS's LowLimit/HighLimit and the drive's own bounds and rejects a
-write by raising ``SdoAbortedError`` (canopen answers with that abort code and
-stores nothing): 0x2001 ≤ the supply, 0x2002 in 1 … the hardware current
-limit and 0x2004 only while not OPERATION_ENABLED (0x08000022), 0x6060 only −1.
-Other writable communication objects (COB-IDs, transmission types) are fixed
-in this drive: writing their present value succeeds, any other value aborts.
-Identity 0x1018: product code from the EDS, serial number from the
-configuration.
-
-CiA 402 (:mod:`rakectl.protocol.cia402`). The drive boots to SWITCH_ON_DISABLED. RPDO1
-is synchronous: its controlword and voltage take effect at the next SYNC (the
-command computed from SYNC k's TPDO1 acts from SYNC k+1); a controlword
-written by SDO to 0x6040 acts at once. The command's voltage is applied only
-in OPERATION_ENABLED. In every other state the output is 0 V *with the bridge
-driven*: the motor terminals are shorted, so the motor brakes dynamically and
-the arm sinks slowly under gravity instead of falling freely. A RPDO1 voltage
-beyond ±0x2001 is clamped; the first of a run of such commands sends EMCY
-INVALID_COMMAND and sets statusword bits 7 (warning) and 11 (internal limit)
-and the error register; the next valid command clears them and sends EMCY
-NO_ERROR. The clamp is a warning, not a fault. The physics' current limiter
-uses 0x2002 (≤ the hardware limit; :attr:`~DriveNode.motor_params`).
-
-On SYNC (1-byte counter 1..240) an OPERATIONAL drive (1) samples position
-counts = round(position / joint_resolution), motor rpm and current mA and
-sends TPDO1; (2) applies the latest RPDO1 received since the previous SYNC;
-(3) sends TPDO2 when statusword or error register changed, and on every
-0x2005-th SYNC received. Lost SYNCs are counted from the counter.
-
-Faults: each sends its EMCY, applies 0 V at once and goes through
-FAULT_REACTION_ACTIVE to FAULT (0x603F holds the code):
-COMMAND_WATCHDOG_TIMEOUT when, in OPERATION_ENABLED, no valid RPDO1 or no
-SYNC arrived for 0x2003 ms (a wrong-length RPDO1 does not feed it);
-HEARTBEAT_LOST when the controller's heartbeat (0x1016 sub 1: node in bits
-16–23, timeout ms in bits 0–15; monitored from its first heartbeat) stops
-for that long, in any state; OVER_CURRENT when, enabled, the measured current
-stays at ≥ 95 % of the limit longer than the configured time; HARD_STOP_HIT
-when, enabled, the joint reaches a workspace limit (an end switch: on reaching
-it, not while resting on it). A rising edge of controlword bit 7 in FAULT is a
-fault reset: it succeeds (→ SWITCH_ON_DISABLED, EMCY NO_ERROR) unless the
-cause persists (controller heartbeat still missing, current still at limit).
+Its behaviour, as a drive's manual would state it (NMT, CiA 402, SYNC,
+faults), is in docs/can-bus.md, "The emulated drives"; its parameters and
+SDO server are :mod:`drivers.dictionary` (this class's base).
 
 Bad input (wrong length, undefined values) is counted in
 :attr:`DriveNode.stats` and ignored; it never raises.
@@ -74,19 +19,15 @@ Bad input (wrong length, undefined values) is counted in
 
 from __future__ import annotations
 
-import dataclasses
 import enum
 import math
-import struct
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Any, Final
+from typing import Final
 
-import canopen
 from canopen import SdoAbortedError
 
-from rakectl.core.motor_model import MotorParams, joint_resolution
+from drivers.dictionary import DriveObjects, DriveSpec, Frame, SdoAbort
+from drivers.stats import BadInput, NodeStats
 from rakectl.errors import FrameError
 from rakectl.protocol import cia402
 from rakectl.protocol.cia402 import DriveCommand, DriveState, StatusFlag
@@ -112,82 +53,9 @@ from rakectl.protocol.codec import (
     pack_tpdo2_into,
     rad_per_s_to_rpm,
 )
-from rakectl.protocol.files import EDS_DIR
 
-Frame = tuple[int, bytes | bytearray]
 NO_FRAMES: Final[tuple[Frame, ...]] = ()
 OVERCURRENT_SHARE: Final = 0.95  # |i| ≥ this share of the limit counts as "at the limit"
-MAX_COUNTS_PER_REV: Final = 10**9  # MotorParams' bound on encoder_counts_per_rev
-
-
-class DriveKind(enum.Enum):
-    """A drive type and its EDS (object dictionary, product code)."""
-
-    DC_SERVO = "dc_servo_drive.eds"
-    GEARED_MOTOR = "geared_motor_drive.eds"
-
-    @property
-    def eds_path(self) -> Path:
-        return EDS_DIR / self.value
-
-
-class BadInput(enum.Enum):
-    """Kinds of input that are counted and ignored."""
-
-    WRONG_LENGTH = "wrong_length"
-    BAD_VALUE = "bad_value"  # a value the protocol does not define
-    UNKNOWN_ID = "unknown_id"  # no drive listens to it (counted by the emulator)
-    UNSUPPORTED = "unsupported"  # remote, error, extended-ID or FD frame (emulator)
-
-
-class SdoAbort(enum.IntEnum):
-    """SDO abort codes (CiA 301) this drive's own checks use."""
-
-    UNKNOWN_COMMAND = 0x05040001  # command specifier not valid, or out of sequence
-    VALUE_RANGE = 0x06090030
-    VALUE_TOO_HIGH = 0x06090031
-    VALUE_TOO_LOW = 0x06090032
-    DEVICE_STATE = 0x08000022
-
-
-@dataclass(frozen=True)
-class DriveSpec:
-    """What a drive is: its node-ID, type, hardware and serial number."""
-
-    node_id: int
-    kind: DriveKind
-    motor: MotorParams  # the hardware: supply and current limit bound 0x2001 and 0x2002
-    serial_number: int
-    controller_node_id: int
-    overcurrent_time_s: float = 0.5
-
-
-class InputStats:
-    """Bad input per kind, and the last such frame of each kind."""
-
-    __slots__ = ("counts", "last", "total")
-
-    def __init__(self) -> None:
-        self.counts = dict.fromkeys(BadInput, 0)
-        self.last: dict[BadInput, tuple[int, bytes]] = {}
-        self.total = 0
-
-    def count(self, kind: BadInput, can_id: int, data: bytes | bytearray) -> None:
-        self.counts[kind] += 1
-        self.last[kind] = (can_id, bytes(data))
-        self.total += 1
-
-
-class NodeStats:
-    """Counters of one drive (summarized off the hot path)."""
-
-    __slots__ = ("bad", "clamped_commands", "emcys", "faults", "lost_syncs", "rpdos",
-                 "rpdos_ignored", "sdo_requests", "syncs")
-
-    def __init__(self) -> None:
-        self.bad = InputStats()
-        self.syncs = self.lost_syncs = self.rpdos = self.rpdos_ignored = 0
-        self.sdo_requests = self.clamped_commands = self.emcys = self.faults = 0
 
 
 _STATUS_FLAGS: Final = StatusFlag.VOLTAGE_ENABLED | StatusFlag.REMOTE  # supply on, CAN control
@@ -197,37 +65,14 @@ _REGISTER: Final = {code: int(reg) for code, reg in EMCY_ERROR_REGISTER.items()}
 _NMT_TARGET: Final = {NmtCommand.START: NmtState.OPERATIONAL, NmtCommand.STOP: NmtState.STOPPED,
                       NmtCommand.ENTER_PRE_OPERATIONAL: NmtState.PRE_OPERATIONAL}
 _SDO_STATES: Final = frozenset({NmtState.PRE_OPERATIONAL, NmtState.OPERATIONAL})
-_COMM_RANGE: Final = range(0x1000, 0x2000)
-_SDO_ABORT: Final = struct.Struct("<BHBL")  # command 0x80, index, subindex, abort code
 
 
-class _Outbox(canopen.Network):
-    """A canopen Network that is never connected: what its nodes send is collected."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.frames: list[Frame] = []
-
-    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
-        self.frames.append((can_id, bytes(data)))
-
-
-class _SdoServerNode(canopen.LocalNode):
-    """LocalNode without its NMT slave's 0x1017 callback (that one starts a thread)."""
-
-    def add_write_callback(self, callback: Callable[..., None]) -> None:
-        if callback != self.nmt.on_write:
-            super().add_write_callback(callback)  # type: ignore[no-untyped-call]
-
-
-class DriveNode:
+class DriveNode(DriveObjects):
     """One drive's CiA 301/402 behaviour; see the module docstring."""
 
     nmt: NmtState
-    state: DriveState
     fault: EmcyCode | None  # the last fault, until a fault reset (0x603F)
     output_voltage_v: float  # what the bridge applies now
-    motor_params: MotorParams  # the hardware with the current limit of 0x2002
     _statusword: int
     _error_register: int
     _clamping: bool  # the last commands were beyond ±0x2001 (invalid-command episode)
@@ -241,27 +86,11 @@ class DriveNode:
     _last_sync_s: float
     _last_counter: int
     _overcurrent_s: float
-    _heartbeat_ms: int
-    _next_heartbeat_s: float
-    _consumer: int  # 0x1016 sub 1
-    _heartbeat_seen_s: float | None  # last controller heartbeat; None = not monitoring
-    _heartbeat_lost: bool
-    _max_voltage_mv: int
-    _current_limit_ma: int
-    _watchdog_ms: int
-    _counts_per_rev: int
-    _resolution: float
-    _tpdo2_refresh: int
 
     def __init__(self, spec: DriveSpec) -> None:
-        self.spec, self.node_id = spec, spec.node_id
+        super().__init__(spec)
         self.stats = NodeStats()
         self.notes: list[tuple[str, enum.Enum]] = []  # events for the log, drained by the caller
-        self._network = _Outbox()
-        self._od = _SdoServerNode(spec.node_id, str(spec.kind.eds_path))
-        self._network.add_node(self._od)
-        self._od.add_read_callback(self._od_read)  # type: ignore[no-untyped-call]
-        self._od.add_write_callback(self._od_write)
         self._tpdo1, self._tpdo2 = bytearray(8), bytearray(3)
         self._ids = {f: cob_id(f, spec.node_id) for f in FunctionCode}
         self._handlers: dict[int, Callable[[int, bytes | bytearray, float], Sequence[Frame]]] = {
@@ -269,10 +98,10 @@ class DriveNode:
         self._handlers |= {SYNC_COB_ID: self._on_sync, NMT_COB_ID: self._on_nmt,
                            self._ids[FunctionCode.RPDO1]: self._on_rpdo,
                            self._ids[FunctionCode.SDO_REQUEST]: self._on_sdo}
-        self._power_on = self._power_on_values()
-        self._readers, self._writers = self._object_handlers()
-        self._now_s: float = 0.0  # context of the SDO write callbacks
-        self._out: list[Frame] = []
+        self._readers |= self._live_objects()
+        self._writers |= {(0x2000, 0): self._write_voltage,
+                          (0x2001, 0): self._write_max_voltage,
+                          (0x6040, 0): self._write_controlword}
         self.nmt = NmtState.BOOT_UP
         self._power_on_application()
         self._power_on_communication(0.0)
@@ -444,16 +273,8 @@ class DriveNode:
             return NO_FRAMES
         self.stats.sdo_requests += 1
         out: list[Frame] = []
-        self._now_s, self._out = now_s, out  # context of the write callback
-        try:
-            self._network.notify(can_id, bytearray(data), now_s)
-        except Exception:  # canopen's server raises on a segment with no transfer open
-            self._network.frames.clear()
+        if not self._serve_sdo(can_id, data, now_s, out):
             self.stats.bad.count(BadInput.BAD_VALUE, can_id, data)
-            abort = _SDO_ABORT.pack(0x80, 0, 0, SdoAbort.UNKNOWN_COMMAND)
-            self._network.frames.append((self._ids[FunctionCode.SDO_RESPONSE], abort))
-        out += self._network.frames
-        self._network.frames.clear()
         self._emit_status(out)
         return out
 
@@ -574,32 +395,8 @@ class DriveNode:
 
     # ------------------------------------------------------------------- power-on values
 
-    def _eds_default(self, index: int, subindex: int = 0) -> int:
-        entry: Any = self._od.object_dictionary[index]
-        return int((entry[subindex] if subindex else entry).default)
-
-    def _power_on_values(self) -> dict[int, int]:
-        """Power-on values of the objects the drive acts on, bounded by its hardware."""
-        motor, default = self.spec.motor, self._eds_default
-        return {
-            0x1016: default(0x1016, 1) & 0xFFFF | self.spec.controller_node_id << 16,
-            0x1017: default(0x1017),
-            0x2001: min(default(0x2001), round(motor.supply_voltage_v * 1000)),
-            0x2002: min(default(0x2002), self._hardware_limit_ma()),
-            0x2003: default(0x2003), 0x2004: motor.encoder_counts_per_rev,
-            0x2005: default(0x2005),
-        }
-
-    def _hardware_limit_ma(self) -> int:
-        return round(self.spec.motor.current_limit_a * 1000)
-
     def _power_on_application(self) -> None:
-        values = self._power_on
-        self._od.data_store.clear()
-        self._max_voltage_mv, self._watchdog_ms = values[0x2001], values[0x2003]
-        self._tpdo2_refresh = values[0x2005]
-        self._set_current_limit_ma(values[0x2002])
-        self._set_counts_per_rev(values[0x2004])
+        self._restore_parameters()
         self.state = cia402.settle(DriveState.NOT_READY_TO_SWITCH_ON)
         self.fault = None
         self._clamping, self._controlword, self._latched_mv = False, 0, 0
@@ -610,38 +407,15 @@ class DriveNode:
         self._update_output()
 
     def _power_on_communication(self, now_s: float) -> None:
-        for index in [i for i in self._od.data_store if i in _COMM_RANGE]:
-            del self._od.data_store[index]
-        self._heartbeat_ms, self._consumer = self._power_on[0x1017], self._power_on[0x1016]
-        self._next_heartbeat_s = now_s + self._heartbeat_ms * 0.001
-        self._heartbeat_seen_s = None
-        self._heartbeat_lost, self._last_counter = False, 0
+        self._restore_communication(now_s)
+        self._last_counter = 0
 
-    def _set_current_limit_ma(self, limit_ma: int) -> None:
-        self._current_limit_ma = limit_ma
-        limit_a = min(limit_ma, self._hardware_limit_ma()) * 0.001
-        self.motor_params = dataclasses.replace(self.spec.motor, current_limit_a=limit_a)
+    # ------------------------------------------------------------------- live objects
 
-    def _set_counts_per_rev(self, counts: int) -> None:
-        self._counts_per_rev = counts
-        motor = dataclasses.replace(self.spec.motor, encoder_counts_per_rev=counts)
-        self._resolution = joint_resolution(motor)
-
-    # ------------------------------------------------------------------- object dictionary
-
-    def _object_handlers(self) -> tuple[dict[tuple[int, int], Callable[[], int]],
-                                        dict[tuple[int, int], Callable[[int], None]]]:
-        readers: dict[tuple[int, int], Callable[[], int]] = {
+    def _live_objects(self) -> dict[tuple[int, int], Callable[[], int]]:
+        return {
             (0x1001, 0): lambda: self._error_register,
-            (0x1016, 1): lambda: self._consumer,
-            (0x1017, 0): lambda: self._heartbeat_ms,
-            (0x1018, 4): lambda: self.spec.serial_number,
             (0x2000, 0): lambda: self._latched_mv,
-            (0x2001, 0): lambda: self._max_voltage_mv,
-            (0x2002, 0): lambda: self._current_limit_ma,
-            (0x2003, 0): lambda: self._watchdog_ms,
-            (0x2004, 0): lambda: self._counts_per_rev,
-            (0x2005, 0): lambda: self._tpdo2_refresh,
             (0x2100, 0): lambda: current_a_to_ma(self._current_a),
             (0x603F, 0): lambda: int(self.fault or 0),
             (0x6040, 0): lambda: self._controlword,
@@ -649,48 +423,6 @@ class DriveNode:
             (0x6064, 0): lambda: round(self._position / self._resolution),
             (0x606C, 0): lambda: rad_per_s_to_rpm(self._motor_vel),
         }
-        writers: dict[tuple[int, int], Callable[[int], None]] = {
-            (0x1006, 0): lambda value: None,  # communication cycle period: informative
-            (0x6060, 0): lambda value: None,  # the EDS limits it to −1
-            (0x1016, 1): self._write_consumer,
-            (0x1017, 0): self._write_heartbeat_period,
-            (0x2000, 0): self._write_voltage,
-            (0x2001, 0): self._write_max_voltage,
-            (0x2002, 0): self._write_current_limit,
-            (0x2003, 0): self._write_watchdog,
-            (0x2004, 0): self._write_counts_per_rev,
-            (0x2005, 0): self._write_tpdo2_refresh,
-            (0x6040, 0): self._write_controlword,
-        }
-        return readers, writers
-
-    def _od_read(self, index: int, subindex: int, od: Any, **_: Any) -> int | None:
-        reader = self._readers.get((index, subindex))
-        return reader() if reader is not None else None
-
-    def _od_write(self, index: int, subindex: int, od: Any, data: bytes, **_: Any) -> None:
-        value = od.decode_raw(data)
-        if not isinstance(value, int):
-            raise SdoAbortedError(SdoAbort.VALUE_RANGE)
-        if od.min is not None and value < od.min:
-            raise SdoAbortedError(SdoAbort.VALUE_TOO_LOW)
-        if od.max is not None and value > od.max:
-            raise SdoAbortedError(SdoAbort.VALUE_TOO_HIGH)
-        writer = self._writers.get((index, subindex))
-        if writer is not None:
-            writer(value)
-        elif value != od.decode_raw(self._od.get_data(index, subindex)):
-            raise SdoAbortedError(SdoAbort.VALUE_RANGE)  # fixed in this drive
-
-    def _require_not_enabled(self) -> None:
-        if self.state is DriveState.OPERATION_ENABLED:
-            raise SdoAbortedError(SdoAbort.DEVICE_STATE)
-
-    def _write_consumer(self, value: int) -> None:
-        self._consumer, self._heartbeat_seen_s, self._heartbeat_lost = value, None, False
-
-    def _write_heartbeat_period(self, value: int) -> None:
-        self._heartbeat_ms, self._next_heartbeat_s = value, self._now_s + value * 0.001
 
     def _write_voltage(self, value: int) -> None:
         self._rx_voltage_mv, self._fresh_voltage = value, True  # latched at the next SYNC
@@ -701,26 +433,6 @@ class DriveNode:
         self._max_voltage_mv = value
         self._latched_mv = max(-value, min(value, self._latched_mv))
         self._update_output()
-
-    def _write_current_limit(self, value: int) -> None:
-        self._require_not_enabled()
-        if value > self._hardware_limit_ma():
-            raise SdoAbortedError(SdoAbort.VALUE_TOO_HIGH)
-        if value < 1:
-            raise SdoAbortedError(SdoAbort.VALUE_TOO_LOW)
-        self._set_current_limit_ma(value)
-
-    def _write_watchdog(self, value: int) -> None:
-        self._watchdog_ms = value
-
-    def _write_counts_per_rev(self, value: int) -> None:
-        self._require_not_enabled()
-        if value > MAX_COUNTS_PER_REV:
-            raise SdoAbortedError(SdoAbort.VALUE_TOO_HIGH)
-        self._set_counts_per_rev(value)
-
-    def _write_tpdo2_refresh(self, value: int) -> None:
-        self._tpdo2_refresh = value
 
     def _write_controlword(self, value: int) -> None:
         self._apply_controlword(value, self._now_s, self._out)

@@ -24,8 +24,8 @@ import pytest
 
 from drivers.cli import load_config, main
 from drivers.emulator import TRUTH_COLUMNS, Emulator
-from drivers.node import BadInput
 from drivers.settings import EmulatorConfig, TimingMode
+from drivers.stats import BadInput
 from rakectl.core.motor_model import MotorParams, joint_per_motor_rad, joint_resolution
 from rakectl.errors import ConfigError
 from rakectl.protocol import codec

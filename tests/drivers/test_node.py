@@ -16,7 +16,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.node import BadInput, DriveKind, DriveNode, DriveSpec, Frame, SdoAbort
+from drivers.dictionary import DriveKind, DriveSpec, Frame, SdoAbort
+from drivers.node import DriveNode
+from drivers.stats import BadInput
 from rakectl.core.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, joint_resolution
 from rakectl.protocol import codec
 from rakectl.protocol.cia402 import DriveCommand, DriveState, decode_statusword

@@ -1,0 +1,271 @@
+"""An emulated drive's object dictionary: its identity, its parameters and the SDO server.
+
+:class:`DriveObjects` holds the parameters a drive acts on (heartbeat producer
+0x1017 and consumer 0x1016, maximum voltage 0x2001, current limit 0x2002,
+command watchdog 0x2003, encoder resolution 0x2004, TPDO2 refresh 0x2005),
+their power-on values bounded by the hardware, and serves them over SDO. The
+protocol behaviour (NMT, SYNC, PDOs, CiA 402, faults) is its subclass
+:class:`drivers.node.DriveNode`, which adds the live objects (0x6041, 0x6064 …).
+
+SDO. canopen's ``LocalNode`` over the drive type's EDS is the SDO server: the
+drive passes each 8-byte request to ``Network.notify`` of a never-connected
+``canopen.Network`` whose ``send_message`` (the override point canopen
+documents) collects the response into the frames returned. LocalNode's own NMT
+slave is left out (it would start a heartbeat thread when 0x1017 is written).
+Live objects are served by a read callback; a write callback checks the EDS's
+LowLimit/HighLimit and the drive's own bounds and rejects a write by raising
+``SdoAbortedError`` (canopen answers with that abort code and stores
+nothing): 0x2001 ≤ the supply, 0x2002 in 1 … the hardware current limit and
+0x2004 only while not OPERATION_ENABLED (0x08000022), 0x6060 only −1. Other
+writable communication objects (COB-IDs, transmission types) are fixed in this
+drive: writing their present value succeeds, any other value aborts. Identity
+0x1018: product code from the EDS, serial number from the configuration.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+import canopen
+from canopen import SdoAbortedError
+
+from rakectl.core.motor_model import MotorParams, joint_resolution
+from rakectl.protocol.cia402 import DriveState
+from rakectl.protocol.codec import FunctionCode, cob_id
+from rakectl.protocol.files import EDS_DIR
+
+Frame = tuple[int, bytes | bytearray]
+Reader = Callable[[], int]
+Writer = Callable[[int], None]
+MAX_COUNTS_PER_REV: Final = 10**9  # MotorParams' bound on encoder_counts_per_rev
+_COMM_RANGE: Final = range(0x1000, 0x2000)
+_SDO_ABORT: Final = struct.Struct("<BHBL")  # command 0x80, index, subindex, abort code
+
+
+class DriveKind(enum.Enum):
+    """A drive type and its EDS (object dictionary, product code)."""
+
+    DC_SERVO = "dc_servo_drive.eds"
+    GEARED_MOTOR = "geared_motor_drive.eds"
+
+    @property
+    def eds_path(self) -> Path:
+        return EDS_DIR / self.value
+
+
+class SdoAbort(enum.IntEnum):
+    """SDO abort codes (CiA 301) this drive's own checks use."""
+
+    UNKNOWN_COMMAND = 0x05040001  # command specifier not valid, or out of sequence
+    VALUE_RANGE = 0x06090030
+    VALUE_TOO_HIGH = 0x06090031
+    VALUE_TOO_LOW = 0x06090032
+    DEVICE_STATE = 0x08000022
+
+
+@dataclass(frozen=True)
+class DriveSpec:
+    """What a drive is: its node-ID, type, hardware and serial number."""
+
+    node_id: int
+    kind: DriveKind
+    motor: MotorParams  # the hardware: supply and current limit bound 0x2001 and 0x2002
+    serial_number: int
+    controller_node_id: int
+    overcurrent_time_s: float = 0.5
+
+
+class _Outbox(canopen.Network):
+    """A canopen Network that is never connected: what its nodes send is collected."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.frames: list[Frame] = []
+
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        self.frames.append((can_id, bytes(data)))
+
+
+class _SdoServerNode(canopen.LocalNode):
+    """LocalNode without its NMT slave's 0x1017 callback (that one starts a thread)."""
+
+    def add_write_callback(self, callback: Callable[..., None]) -> None:
+        if callback != self.nmt.on_write:
+            super().add_write_callback(callback)  # type: ignore[no-untyped-call]
+
+
+class DriveObjects:
+    """A drive's parameters and its SDO server; see the module docstring."""
+
+    state: DriveState  # CiA 402, owned by the subclass (some writes need it disabled)
+    motor_params: MotorParams  # the hardware with the current limit of 0x2002
+    _heartbeat_ms: int
+    _next_heartbeat_s: float
+    _consumer: int  # 0x1016 sub 1
+    _heartbeat_seen_s: float | None  # last controller heartbeat; None = not monitoring
+    _heartbeat_lost: bool
+    _max_voltage_mv: int
+    _current_limit_ma: int
+    _watchdog_ms: int
+    _counts_per_rev: int
+    _resolution: float
+    _tpdo2_refresh: int
+
+    def __init__(self, spec: DriveSpec) -> None:
+        self.spec, self.node_id = spec, spec.node_id
+        self._network = _Outbox()
+        self._od = _SdoServerNode(spec.node_id, str(spec.kind.eds_path))
+        self._network.add_node(self._od)
+        self._od.add_read_callback(self._od_read)  # type: ignore[no-untyped-call]
+        self._od.add_write_callback(self._od_write)
+        self._sdo_response_id = cob_id(FunctionCode.SDO_RESPONSE, spec.node_id)
+        self._power_on = self._power_on_values()
+        self._readers, self._writers = self._parameter_objects()
+        self._now_s: float = 0.0  # context of the SDO write callbacks
+        self._out: list[Frame] = []
+
+    def _serve_sdo(self, can_id: int, data: bytes | bytearray, now_s: float,
+                   out: list[Frame]) -> bool:
+        """Answer one SDO request into ``out``; False if canopen's server could not
+        take it (a segment with no transfer open): an abort is answered instead."""
+        self._now_s, self._out = now_s, out  # context of the write callbacks
+        network, served = self._network, True
+        try:
+            network.notify(can_id, bytearray(data), now_s)
+        except Exception:  # canopen's server raises on a segment with no transfer open
+            network.frames.clear()
+            abort = _SDO_ABORT.pack(0x80, 0, 0, SdoAbort.UNKNOWN_COMMAND)
+            network.frames.append((self._sdo_response_id, abort))
+            served = False
+        out += network.frames
+        network.frames.clear()
+        return served
+
+    # ------------------------------------------------------------------- power-on values
+
+    def _eds_default(self, index: int, subindex: int = 0) -> int:
+        entry: Any = self._od.object_dictionary[index]
+        return int((entry[subindex] if subindex else entry).default)
+
+    def _power_on_values(self) -> dict[int, int]:
+        """Power-on values of the objects the drive acts on, bounded by its hardware."""
+        motor, default = self.spec.motor, self._eds_default
+        return {
+            0x1016: default(0x1016, 1) & 0xFFFF | self.spec.controller_node_id << 16,
+            0x1017: default(0x1017),
+            0x2001: min(default(0x2001), round(motor.supply_voltage_v * 1000)),
+            0x2002: min(default(0x2002), self._hardware_limit_ma()),
+            0x2003: default(0x2003), 0x2004: motor.encoder_counts_per_rev,
+            0x2005: default(0x2005),
+        }
+
+    def _hardware_limit_ma(self) -> int:
+        return round(self.spec.motor.current_limit_a * 1000)
+
+    def _restore_parameters(self) -> None:
+        """Every object to its power-on value (NMT reset node)."""
+        values = self._power_on
+        self._od.data_store.clear()
+        self._max_voltage_mv, self._watchdog_ms = values[0x2001], values[0x2003]
+        self._tpdo2_refresh = values[0x2005]
+        self._set_current_limit_ma(values[0x2002])
+        self._set_counts_per_rev(values[0x2004])
+
+    def _restore_communication(self, now_s: float) -> None:
+        """0x1000–0x1FFF to their power-on values (NMT reset communication)."""
+        for index in [i for i in self._od.data_store if i in _COMM_RANGE]:
+            del self._od.data_store[index]
+        self._heartbeat_ms, self._consumer = self._power_on[0x1017], self._power_on[0x1016]
+        self._next_heartbeat_s = now_s + self._heartbeat_ms * 0.001
+        self._heartbeat_seen_s = None
+        self._heartbeat_lost = False
+
+    def _set_current_limit_ma(self, limit_ma: int) -> None:
+        self._current_limit_ma = limit_ma
+        limit_a = min(limit_ma, self._hardware_limit_ma()) * 0.001
+        self.motor_params = dataclasses.replace(self.spec.motor, current_limit_a=limit_a)
+
+    def _set_counts_per_rev(self, counts: int) -> None:
+        self._counts_per_rev = counts
+        motor = dataclasses.replace(self.spec.motor, encoder_counts_per_rev=counts)
+        self._resolution = joint_resolution(motor)
+
+    # ------------------------------------------------------------------- SDO callbacks
+
+    def _parameter_objects(self) -> tuple[dict[tuple[int, int], Reader],
+                                          dict[tuple[int, int], Writer]]:
+        readers: dict[tuple[int, int], Reader] = {
+            (0x1016, 1): lambda: self._consumer,
+            (0x1017, 0): lambda: self._heartbeat_ms,
+            (0x1018, 4): lambda: self.spec.serial_number,
+            (0x2001, 0): lambda: self._max_voltage_mv,
+            (0x2002, 0): lambda: self._current_limit_ma,
+            (0x2003, 0): lambda: self._watchdog_ms,
+            (0x2004, 0): lambda: self._counts_per_rev,
+            (0x2005, 0): lambda: self._tpdo2_refresh,
+        }
+        writers: dict[tuple[int, int], Writer] = {
+            (0x1006, 0): lambda value: None,  # communication cycle period: informative
+            (0x6060, 0): lambda value: None,  # the EDS limits it to −1
+            (0x1016, 1): self._write_consumer,
+            (0x1017, 0): self._write_heartbeat_period,
+            (0x2002, 0): self._write_current_limit,
+            (0x2003, 0): self._write_watchdog,
+            (0x2004, 0): self._write_counts_per_rev,
+            (0x2005, 0): self._write_tpdo2_refresh,
+        }
+        return readers, writers
+
+    def _od_read(self, index: int, subindex: int, od: Any, **_: Any) -> int | None:
+        reader = self._readers.get((index, subindex))
+        return reader() if reader is not None else None
+
+    def _od_write(self, index: int, subindex: int, od: Any, data: bytes, **_: Any) -> None:
+        value = od.decode_raw(data)
+        if not isinstance(value, int):
+            raise SdoAbortedError(SdoAbort.VALUE_RANGE)
+        if od.min is not None and value < od.min:
+            raise SdoAbortedError(SdoAbort.VALUE_TOO_LOW)
+        if od.max is not None and value > od.max:
+            raise SdoAbortedError(SdoAbort.VALUE_TOO_HIGH)
+        writer = self._writers.get((index, subindex))
+        if writer is not None:
+            writer(value)
+        elif value != od.decode_raw(self._od.get_data(index, subindex)):
+            raise SdoAbortedError(SdoAbort.VALUE_RANGE)  # fixed in this drive
+
+    def _require_not_enabled(self) -> None:
+        if self.state is DriveState.OPERATION_ENABLED:
+            raise SdoAbortedError(SdoAbort.DEVICE_STATE)
+
+    def _write_consumer(self, value: int) -> None:
+        self._consumer, self._heartbeat_seen_s, self._heartbeat_lost = value, None, False
+
+    def _write_heartbeat_period(self, value: int) -> None:
+        self._heartbeat_ms, self._next_heartbeat_s = value, self._now_s + value * 0.001
+
+    def _write_current_limit(self, value: int) -> None:
+        self._require_not_enabled()
+        if value > self._hardware_limit_ma():
+            raise SdoAbortedError(SdoAbort.VALUE_TOO_HIGH)
+        if value < 1:
+            raise SdoAbortedError(SdoAbort.VALUE_TOO_LOW)
+        self._set_current_limit_ma(value)
+
+    def _write_watchdog(self, value: int) -> None:
+        self._watchdog_ms = value
+
+    def _write_counts_per_rev(self, value: int) -> None:
+        self._require_not_enabled()
+        if value > MAX_COUNTS_PER_REV:
+            raise SdoAbortedError(SdoAbort.VALUE_TOO_HIGH)
+        self._set_counts_per_rev(value)
+
+    def _write_tpdo2_refresh(self, value: int) -> None:
+        self._tpdo2_refresh = value
