@@ -14,7 +14,7 @@ from rakectl.config.declare import Bounds, has_default, section, setting
 from rakectl.core.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, MotorParams
 from rakectl.limits import FORCE_LIMIT_N
 
-__all__ = ["Bounds", "has_default", "section", "setting"]  # re-exported declaration helpers
+__all__ = ["Bounds", "has_default", "section", "setting"]  # re-exported declaration functions
 
 
 # --------------------------------------------------------------------------- kinds

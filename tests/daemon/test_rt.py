@@ -1,4 +1,4 @@
-"""Real-time set-up: ENFORCE raises named errors, IGNORE warns, OFF does nothing; GC helpers.
+"""Real-time set-up: ENFORCE raises named errors, IGNORE warns, OFF does nothing; the GC switches.
 
 The full set-up (SCHED_FIFO, mlockall, …) runs in a child process; in this
 process only steps that are reverted at once run, and every test checks that
