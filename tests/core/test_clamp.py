@@ -21,7 +21,8 @@ from hypothesis import strategies as st
 from drivers.arm import ArmParams, gravity_joint_loads, joint_masses
 from rakectl.config.settings import ClampSettings, GeometrySettings
 from rakectl.core import kinematics
-from rakectl.core.clamp import SAMPLING_MARGIN, VoltageClamp
+from rakectl.core.clamp import VoltageClamp
+from rakectl.core.envelope import SAMPLING_MARGIN
 from rakectl.core.motor_model import (
     R_MOTOR_DEFAULT,
     THETA_MOTOR_DEFAULT,
