@@ -1,7 +1,7 @@
 """The drives' bring-up over CANopen (blocking, once before the loop).
 
-Bring-up (:meth:`DriveClient.bring_up`, blocking, run once before the loop):
-a ``canopen.Network`` on the injected bus whose listeners are fed by a
+Bring-up (:meth:`DriveClient.bring_up` through :func:`run_bring_up`, blocking, run once
+before the loop): a ``canopen.Network`` on the injected bus whose listeners are fed by a
 *temporary* ``can.Notifier``, stopped and joined before bring-up returns: no
 thread survives it. :class:`BringUp` does the work through the network alone,
 so a test can run it on a bus-less network without any thread. For each drive
@@ -224,3 +224,18 @@ class BringUp:
             raise DriveFault(f"{label}: SDO error {what}: {error}") from error
         except can.CanError as error:
             raise BusError(f"{label}: bus error {what}: {error}") from error
+
+
+def run_bring_up(bus: can.BusABC, drives: DrivesSettings, motors: MotorsSettings,
+                 boot_timeout_s: float) -> tuple[DriveInfo, DriveInfo]:
+    """:class:`BringUp` on a ``canopen.Network`` over ``bus``, fed by a temporary
+    ``can.Notifier`` that is stopped and joined before this returns (the module docstring)."""
+    network = canopen.Network(bus)
+    sequence = BringUp(network, drives, motors, boot_timeout_s)
+    notifier = can.Notifier(bus, network.listeners, timeout=NOTIFIER_POLL_S)
+    try:
+        infos = sequence.run()
+    finally:
+        notifier.stop(NOTIFIER_JOIN_S)
+        sequence.close()
+    return infos

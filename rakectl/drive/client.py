@@ -22,10 +22,11 @@ the start of tick k+1. There is no round trip inside a tick.
   state and the time it was seen (a BOOT_UP after bring-up latches a fault: the
   drive lost its configuration). A frame of the wrong length, undecodable
   content, an unknown ID, an echo of the controller's own frames (udp_multicast),
-  an error frame (socketcan) or a receive error is counted in :class:`Stats`,
-  never raised. A drive whose TPDO1 did not arrive after a SYNC gets one more
-  stale cycle; TPDO1 carries no SYNC counter, so the counter recorded with it is
-  the last SYNC sent before the drain (right while TPDO1 latency < one period).
+  an error frame (socketcan) or a receive error is counted in
+  :class:`~rakectl.drive.health.Stats`, never raised. A drive whose TPDO1 did not
+  arrive after a SYNC gets one more stale cycle; TPDO1 carries no SYNC counter, so
+  the counter recorded with it is the last SYNC sent before the drain (right while
+  TPDO1 latency < one period).
 - :meth:`DriveClient.send` converts the voltages with
   :func:`rakectl.protocol.codec.voltage_v_to_mv` (rounds, saturates at ±32.767 V) and
   packs both RPDO1s into preallocated messages with each drive's controlword.
@@ -45,8 +46,9 @@ the start of tick k+1. There is no round trip inside a tick.
   always says ACTIVE); virtual raises only for a closed bus or a full bounded
   queue; udp_multicast raises ``CanOperationError``/``CanTimeoutError`` for socket errors.
 
-Supervision, cheap, each tick: :meth:`drive_faults`, :meth:`stale_feedback`,
-:meth:`heartbeat_lost`; :meth:`describe_problems` words them off the hot path.
+Supervision, cheap, each tick (:class:`~rakectl.drive.health.DriveSupervision`):
+:meth:`drive_faults`, :meth:`stale_feedback`, :meth:`heartbeat_lost`;
+:meth:`describe_problems` words them off the hot path.
 :meth:`command` sets the controlword sent from then on; a fault reset sends 0,
 then 0x80 (the rising edge of bit 7). :meth:`stop_all` sends 0 V with
 DISABLE_VOLTAGE to both drives and a SYNC at once (fault, SIGTERM);
@@ -56,22 +58,20 @@ DISABLE_VOLTAGE to both drives and a SYNC at once (fault, SIGTERM);
 from __future__ import annotations
 
 import array
-import math
 import time
 from collections.abc import Callable
 
 import can
-import canopen
 
 from rakectl.config.settings import DrivesSettings, MotorsSettings
 from rakectl.core.motor_model import joint_per_motor_rad, joint_resolution
-from rakectl.drive.bringup import NOTIFIER_JOIN_S, NOTIFIER_POLL_S, BringUp
+from rakectl.drive.bringup import run_bring_up
 from rakectl.drive.canbus import TraceRecorder
+from rakectl.drive.health import DriveSupervision, Feedback, Stats
 from rakectl.drive.joints import (
     JOINTS,
     DriveInfo,
     Joint,
-    drive_label,
     motor_of,
     node_ids,
     own_ids,
@@ -85,7 +85,6 @@ from rakectl.protocol.codec import (
     SYNC_COB_ID,
     TPDO1_SIZE,
     TPDO2_SIZE,
-    Emcy,
     EmcyCode,
     FunctionCode,
     NmtCommand,
@@ -96,7 +95,6 @@ from rakectl.protocol.codec import (
     decode_heartbeat,
     decode_tpdo1,
     decode_tpdo2,
-    emcy_code,
     encode_heartbeat,
     encode_nmt,
     next_sync_counter,
@@ -112,73 +110,6 @@ LATENCY_RING = 65536  # SYNC → TPDO1 latencies kept for the benchmark
 # =========================================================================== hot path
 
 
-class Feedback:
-    """What the drives reported, updated in place by :meth:`DriveClient.receive`.
-
-    Joint values are NaN until the first TPDO1; per-drive lists are indexed by
-    :class:`Joint`. ``sync_counter`` is the SYNC the last TPDO1 answered (see the
-    module docstring), 0 before the first.
-    """
-
-    __slots__ = ("current_r_a", "current_theta_a", "error_register", "last_emcy", "nmt_state",
-                 "r_m", "r_vel_m_per_s", "stale_cycles", "state", "statusword", "sync_counter",
-                 "theta_rad", "theta_vel_rad_per_s")
-
-    def __init__(self) -> None:
-        self.r_m = math.nan
-        self.theta_rad = math.nan
-        self.r_vel_m_per_s = math.nan
-        self.theta_vel_rad_per_s = math.nan
-        self.current_r_a = math.nan
-        self.current_theta_a = math.nan
-        self.state: list[DriveState | None] = [None, None]
-        self.statusword = [0, 0]
-        self.error_register = [0, 0]
-        self.stale_cycles = [0, 0]
-        self.sync_counter = [0, 0]
-        self.last_emcy: list[Emcy | None] = [None, None]
-        self.nmt_state: list[NmtState | None] = [None, None]
-
-
-class Stats:
-    """Counters of the hot path; per-drive lists are indexed by :class:`Joint`."""
-
-    __slots__ = ("bus_off_frames", "emcy_received", "error_frames", "frames_bad_length",
-                 "frames_invalid", "frames_own", "frames_unknown", "heartbeats_received",
-                 "receive_errors", "send_errors", "sends", "syncs", "ticks", "tpdo2_received",
-                 "tpdo_late", "tpdo_missed", "tpdo_received")
-
-    def __init__(self) -> None:
-        self.ticks = 0  # receive() calls
-        self.syncs = 0
-        self.tpdo_received = [0, 0]  # TPDO1
-        self.tpdo_missed = [0, 0]  # SYNC cycles without a TPDO1
-        self.tpdo_late = [0, 0]  # extra TPDO1s in one drain: one came a cycle late
-        self.tpdo2_received = [0, 0]
-        self.frames_bad_length = 0
-        self.frames_invalid = 0  # right length, undecodable content (FrameError)
-        self.frames_unknown = 0
-        self.frames_own = 0  # echoes of the controller's own frames (udp_multicast)
-        self.error_frames = 0
-        self.bus_off_frames = 0
-        self.emcy_received = 0
-        self.heartbeats_received = 0
-        self.receive_errors = 0
-        self.sends = 0  # frames sent successfully
-        self.send_errors = 0
-
-    def as_dict(self) -> dict[str, int]:
-        """Flat copy for a summary log line (off the hot path)."""
-        flat: dict[str, int] = {}
-        for name in sorted(self.__slots__):
-            value = getattr(self, name)
-            if isinstance(value, list):
-                flat |= {f"{name}_{joint.name.lower()}": value[joint] for joint in JOINTS}
-            else:
-                flat[name] = value
-        return flat
-
-
 _TPDO1, _TPDO2, _EMCY, _HEARTBEAT, _OWN = range(5)
 
 
@@ -186,7 +117,7 @@ def _new_message(can_id: int, size: int) -> can.Message:
     return can.Message(arbitration_id=can_id, is_extended_id=False, data=bytearray(size))
 
 
-class DriveClient:
+class DriveClient(DriveSupervision):
     """Both drives over one injected bus; see the module docstring for the tick protocol."""
 
     def __init__(self, bus: can.BusABC, drives: DrivesSettings, motors: MotorsSettings,
@@ -242,15 +173,8 @@ class DriveClient:
     # ------------------------------------------------------------------- bring-up
 
     def bring_up(self, boot_timeout_s: float = 2.0) -> tuple[DriveInfo, DriveInfo]:
-        """Configure, verify and start both drives (blocking; see the module docstring)."""
-        network = canopen.Network(self._bus)
-        sequence = BringUp(network, self._drives, self._motors, boot_timeout_s)
-        notifier = can.Notifier(self._bus, network.listeners, timeout=NOTIFIER_POLL_S)
-        try:
-            infos = sequence.run()
-        finally:
-            notifier.stop(NOTIFIER_JOIN_S)
-            sequence.close()
+        """Configure, verify and start both drives (blocking; see rakectl.drive.bringup)."""
+        infos = run_bring_up(self._bus, self._drives, self._motors, boot_timeout_s)
         self.infos = infos
         self._heard_s = [self._clock(), self._clock()]
         self._rebooted = [False, False]
@@ -486,43 +410,3 @@ class DriveClient:
                 msg = can.Message(arbitration_id=NMT_COB_ID, is_extended_id=False,
                                   data=encode_nmt(NmtCommand.STOP, node))
                 self._transmit(msg)
-
-    # ------------------------------------------------------------------- supervision
-
-    def drive_faults(self) -> bool:
-        """A drive is in FAULT (or its reaction), has an active EMCY, or rebooted."""
-        return self._fault[0] or self._fault[1]
-
-    def stale_feedback(self, limit_cycles: int) -> bool:
-        """A drive's TPDO1 has been missing for ``limit_cycles`` SYNC cycles or more."""
-        stale = self.feedback.stale_cycles
-        return stale[0] >= limit_cycles or stale[1] >= limit_cycles
-
-    def heartbeat_lost(self, now_s: float) -> bool:
-        """A drive's heartbeat is older than the heartbeat timeout at ``now_s`` (same clock).
-
-        Before the first heartbeat the reference is construction, or the end of bring-up.
-        """
-        heard, timeout = self._heard_s, self._heartbeat_timeout_s
-        return now_s - heard[0] > timeout or now_s - heard[1] > timeout
-
-    def describe_problems(self, now_s: float, limit_cycles: int) -> list[str]:
-        """One line per problem the supervision helpers see (off the hot path)."""
-        problems = []
-        fb = self.feedback
-        for joint, node in zip(JOINTS, node_ids(self._drives), strict=True):
-            label = drive_label(joint, node)
-            if self._state_fault[joint]:
-                problems.append(f"{label}: state {fb.state[joint]}")
-            emcy = fb.last_emcy[joint]
-            if self._emcy_fault[joint] and emcy is not None:
-                known = emcy_code(emcy.code)
-                problems.append(f"{label}: EMCY 0x{emcy.code:04X} {known.name if known else '?'}, "
-                                f"error register 0x{emcy.error_register:02X}")
-            if self._rebooted[joint]:
-                problems.append(f"{label}: rebooted (boot-up heartbeat): bring-up needed")
-            if fb.stale_cycles[joint] >= limit_cycles:
-                problems.append(f"{label}: no TPDO1 for {fb.stale_cycles[joint]} cycles")
-            if now_s - self._heard_s[joint] > self._heartbeat_timeout_s:
-                problems.append(f"{label}: no heartbeat for {now_s - self._heard_s[joint]:.3f} s")
-        return problems

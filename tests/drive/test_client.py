@@ -47,7 +47,7 @@ MOTORS = MotorsSettings()
 R_NODE, THETA_NODE = DRIVES.r_node_id, DRIVES.theta_node_id
 
 
-# =========================================================================== helpers
+# =========================================================================== builders
 
 
 class FakeBus(can.BusABC):

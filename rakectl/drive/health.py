@@ -1,0 +1,141 @@
+"""What the controller knows of the two drives, and the checks over it: the records
+:class:`~rakectl.drive.client.DriveClient` fills in on its hot path (:class:`Feedback`,
+:class:`Stats`) and :class:`DriveSupervision`, its supervision checks and their wording.
+
+Kept apart from rakectl.drive.client, which stays the bus-facing part (set-up,
+receive, send, SYNC, commands): the checks only read the per-drive fault flags and
+heartbeat times its receive path keeps.
+"""
+
+from __future__ import annotations
+
+import math
+
+from rakectl.config.settings import DrivesSettings
+from rakectl.drive.joints import JOINTS, drive_label, node_ids
+from rakectl.protocol.cia402 import DriveState
+from rakectl.protocol.codec import Emcy, NmtState, emcy_code
+
+
+class Feedback:
+    """What the drives reported, updated in place by
+    :meth:`~rakectl.drive.client.DriveClient.receive`.
+
+    Joint values are NaN until the first TPDO1; per-drive lists are indexed by
+    :class:`~rakectl.drive.joints.Joint`. ``sync_counter`` is the SYNC the last TPDO1
+    answered (see rakectl.drive.client's docstring), 0 before the first.
+    """
+
+    __slots__ = ("current_r_a", "current_theta_a", "error_register", "last_emcy", "nmt_state",
+                 "r_m", "r_vel_m_per_s", "stale_cycles", "state", "statusword", "sync_counter",
+                 "theta_rad", "theta_vel_rad_per_s")
+
+    def __init__(self) -> None:
+        self.r_m = math.nan
+        self.theta_rad = math.nan
+        self.r_vel_m_per_s = math.nan
+        self.theta_vel_rad_per_s = math.nan
+        self.current_r_a = math.nan
+        self.current_theta_a = math.nan
+        self.state: list[DriveState | None] = [None, None]
+        self.statusword = [0, 0]
+        self.error_register = [0, 0]
+        self.stale_cycles = [0, 0]
+        self.sync_counter = [0, 0]
+        self.last_emcy: list[Emcy | None] = [None, None]
+        self.nmt_state: list[NmtState | None] = [None, None]
+
+
+class Stats:
+    """Counters of the hot path; per-drive lists are indexed by
+    :class:`~rakectl.drive.joints.Joint`."""
+
+    __slots__ = ("bus_off_frames", "emcy_received", "error_frames", "frames_bad_length",
+                 "frames_invalid", "frames_own", "frames_unknown", "heartbeats_received",
+                 "receive_errors", "send_errors", "sends", "syncs", "ticks", "tpdo2_received",
+                 "tpdo_late", "tpdo_missed", "tpdo_received")
+
+    def __init__(self) -> None:
+        self.ticks = 0  # receive() calls
+        self.syncs = 0
+        self.tpdo_received = [0, 0]  # TPDO1
+        self.tpdo_missed = [0, 0]  # SYNC cycles without a TPDO1
+        self.tpdo_late = [0, 0]  # extra TPDO1s in one drain: one came a cycle late
+        self.tpdo2_received = [0, 0]
+        self.frames_bad_length = 0
+        self.frames_invalid = 0  # right length, undecodable content (FrameError)
+        self.frames_unknown = 0
+        self.frames_own = 0  # echoes of the controller's own frames (udp_multicast)
+        self.error_frames = 0
+        self.bus_off_frames = 0
+        self.emcy_received = 0
+        self.heartbeats_received = 0
+        self.receive_errors = 0
+        self.sends = 0  # frames sent successfully
+        self.send_errors = 0
+
+    def as_dict(self) -> dict[str, int]:
+        """Flat copy for a summary log line (off the hot path)."""
+        flat: dict[str, int] = {}
+        for name in sorted(self.__slots__):
+            value = getattr(self, name)
+            if isinstance(value, list):
+                flat |= {f"{name}_{joint.name.lower()}": value[joint] for joint in JOINTS}
+            else:
+                flat[name] = value
+        return flat
+
+
+class DriveSupervision:
+    """The supervision of :class:`~rakectl.drive.client.DriveClient`, a base of it: cheap
+    checks run each tick and, off the hot path, their wording.
+
+    The attributes below are the client's: its receive path keeps them up to date.
+    """
+
+    feedback: Feedback
+    _drives: DrivesSettings
+    _heartbeat_timeout_s: float
+    _heard_s: list[float]  # when each drive's heartbeat was last seen (the client's clock)
+    _state_fault: list[bool]  # in FAULT or FAULT_REACTION_ACTIVE
+    _emcy_fault: list[bool]  # an EMCY other than NO_ERROR is active
+    _rebooted: list[bool]  # a boot-up heartbeat came after bring-up
+    _fault: list[bool]  # any of the three
+
+    def drive_faults(self) -> bool:
+        """A drive is in FAULT (or its reaction), has an active EMCY, or rebooted."""
+        return self._fault[0] or self._fault[1]
+
+    def stale_feedback(self, limit_cycles: int) -> bool:
+        """A drive's TPDO1 has been missing for ``limit_cycles`` SYNC cycles or more."""
+        stale = self.feedback.stale_cycles
+        return stale[0] >= limit_cycles or stale[1] >= limit_cycles
+
+    def heartbeat_lost(self, now_s: float) -> bool:
+        """A drive's heartbeat is older than the heartbeat timeout at ``now_s`` (same clock).
+
+        Before the first heartbeat the reference is construction, or the end of bring-up.
+        """
+        heard, timeout = self._heard_s, self._heartbeat_timeout_s
+        return now_s - heard[0] > timeout or now_s - heard[1] > timeout
+
+    def describe_problems(self, now_s: float, limit_cycles: int) -> list[str]:
+        """One line per problem the supervision checks see (off the hot path)."""
+        problems = []
+        fb = self.feedback
+        for joint, node in zip(JOINTS, node_ids(self._drives), strict=True):
+            label = drive_label(joint, node)
+            if self._state_fault[joint]:
+                problems.append(f"{label}: state {fb.state[joint]}")
+            emcy = fb.last_emcy[joint]
+            if self._emcy_fault[joint] and emcy is not None:
+                known = emcy_code(emcy.code)
+                problems.append(f"{label}: EMCY 0x{emcy.code:04X} {known.name if known else '?'}, "
+                                f"error register 0x{emcy.error_register:02X}")
+            if self._rebooted[joint]:
+                problems.append(f"{label}: rebooted (boot-up heartbeat): bring-up needed")
+            if fb.stale_cycles[joint] >= limit_cycles:
+                problems.append(f"{label}: no TPDO1 for {fb.stale_cycles[joint]} cycles")
+            if now_s - self._heard_s[joint] > self._heartbeat_timeout_s:
+                problems.append(f"{label}: no heartbeat for {now_s - self._heard_s[joint]:.3f} s")
+        return problems
