@@ -1,11 +1,12 @@
 """An emulated drive's object dictionary: its identity, its parameters and the SDO server.
 
 :class:`DriveObjects` holds the parameters a drive acts on (heartbeat producer
-0x1017 and consumer 0x1016, maximum voltage 0x2001, current limit 0x2002,
-command watchdog 0x2003, encoder resolution 0x2004, TPDO2 refresh 0x2005),
-their power-on values bounded by the hardware, and serves them over SDO. The
-protocol behaviour (NMT, SYNC, PDOs, CiA 402, faults) is its subclass
-:class:`drivers.node.DriveNode`, which adds the live objects (0x6041, 0x6064 …).
+0x1017 and consumer 0x1016, SYNC counter overflow 0x1019, maximum voltage
+0x2001, current limit 0x2002, command watchdog 0x2003, encoder resolution
+0x2004, TPDO2 refresh 0x2005), their power-on values bounded by the
+hardware, and serves them over SDO. The protocol behaviour (NMT, SYNC, PDOs,
+CiA 402, faults) is its subclass :class:`drivers.node.DriveNode`, which adds
+the live objects (0x6041, 0x6064 …).
 
 SDO. canopen's ``LocalNode`` over the drive type's EDS is the SDO server: the
 drive passes each 8-byte request to ``Network.notify`` of a never-connected
@@ -16,7 +17,9 @@ Live objects are served by a read callback; a write callback checks the EDS's
 LowLimit/HighLimit and the drive's own bounds and rejects a write by raising
 ``SdoAbortedError`` (canopen answers with that abort code and stores
 nothing): 0x2001 ≤ the supply, 0x2002 in 1 … the hardware current limit and
-0x2004 only while not OPERATION_ENABLED (0x08000022), 0x6060 only −1. Other
+0x2004 only while not OPERATION_ENABLED (0x08000022), 0x6060 only −1,
+0x1019 (SYNC counter overflow: 0 = no counter, 2 … 240) only outside
+OPERATIONAL (0x08000022; 1 or above 240: 0x06090030). Other
 writable communication objects (COB-IDs, transmission types) are fixed in this
 drive: writing their present value succeeds, any other value aborts. Identity
 0x1018: product code from the EDS, serial number from the configuration.
@@ -37,7 +40,7 @@ from canopen import SdoAbortedError
 
 from rakectl.core.motor_model import MotorParams, joint_resolution
 from rakectl.protocol.cia402 import DriveState
-from rakectl.protocol.codec import FunctionCode, cob_id
+from rakectl.protocol.codec import SYNC_COUNTER_MAX, FunctionCode, NmtState, cob_id
 from rakectl.protocol.files import EDS_DIR
 
 Frame = tuple[int, bytes | bytearray]
@@ -104,6 +107,7 @@ class DriveObjects:
     """A drive's parameters and its SDO server; see the module docstring."""
 
     state: DriveState  # CiA 402, owned by the subclass (some writes need it disabled)
+    nmt: NmtState  # owned by the subclass (0x1019 is written in PRE-OPERATIONAL)
     motor_params: MotorParams  # the hardware with the current limit of 0x2002
     _heartbeat_ms: int
     _next_heartbeat_s: float
@@ -116,6 +120,7 @@ class DriveObjects:
     _counts_per_rev: int
     _resolution: float
     _tpdo2_refresh: int
+    _sync_overflow: int  # 0x1019: 0 = SYNC without counter, else the counter's top
 
     def __init__(self, spec: DriveSpec) -> None:
         self.spec, self.node_id = spec, spec.node_id
@@ -158,7 +163,7 @@ class DriveObjects:
         motor, default = self.spec.motor, self._eds_default
         return {
             0x1016: default(0x1016, 1) & 0xFFFF | self.spec.controller_node_id << 16,
-            0x1017: default(0x1017),
+            0x1017: default(0x1017), 0x1019: default(0x1019),
             0x2001: min(default(0x2001), round(motor.supply_voltage_v * 1000)),
             0x2002: min(default(0x2002), self._hardware_limit_ma()),
             0x2003: default(0x2003), 0x2004: motor.encoder_counts_per_rev,
@@ -182,6 +187,7 @@ class DriveObjects:
         for index in [i for i in self._od.data_store if i in _COMM_RANGE]:
             del self._od.data_store[index]
         self._heartbeat_ms, self._consumer = self._power_on[0x1017], self._power_on[0x1016]
+        self._sync_overflow = self._power_on[0x1019]
         self._next_heartbeat_s = now_s + self._heartbeat_ms * 0.001
         self._heartbeat_seen_s = None
         self._heartbeat_lost = False
@@ -203,6 +209,7 @@ class DriveObjects:
         readers: dict[tuple[int, int], Reader] = {
             (0x1016, 1): lambda: self._consumer,
             (0x1017, 0): lambda: self._heartbeat_ms,
+            (0x1019, 0): lambda: self._sync_overflow,
             (0x1018, 4): lambda: self.spec.serial_number,
             (0x2001, 0): lambda: self._max_voltage_mv,
             (0x2002, 0): lambda: self._current_limit_ma,
@@ -215,6 +222,7 @@ class DriveObjects:
             (0x6060, 0): lambda value: None,  # the EDS limits it to −1
             (0x1016, 1): self._write_consumer,
             (0x1017, 0): self._write_heartbeat_period,
+            (0x1019, 0): self._write_sync_overflow,
             (0x2002, 0): self._write_current_limit,
             (0x2003, 0): self._write_watchdog,
             (0x2004, 0): self._write_counts_per_rev,
@@ -249,6 +257,13 @@ class DriveObjects:
 
     def _write_heartbeat_period(self, value: int) -> None:
         self._heartbeat_ms, self._next_heartbeat_s = value, self._now_s + value * 0.001
+
+    def _write_sync_overflow(self, value: int) -> None:
+        if self.nmt is NmtState.OPERATIONAL:  # CiA 301: not while SYNCs are consumed
+            raise SdoAbortedError(SdoAbort.DEVICE_STATE)
+        if value == 1 or value > SYNC_COUNTER_MAX:
+            raise SdoAbortedError(SdoAbort.VALUE_RANGE)
+        self._sync_overflow = value
 
     def _write_current_limit(self, value: int) -> None:
         self._require_not_enabled()

@@ -55,7 +55,7 @@ from drivers.settings import EmulatorConfig, TimingMode
 from drivers.stats import BadInput, InputStats
 from rakectl.core.kinematics import Workspace
 from rakectl.core.motor_model import MotorParams, joint_per_motor_rad
-from rakectl.protocol.codec import SYNC_COB_ID, SYNC_COUNTER_MAX, EmcyCode
+from rakectl.protocol.codec import SYNC_COB_ID, EmcyCode
 
 REPORT_INTERVAL_S: Final = 0.25  # how often counters are checked for the rate-limited log
 LOG_INTERVAL_S: Final = 1.0  # at most one log event per kind per this
@@ -267,7 +267,7 @@ class Emulator:
                                   - (self.stats.physics_s - physics_before_s))
 
     def _on_sync(self, data: bytearray, now_s: float) -> None:
-        valid = len(data) == 1 and 1 <= data[0] <= SYNC_COUNTER_MAX
+        valid = any(node.takes_sync(data) for node in self.nodes)  # 0x1019 sets the length
         if valid and not self._lockstep:
             self._catch_up(now_s, at_sync=True)
         for node in self.nodes:
@@ -276,7 +276,8 @@ class Emulator:
         if not valid:
             return  # the drives count it
         self.stats.syncs += 1
-        self.sync_counter, self._last_sync_s, self._free_running = data[0], now_s, False
+        self.sync_counter = data[0] if data else 0
+        self._last_sync_s, self._free_running = now_s, False
         if self._lockstep:
             self._anchor_s = now_s
             self._step_physics(1)

@@ -37,7 +37,6 @@ from rakectl.protocol.codec import (
     NMT_COB_ID,
     RPDO1_SIZE,
     SYNC_COB_ID,
-    SYNC_COUNTER_MAX,
     EmcyCode,
     FunctionCode,
     NmtCommand,
@@ -85,6 +84,7 @@ class DriveNode(DriveObjects):
     _last_rpdo_s: float
     _last_sync_s: float
     _last_counter: int
+    _sync_length_error: bool  # in a run of SYNCs of the wrong length (one EMCY a run)
     _overcurrent_s: float
 
     def __init__(self, spec: DriveSpec) -> None:
@@ -197,18 +197,27 @@ class DriveNode(DriveObjects):
         self.stats.bad.count(kind, can_id, data)
         return NO_FRAMES
 
+    def takes_sync(self, data: bytes | bytearray) -> bool:
+        """Whether this drive acts on a SYNC with these data (0x1019 sets its length)."""
+        overflow = self._sync_overflow
+        if overflow:
+            return len(data) == 1 and 1 <= data[0] <= overflow
+        return not data
+
     def _on_sync(self, can_id: int, data: bytes | bytearray, now_s: float) -> Sequence[Frame]:
-        if len(data) != 1:
-            return self._bad(BadInput.WRONG_LENGTH, can_id, data)
-        counter = data[0]
-        if not 1 <= counter <= SYNC_COUNTER_MAX:
+        overflow = self._sync_overflow
+        if len(data) != (1 if overflow else 0):
+            return self._sync_length_mismatch(can_id, data)
+        self._sync_length_error = False
+        counter = data[0] if overflow else 0
+        if overflow and not 1 <= counter <= overflow:
             return self._bad(BadInput.BAD_VALUE, can_id, data)
         if self.nmt is not NmtState.OPERATIONAL:
             return NO_FRAMES
         stats = self.stats
         stats.syncs += 1
-        if self._last_counter:
-            stats.lost_syncs += lost_syncs(self._last_counter, counter)
+        if self._last_counter and counter:
+            stats.lost_syncs += lost_syncs(self._last_counter, counter, overflow)
         self._last_counter = counter
         out = [self._sample()]
         self._check_watchdog(now_s, out)
@@ -223,6 +232,17 @@ class DriveNode(DriveObjects):
                 stats.syncs % self._tpdo2_refresh == 0):
             out.append(self._tpdo2_frame())
         return out
+
+    def _sync_length_mismatch(self, can_id: int, data: bytes | bytearray) -> Sequence[Frame]:
+        """Ignored and counted; the first of a run sends EMCY 0x8240 (as CANopenNode does)."""
+        self.stats.bad.count(BadInput.WRONG_LENGTH, can_id, data)
+        if self._sync_length_error or self.nmt not in _SDO_STATES:
+            return NO_FRAMES
+        self._sync_length_error = True
+        code = EmcyCode.SYNC_DATA_LENGTH
+        self.stats.emcys += 1
+        return [(self._ids[FunctionCode.EMCY],
+                 encode_emcy(code, self._register() | _REGISTER[code]))]
 
     def _on_rpdo(self, can_id: int, data: bytes | bytearray, now_s: float) -> Sequence[Frame]:
         if len(data) != RPDO1_SIZE:
@@ -408,7 +428,7 @@ class DriveNode(DriveObjects):
 
     def _power_on_communication(self, now_s: float) -> None:
         self._restore_communication(now_s)
-        self._last_counter = 0
+        self._last_counter, self._sync_length_error = 0, False
 
     # ------------------------------------------------------------------- live objects
 

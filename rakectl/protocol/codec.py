@@ -292,9 +292,9 @@ def next_sync_counter(counter: int) -> int:
     return counter % SYNC_COUNTER_MAX + 1
 
 
-def lost_syncs(previous: int, current: int) -> int:
-    """SYNCs missed between two received counters (0 when consecutive; modulo 240)."""
-    return (current - previous - 1) % SYNC_COUNTER_MAX
+def lost_syncs(previous: int, current: int, overflow: int = SYNC_COUNTER_MAX) -> int:
+    """SYNCs missed between two received counters (0 when consecutive; counting 1 … overflow)."""
+    return (current - previous - 1) % overflow
 
 
 # --------------------------------------------------------------------------- NMT and heartbeat
@@ -378,9 +378,10 @@ class ErrorRegister(enum.IntFlag):
 class EmcyCode(enum.IntEnum):
     """EMCY error codes the emulated drives send: CiA 301/402 codes where one fits, else 0xFFxx.
 
-    Each is a fault: the drive applies 0 V and goes through FAULT_REACTION_ACTIVE
-    to FAULT (CiA 402 transitions 13, 14), stores the code in 0x603F and sends
-    the EMCY. After a fault reset it sends NO_ERROR with error register 0.
+    Each is a fault but INVALID_COMMAND and SYNC_DATA_LENGTH (warnings): the drive
+    applies 0 V and goes through FAULT_REACTION_ACTIVE to FAULT (CiA 402
+    transitions 13, 14), stores the code in 0x603F and sends the EMCY. After a
+    fault reset it sends NO_ERROR with error register 0.
     """
 
     NO_ERROR = 0x0000  # error reset (CiA 301)
@@ -389,6 +390,7 @@ class EmcyCode(enum.IntEnum):
     SUPPLY_UNDER_VOLTAGE = 0x3220  # DC link under-voltage (CiA 402)
     ENCODER_FAULT = 0x7305  # incremental sensor 1 fault (CiA 402)
     HEARTBEAT_LOST = 0x8130  # controller heartbeat missed for 0x1016 (CiA 301)
+    SYNC_DATA_LENGTH = 0x8240  # a SYNC whose length does not follow 0x1019 (CiA 301; a warning)
     COMMAND_WATCHDOG_TIMEOUT = 0x8250  # no RPDO1 for 0x2003 ms: RPDO timeout (CiA 301)
     HARD_STOP_HIT = 0xFF01  # manufacturer-specific: the joint hit its mechanical stop
     INVALID_COMMAND = 0xFF02  # manufacturer-specific: |voltage| > 0x2001, or a bad mode
@@ -401,6 +403,7 @@ EMCY_ERROR_REGISTER: Final[Mapping[EmcyCode, ErrorRegister]] = MappingProxyType(
     EmcyCode.SUPPLY_UNDER_VOLTAGE: ErrorRegister.GENERIC | ErrorRegister.VOLTAGE,
     EmcyCode.ENCODER_FAULT: ErrorRegister.GENERIC | ErrorRegister.DEVICE_PROFILE,
     EmcyCode.HEARTBEAT_LOST: ErrorRegister.GENERIC | ErrorRegister.COMMUNICATION,
+    EmcyCode.SYNC_DATA_LENGTH: ErrorRegister.GENERIC | ErrorRegister.COMMUNICATION,
     EmcyCode.COMMAND_WATCHDOG_TIMEOUT: ErrorRegister.GENERIC | ErrorRegister.COMMUNICATION,
     EmcyCode.HARD_STOP_HIT: ErrorRegister.GENERIC | ErrorRegister.MANUFACTURER,
     EmcyCode.INVALID_COMMAND: ErrorRegister.GENERIC | ErrorRegister.MANUFACTURER,

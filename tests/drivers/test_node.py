@@ -382,7 +382,6 @@ def test_tpdo2_refreshes_on_every_100th_sync(drive: Bench) -> None:
 # ----------------------------------------------------------------------------- bad input
 
 BAD_FRAMES = [
-    (codec.SYNC_COB_ID, b"", BadInput.WRONG_LENGTH),
     (codec.SYNC_COB_ID, b"\x00", BadInput.BAD_VALUE),
     (codec.SYNC_COB_ID, b"\xf1", BadInput.BAD_VALUE),
     (codec.NMT_COB_ID, b"\x01", BadInput.WRONG_LENGTH),
@@ -413,6 +412,49 @@ def test_no_frame_sequence_makes_the_drive_raise(frames: list[tuple[int, bytes]]
     for step, (can_id, data) in enumerate(frames):
         out = bench.at(step * 0.003).rx(can_id, data) + bench.poll()
         assert all(0 < i <= 0x7FF and len(d) <= 8 for i, d in out)
+
+
+# ----------------------------------------------------------------------------- SYNC (0x1019)
+
+
+def test_sync_of_the_wrong_length_sends_one_emcy_a_run_and_is_ignored(drive: Bench) -> None:
+    drive.nmt(NmtCommand.START)
+    first, second = drive.rx(codec.SYNC_COB_ID, b""), drive.rx(codec.SYNC_COB_ID, b"")
+    assert [(i, codec.decode_emcy(d)[0]) for i, d in first] == [
+        (EMCY, EmcyCode.SYNC_DATA_LENGTH)]
+    assert second == []  # one EMCY a run, not one a millisecond
+    assert drive.node.stats.bad.counts[BadInput.WRONG_LENGTH] == 2
+    assert drive.node.stats.syncs == 0
+    assert [i for i, _ in drive.sync()] == [TPDO1]  # the right length ends the run
+    assert [i for i, _ in drive.rx(codec.SYNC_COB_ID, b"")] == [EMCY]
+    assert drive.node.fault is None
+
+
+def test_sync_without_counter_once_0x1019_is_0(drive: Bench) -> None:
+    assert drive.sdo(sdo_upload(0x1019)) == ("value", 240)
+    assert drive.sdo(sdo_download(0x1019, 0, 0, 1)) == ("ok", 0)
+    drive.nmt(NmtCommand.START)
+    assert [i for i, _ in drive.rx(codec.SYNC_COB_ID, b"")] == [TPDO1]
+    emcy = drive.rx(codec.SYNC_COB_ID, b"\x01")  # a counter now is the wrong length
+    assert [(i, codec.decode_emcy(d)[0]) for i, d in emcy] == [(EMCY, EmcyCode.SYNC_DATA_LENGTH)]
+    assert drive.node.stats.syncs == 1
+    assert drive.sdo(sdo_download(0x1019, 0, 10, 1)) == ("abort", SdoAbort.DEVICE_STATE)
+    drive.nmt(NmtCommand.ENTER_PRE_OPERATIONAL)
+    assert drive.sdo(sdo_download(0x1019, 0, 10, 1)) == ("ok", 0)
+    drive.nmt(NmtCommand.START)
+    assert [i for i, _ in drive.rx(codec.SYNC_COB_ID, b"\x0a")] == [TPDO1]
+    assert [i for i, _ in drive.rx(codec.SYNC_COB_ID, b"\x0b")] == []  # above its top
+    assert [i for i, _ in drive.rx(codec.SYNC_COB_ID, b"\x02")] == [TPDO1]
+    assert drive.node.stats.lost_syncs == 1  # 10 → 2 skipped 1 (counting 1 … 10)
+    drive.nmt(NmtCommand.RESET_COMMUNICATION)
+    assert drive.sdo(sdo_upload(0x1019)) == ("value", 240)
+
+
+@pytest.mark.parametrize("value", [1, 241, 255])
+def test_sync_counter_overflow_outside_0_and_2_to_240_is_refused(drive: Bench, value: int
+                                                                  ) -> None:
+    assert drive.sdo(sdo_download(0x1019, 0, value, 1)) == ("abort", SdoAbort.VALUE_RANGE)
+    assert drive.sdo(sdo_upload(0x1019)) == ("value", 240)
 
 
 # ----------------------------------------------------------------------------- SDO

@@ -256,7 +256,7 @@ def test_every_emcy_code_has_its_error_register() -> None:
 
 
 def test_emcy_codes_are_standard_or_manufacturer_specific() -> None:
-    standard = {0x0000, 0x2310, 0x3210, 0x3220, 0x7305, 0x8130, 0x8250}
+    standard = {0x0000, 0x2310, 0x3210, 0x3220, 0x7305, 0x8130, 0x8240, 0x8250}
     for code in EmcyCode:
         assert code in standard or 0xFF00 <= code <= 0xFFFF, hex(code)
     assert codec.emcy_code(0x8250) is EmcyCode.COMMAND_WATCHDOG_TIMEOUT

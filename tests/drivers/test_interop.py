@@ -1,0 +1,124 @@
+"""Tier 3: the emulated drives cycled by a CANopen master the project did not write.
+
+The master is the ``canopen`` package's own (``Network``, ``RemoteNode`` over the
+drives' EDS, its ``SyncProducer``, its PDO and SDO clients), on a python-can
+``virtual`` bus; the emulator runs in a thread on its own bus object, lockstep
+(one control period per SYNC). What a lab's tool does by default must work:
+SYNC without a counter once 0x1019 is 0, PDO mapping read back over SDO as
+the EDS declares it, heartbeats, EMCY.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import threading
+import time
+from collections.abc import Iterator
+
+import can
+import canopen
+import pytest
+
+from drivers.dictionary import DriveKind
+from drivers.emulator import Emulator
+from drivers.settings import EmulatorConfig
+from rakectl.protocol.codec import EmcyCode
+from tests.drivers.test_emulator_bus import RecordingLog
+
+_channels = itertools.count()
+R_NODE, THETA_NODE = 1, 2
+TIMEOUT_S = 2.0
+
+
+@pytest.fixture
+def master() -> Iterator[tuple[canopen.Network, Emulator]]:
+    """canopen's master and the emulator, each on its own bus object of one channel."""
+    channel = f"test-interop-{os.getpid()}-{next(_channels)}"
+    emulator_bus = can.Bus(interface="virtual", channel=channel)
+    emulator = Emulator(EmulatorConfig(), emulator_bus, log=RecordingLog())
+    network = canopen.Network()
+    network.connect(interface="virtual", channel=channel)
+    stop = threading.Event()
+    thread = threading.Thread(target=emulator.run, args=(stop.is_set, 0.005), daemon=True)
+    try:
+        emulator.start()
+        thread.start()
+        yield network, emulator
+    finally:
+        stop.set()
+        thread.join(5.0)
+        network.disconnect()
+        emulator.close()
+        emulator_bus.shutdown()
+
+
+def _remote(network: canopen.Network, node_id: int, kind: DriveKind) -> canopen.RemoteNode:
+    node = canopen.RemoteNode(node_id, str(kind.eds_path))
+    network.add_node(node)
+    return node
+
+
+def _eds_mapping(node: canopen.RemoteNode, index: int) -> list[tuple[int, int]]:
+    """(object index, subindex) of each mapped entry, as the EDS declares them."""
+    record = node.object_dictionary[index]
+    count = record[0].default
+    return [((record[k].default >> 16) & 0xFFFF, (record[k].default >> 8) & 0xFF)
+            for k in range(1, count + 1)]
+
+
+def test_canopen_master_brings_up_and_cycles_the_drives(
+        master: tuple[canopen.Network, Emulator]) -> None:
+    network, _ = master
+    r = _remote(network, R_NODE, DriveKind.DC_SERVO)
+    theta = _remote(network, THETA_NODE, DriveKind.GEARED_MOTOR)
+
+    # Boot-up after NMT reset communication; identity and device name over SDO.
+    network.nmt.state = "RESET COMMUNICATION"
+    r.nmt.wait_for_bootup(TIMEOUT_S)
+    assert r.sdo[0x1018][2].raw == 1 and theta.sdo[0x1018][2].raw == 2
+    assert r.sdo[0x1008].raw  # segmented upload of a VISIBLE_STRING
+
+    # PDO communication and mapping parameters read back match the EDS.
+    for node in (r, theta):
+        node.tpdo.read()
+        node.rpdo.read()
+        tpdo1, rpdo1 = node.tpdo[1], node.rpdo[1]
+        assert [(v.index, v.subindex) for v in tpdo1.map] == _eds_mapping(node, 0x1A00)
+        assert [(v.index, v.subindex) for v in rpdo1.map] == _eds_mapping(node, 0x1600)
+        assert tpdo1.cob_id == 0x180 + node.id and rpdo1.cob_id == 0x200 + node.id
+
+    # The master's default SYNC has no counter: set 0x1019 = 0 in PRE-OPERATIONAL.
+    r.sdo[0x1019].raw = 0
+    theta.sdo[0x1019].raw = 0
+    network.nmt.state = "OPERATIONAL"
+    assert r.nmt.wait_for_heartbeat(TIMEOUT_S) == "OPERATIONAL"
+
+    # Enable r through CiA 402 over SDO (a 1 s command watchdog: this master is a
+    # test, not a 1 kHz loop), command 2 V through its RPDO1, cycle by SYNC.
+    r.sdo[0x2003].raw = 1000
+    for controlword in (0x06, 0x07, 0x0F):
+        r.sdo[0x6040].raw = controlword
+    assert r.sdo[0x6041].raw & 0x6F == 0x27  # OPERATION ENABLED
+    received: list[int] = []
+    r.tpdo[1].add_callback(lambda pdo: received.append(pdo[0].raw))
+    rpdo1 = r.rpdo[1]
+    for cycle in range(60):
+        rpdo1[0].raw, rpdo1[1].raw = 2000, 0x0F  # voltage mV (0x2000), controlword
+        rpdo1.transmit()
+        network.sync.transmit()
+        deadline_s = time.monotonic() + TIMEOUT_S
+        while len(received) <= cycle and time.monotonic() < deadline_s:
+            time.sleep(0.0005)
+        assert len(received) == cycle + 1, f"no TPDO1 answered SYNC {cycle}"
+    assert r.tpdo[1][0].od.index == 0x6064
+    assert received[-1] > received[0]  # the carriage moved out under +2 V
+    assert r.sdo[0x6041].raw & 0x6F == 0x27  # no fault on the way
+
+    # A SYNC with a counter is now the wrong length: EMCY 0x8240, ignored.
+    network.sync.transmit(1)
+    assert r.emcy.wait(EmcyCode.SYNC_DATA_LENGTH, TIMEOUT_S) is not None
+
+    # Back to PRE-OPERATIONAL: 0 V at once, no PDOs (CiA 301).
+    network.nmt.state = "PRE-OPERATIONAL"
+    assert r.sdo[0x2000].raw == 0
