@@ -93,8 +93,9 @@ def test_generation_spans_what_an_operator_can_command() -> None:
 
 def test_small_campaign_is_safe_and_the_worst_case_replays(tmp_path: Path) -> None:
     """The campaign's CI sample: 60 cases, every command kind under every fault kind,
-    with and without supervision (any 48 consecutive cases hold them all). None may press the ground or a mine (plate or side)
-    harder than 90 N on any tick or fire a mine (docs/safety.md has the full campaign)."""
+    with and without supervision (any 48 consecutive cases hold them all). None may
+    press the ground or a mine (plate or side) harder than 90 N on any tick or fire a
+    mine (docs/safety.md has the full campaign)."""
     report = campaign.campaign(CI_SAMPLE, seed=1, workers=2, out_dir=tmp_path)
     assert report.scenarios == len(report.results) == CI_SAMPLE
     assert {r.kind.split()[0] for r in report.results} == set(map(str, CommandKind))
