@@ -323,6 +323,10 @@ class DrivesSettings:
     feedback_timeout_cycles: int = setting(
         3, "Cycles in a row without a drive's TPDO before the feedback counts as stale.",
         ge=1, le=100)
+    sync_counter_overflow: int = setting(
+        240, "SYNC counter overflow (0x1019), written to every drive at bring-up: 0 sends "
+        "SYNC without data (what most masters and PLCs send), 2 … 240 a counter 1 … N.",
+        ge=0, le=240)
 
 
 @dataclass(frozen=True)
@@ -402,6 +406,9 @@ def cross_checks(s: Settings) -> list[tuple[str, str]]:
     d = s.drives
     if len({d.r_node_id, d.theta_node_id, d.controller_node_id}) < 3:
         errors.append(("drives.theta_node_id", "node-IDs of drives and controller must differ"))
+    if d.sync_counter_overflow == 1:
+        errors.append(("drives.sync_counter_overflow",
+                       "must be 0 (SYNC without counter) or 2 … 240 (CiA 301), got 1"))
     if d.heartbeat_timeout_ms <= d.heartbeat_period_ms:
         errors.append(("drives.heartbeat_timeout_ms",
                        f"must be > drives.heartbeat_period_ms ({d.heartbeat_period_ms})"))

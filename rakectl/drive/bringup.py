@@ -18,7 +18,8 @@ in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.settings.Driv
    0x2002 current limit [mA] (``motors.<joint>.current_limit_a``), 0x2003 command
    watchdog [ms] (``drives.watchdog_timeout_ms``), 0x2004 encoder counts per turn,
    0x1017 producer heartbeat [ms] (``drives.heartbeat_period_ms``) and 0x1016:1
-   consumer heartbeat of the controller (``controller_node_id << 16 | heartbeat_timeout_ms``);
+   consumer heartbeat of the controller (``controller_node_id << 16 | heartbeat_timeout_ms``)
+   and 0x1019 SYNC counter overflow (``drives.sync_counter_overflow``);
    a value outside the EDS's data type or limits is a ConfigError before anything is sent;
 5. SDO read every one of them back and compare.
 

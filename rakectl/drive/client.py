@@ -35,7 +35,8 @@ the start of tick k+1. There is no round trip inside a tick.
   The drive refuses a voltage beyond its 0x2001 with EMCY INVALID_COMMAND,
   which this client counts as a fault until the drive's EMCY NO_ERROR: the
   safety clamp upstream bounds voltages to ``DriveInfo.limits.max_voltage_mv``.
-- :meth:`DriveClient.sync` sends SYNC with the next counter (1…240) and, every
+- :meth:`DriveClient.sync` sends SYNC with the next counter (1 … 0x1019,
+  ``drives.sync_counter_overflow``; without data when that is 0) and, every
   heartbeat period, the controller's heartbeat (the first one with the first SYNC).
 - A ``can.CanError`` from ``bus.send`` is counted (``stats.send_errors``) and
   flagged (:meth:`DriveClient.send_failed`, :attr:`DriveClient.last_send_error`),
@@ -83,6 +84,7 @@ from rakectl.protocol.codec import (
     NMT_COB_ID,
     RPDO1_SIZE,
     SYNC_COB_ID,
+    SYNC_COUNTER_MAX,
     TPDO1_SIZE,
     TPDO2_SIZE,
     EmcyCode,
@@ -97,7 +99,6 @@ from rakectl.protocol.codec import (
     decode_tpdo2,
     encode_heartbeat,
     encode_nmt,
-    next_sync_counter,
     pack_rpdo_into,
     rpm_to_rad_per_s,
     voltage_v_to_mv,
@@ -145,7 +146,9 @@ class DriveClient(DriveSupervision):
                             cob_id(FunctionCode.EMCY, node): (_EMCY, j),
                             cob_id(FunctionCode.HEARTBEAT, node): (_HEARTBEAT, j)}
         self._rpdo = [_new_message(cob_id(FunctionCode.RPDO1, node), RPDO1_SIZE) for node in nodes]
-        self._sync_msg = _new_message(SYNC_COB_ID, 1)
+        self._sync_counted = drives.sync_counter_overflow > 0  # else SYNC has no data
+        self._sync_top = drives.sync_counter_overflow or SYNC_COUNTER_MAX
+        self._sync_msg = _new_message(SYNC_COB_ID, 1 if self._sync_counted else 0)
         self._heartbeat_msg = _new_message(cob_id(FunctionCode.HEARTBEAT,
                                                   drives.controller_node_id), 1)
         self._heartbeat_msg.data[:] = encode_heartbeat(NmtState.OPERATIONAL)
@@ -361,9 +364,10 @@ class DriveClient(DriveSupervision):
 
     def sync(self) -> None:
         """Send SYNC with the next counter and, once per heartbeat period, the heartbeat."""
-        counter = next_sync_counter(self._sync_counter)
+        counter = self._sync_counter % self._sync_top + 1
         self._sync_counter = counter
-        self._sync_msg.data[0] = counter
+        if self._sync_counted:
+            self._sync_msg.data[0] = counter
         self._sync_sent_s = time.time()
         self._transmit(self._sync_msg)
         self._syncs_pending += 1

@@ -82,6 +82,7 @@ class DriveLimits:
     encoder_counts_per_rev: int  # 0x2004
     heartbeat_period_ms: int  # 0x1017
     consumer_heartbeat: int  # 0x1016:1, controller node-ID << 16 | timeout ms
+    sync_counter_overflow: int  # 0x1019: 0 = SYNC without counter
 
 
 @dataclass(frozen=True)
@@ -133,6 +134,8 @@ def drive_parameters(joint: Joint, drives: DrivesSettings,
                   "drives.heartbeat_period_ms"),
         Parameter(0x1016, 1, "consumer heartbeat", "", consumer,
                   "drives.controller_node_id/heartbeat_timeout_ms"),
+        Parameter(0x1019, 0, "SYNC counter overflow", "", drives.sync_counter_overflow,
+                  "drives.sync_counter_overflow"),
     )
 
 

@@ -79,6 +79,8 @@ def test_number_literals_yaml_1_1_would_read_as_strings(tmp_path: Path) -> None:
          ":2: estimator.delay_s must be a whole number of loop periods"),
         ("geometry:\n  r_min_m: 1.0\n  r_max_m: 0.5\n",
          ":3: geometry.r_max_m must be > geometry.r_min_m (1)"),
+        ("drives:\n  sync_counter_overflow: 1\n",
+         ":2: drives.sync_counter_overflow must be 0 (SYNC without counter) or 2 … 240"),
     ],
 )
 def test_bad_files_name_file_line_and_key(tmp_path: Path, text: str, expected: str) -> None:

@@ -630,7 +630,30 @@ def test_written_values_follow_the_settings(network: LoopbackNetwork,
             theta_info.limits.encoder_counts_per_rev, theta_info.limits.watchdog_timeout_ms,
             theta_info.limits.heartbeat_period_ms) == (12000, 2500, 4096, 7, 50)
     assert [p.index for p in drive_parameters(Joint.R, drives, motors)] == [
-        0x2001, 0x2002, 0x2003, 0x2004, 0x1017, 0x1016]
+        0x2001, 0x2002, 0x2003, 0x2004, 0x1017, 0x1016, 0x1019]
+
+
+def test_sync_without_counter_is_written_to_the_drives_and_sent(
+        network: LoopbackNetwork, fake_drives: tuple[FakeDrive, FakeDrive],
+        bus: FakeBus) -> None:
+    drives = replace(FAST, sync_counter_overflow=0)
+    r_info, theta_info = _announce_and_run(make_bring_up(network, drives), fake_drives)
+    assert r_info.limits.sync_counter_overflow == theta_info.limits.sync_counter_overflow == 0
+    assert [drive.value(0x1019) for drive in fake_drives] == [0, 0]
+    client = DriveClient(bus, drives, MOTORS, rate_hz=1000.0)
+    client.sync()
+    assert [data for can_id, data in bus.take_sent() if can_id == 0x080] == [b""]
+    bus.feed(*tpdo1(R_NODE, 5))
+    client.receive()
+    assert client.feedback.sync_counter == [1, 0]  # counted here, not on the wire
+
+
+def test_sync_counter_follows_a_smaller_overflow(bus: FakeBus) -> None:
+    client = DriveClient(bus, replace(DRIVES, sync_counter_overflow=3), MOTORS, rate_hz=1000.0)
+    for _ in range(5):
+        client.sync()
+    assert [data for can_id, data in bus.take_sent() if can_id == 0x080] == [
+        b"\x01", b"\x02", b"\x03", b"\x01", b"\x02"]
 
 
 def test_a_drive_of_the_wrong_type_is_refused(network: LoopbackNetwork) -> None:

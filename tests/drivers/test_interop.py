@@ -1,4 +1,5 @@
-"""Tier 3: the emulated drives cycled by a CANopen master the project did not write.
+"""Tier 3: the emulated drives cycled by a CANopen master the project did not write,
+and by the controller's own master configured as such a master would be.
 
 The master is the ``canopen`` package's own (``Network``, ``RemoteNode`` over the
 drives' EDS, its ``SyncProducer``, its PDO and SDO clients), on a python-can
@@ -15,6 +16,7 @@ import os
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 
 import can
 import canopen
@@ -23,6 +25,8 @@ import pytest
 from drivers.dictionary import DriveKind
 from drivers.emulator import Emulator
 from drivers.settings import EmulatorConfig
+from rakectl.config.settings import DrivesSettings, MotorsSettings
+from rakectl.drive.client import DriveClient
 from rakectl.protocol.codec import EmcyCode
 from tests.drivers.test_emulator_bus import RecordingLog
 
@@ -122,3 +126,38 @@ def test_canopen_master_brings_up_and_cycles_the_drives(
     # Back to PRE-OPERATIONAL: 0 V at once, no PDOs (CiA 301).
     network.nmt.state = "PRE-OPERATIONAL"
     assert r.sdo[0x2000].raw == 0
+
+
+def test_the_controller_runs_the_drives_on_sync_without_counter() -> None:
+    """drives.sync_counter_overflow = 0: bring-up writes 0x1019 = 0 to both emulated
+    drives and reads it back; every SYNC then goes out without data and each drive
+    answers it with a TPDO1, with no EMCY and no drive fault."""
+    channel = f"test-interop-{os.getpid()}-{next(_channels)}"
+    emulator_bus = can.Bus(interface="virtual", channel=channel)
+    controller_bus = can.Bus(interface="virtual", channel=channel)
+    emulator = Emulator(EmulatorConfig(), emulator_bus, log=RecordingLog())
+    stop = threading.Event()
+    thread = threading.Thread(target=emulator.run, args=(stop.is_set, 0.005), daemon=True)
+    drives = replace(DrivesSettings(), sync_counter_overflow=0)
+    try:
+        emulator.start()
+        thread.start()
+        client = DriveClient(controller_bus, drives, MotorsSettings(), rate_hz=1000.0)
+        r_info, theta_info = client.bring_up(boot_timeout_s=TIMEOUT_S)
+        assert r_info.limits.sync_counter_overflow == theta_info.limits.sync_counter_overflow == 0
+        for _ in range(50):
+            client.sync()
+            deadline_s = time.monotonic() + TIMEOUT_S
+            while client.receive() == 0 and time.monotonic() < deadline_s:
+                time.sleep(0.0005)
+        assert min(client.stats.tpdo_received) >= 40  # a few may land after the next SYNC
+        assert not client.drive_faults()
+        assert [node.stats.bad.total for node in emulator.nodes] == [0, 0]
+        assert emulator.stats.syncs == 50
+        client.shutdown()
+    finally:
+        stop.set()
+        thread.join(5.0)
+        emulator.close()
+        controller_bus.shutdown()
+        emulator_bus.shutdown()
