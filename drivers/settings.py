@@ -5,7 +5,8 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-from drivers.arm import DEFAULT_SUBSTEP_S, ArmParams
+from drivers.arm import DEFAULT_SUBSTEP_S
+from drivers.mechanics import ArmParams
 from drivers.objects import GroundParams
 from rakectl.config.declare import section, setting
 from rakectl.config.settings import BusSettings, GeometrySettings

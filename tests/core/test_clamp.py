@@ -18,7 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.arm import ArmParams, gravity_joint_loads, joint_masses
+from drivers.mechanics import ArmParams, gravity_joint_loads, joint_masses
 from rakectl.config.settings import ClampSettings, GeometrySettings
 from rakectl.core import kinematics
 from rakectl.core.clamp import VoltageClamp

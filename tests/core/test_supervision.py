@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from drivers.arm import ArmParams, gravity_joint_loads
+from drivers.mechanics import ArmParams, gravity_joint_loads
 from rakectl.config.settings import ClampSettings, SupervisionSettings
 from rakectl.core import kinematics
 from rakectl.core.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, joint_per_motor_rad

@@ -9,15 +9,8 @@ import pytest
 from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
-from drivers.arm import (
-    DEFAULT_SUBSTEP_S,
-    ArmParams,
-    ArmPlant,
-    ArmState,
-    gravity_joint_loads,
-    joint_masses,
-    tip_apparent_masses_kg,
-)
+from drivers.arm import DEFAULT_SUBSTEP_S, ArmPlant, ArmState
+from drivers.mechanics import ArmParams, gravity_joint_loads, joint_masses, tip_apparent_masses_kg
 from drivers.motor import (
     R_MOTOR_DEFAULT,
     THETA_MOTOR_DEFAULT,

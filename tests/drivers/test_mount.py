@@ -14,7 +14,8 @@ import math
 
 import pytest
 
-from drivers.arm import ArmParams, ArmPlant, ArmState, joint_masses
+from drivers.arm import ArmPlant, ArmState
+from drivers.mechanics import ArmParams, joint_masses
 from drivers.motor import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, Bridge, joint_load_band
 from drivers.objects import BuriedObjects, Ground, GroundParams, MineParams, StoneParams
 from drivers.soil import SoilLayer, SoilParams, cutting_force_n
