@@ -19,6 +19,7 @@ from rakectl.api.client import Client, call, socket_path
 from rakectl.api.schema import DEAD_MAN_PERIOD_S
 
 POLL_S = 0.2
+CHECK_TIMEOUT_S = 30.0  # the weight check takes about 3 s
 Ops = Callable[[argparse.Namespace], int]
 
 
@@ -31,7 +32,7 @@ def _print(args: argparse.Namespace, reply: dict[str, Any], text: str) -> None:
 
 
 def simple(cmd: str) -> Ops:
-    """status-less commands: arm, disarm, stop, estop, reset, shutdown."""
+    """status-less commands: disarm, stop, estop, reset, shutdown."""
 
     def op(args: argparse.Namespace) -> int:
         reply = call(_path(args), {"cmd": cmd})
@@ -39,6 +40,24 @@ def simple(cmd: str) -> Ops:
         return 0
 
     return op
+
+
+def arm(args: argparse.Namespace) -> int:
+    """Arm; the first time after start-up, wait for the weight check and print its verdict."""
+    path = _path(args)
+    reply = call(path, {"cmd": "arm"})
+    if reply.get("state") == "checking":
+        print("arm: weight check: lifting the tip and lowering it back", file=sys.stderr)
+        deadline = time.monotonic() + CHECK_TIMEOUT_S
+        with Client(path) as client:
+            while reply.get("state") == "checking" and time.monotonic() < deadline:
+                time.sleep(POLL_S)
+                reply = client.request({"cmd": "status"})
+        check = reply.get("weight_check") or {}
+        print(check.get("message", ""), file=sys.stderr)
+    _print(args, reply, f"arm: {reply.get('state', 'ok')}"
+           + (f" ({reply['fault']})" if reply.get("fault") else ""))
+    return 0 if reply.get("state") == "armed" else 1
 
 
 def status(args: argparse.Namespace) -> int:
@@ -53,6 +72,7 @@ def status(args: argparse.Namespace) -> int:
         f"force      F̂ {force['f_hat_n']:.1f} N (max {force['f_hat_max_n']:.1f} N), clamp "
         f"worst case {force['clamp_worst_case_n']:.1f} N of {force['clamp_limit_n']:.1f} N",
         "drives     " + ", ".join(f"{d['state']}" for d in reply["drives"]),
+        f"weight     {reply['weight_check']['message']}",
     ]
     if "latency_ns" in timing:
         lat = timing["latency_ns"]
@@ -153,8 +173,10 @@ def excavate(args: argparse.Namespace) -> int:
 def add_parsers(sub: Any, parent: argparse.ArgumentParser) -> dict[str, Ops]:
     """Sub-commands for the operator; returns their functions by name."""
     ops: dict[str, Ops] = {}
-    for name, help_text in (("arm", "enable the drives and hold the pose"),
-                            ("disarm", "stop and disable the drives"),
+    sub.add_parser("arm", parents=[parent], help="enable the drives and hold the pose (the "
+                   "first time, after the weight check)")
+    ops["arm"] = arm
+    for name, help_text in (("disarm", "stop and disable the drives"),
                             ("stop", "stop jogging or excavating, hold the pose"),
                             ("estop", "emergency stop (latched until reset)"),
                             ("reset", "clear a fault or e-stop once its cause is gone"),

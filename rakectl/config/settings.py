@@ -330,6 +330,23 @@ class DrivesSettings:
 
 
 @dataclass(frozen=True)
+class SelfTestSettings:
+    """The weight check before the first arming (rakectl.core.selftest)."""
+
+    enabled: bool = setting(
+        True, "Before the first arming after start-up, lift the tip and lower it back and "
+        "compare the rake's unbalanced weight, measured through the motor currents, with "
+        "the clamp's model (clamp.rake_mass_kg, counterweight_kg, counterbalance_share); a "
+        "mismatch faults instead of arming.")
+    lift_m: float = setting(0.02, "How far the tip is lifted (straight up).", unit="m", gt=0,
+                            le=0.1)
+    speed_m_per_s: float = setting(0.02, "Lift and lowering speed.", unit="m/s", gt=0, le=0.1)
+    tolerance: float = setting(
+        0.3, "Largest relative difference between the measured and the configured unbalanced "
+        "weight (a missing counterweight doubles it).", gt=0, lt=1)
+
+
+@dataclass(frozen=True)
 class DaemonSettings:
     """The service: real-time set-up, command socket, flight recorder, supervision."""
 
@@ -372,6 +389,7 @@ class Settings:
     bus: BusSettings = section(BusSettings)
     drives: DrivesSettings = section(DrivesSettings)
     daemon: DaemonSettings = section(DaemonSettings)
+    selftest: SelfTestSettings = section(SelfTestSettings)
     desired_force_n: float = setting(0.0, "Desired contact force F_d.", unit="N",
                                      ge=-FORCE_LIMIT_N, le=FORCE_LIMIT_N)
     rate_hz: float = setting(1000.0, "Control loop rate.", unit="Hz", ge=10, le=10000)

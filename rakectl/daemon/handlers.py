@@ -63,6 +63,12 @@ def status(daemon: Daemon) -> dict[str, Any]:
         "bus": client.stats.as_dict(),
         "timing": daemon.timing.summary(),
     }
+    check = daemon.weight_result
+    reply["weight_check"] = (
+        {"passed": check.passed, "weight_n": _finite(check.weight_n),
+         "expected_n": check.expected_n, "message": check.message} if check is not None
+        else {"passed": None, "message": "not run" if daemon.settings.selftest.enabled
+              else "disabled (selftest.enabled: false)"})
     planner = daemon.planner
     if planner is not None:
         reply["excavation"] = {

@@ -36,6 +36,7 @@ from rakectl.core import kinematics
 from rakectl.core.control import TipController
 from rakectl.core.jog import Jog
 from rakectl.core.lane import LanePlanner
+from rakectl.core.selftest import WeightCheck, WeightResult
 from rakectl.core.supervision import ForceLevel, ForceSupervisor
 from rakectl.daemon.events import EventLog
 from rakectl.daemon.recorder import DumpWriter, FlightRecorder
@@ -87,6 +88,9 @@ class Daemon:
         self.hold = (0.0, 0.0)  # (reach, depth) held in ARMED and HOLD
         self.jog: Jog | None = None
         self.planner: LanePlanner | None = None
+        self.weight_check: WeightCheck | None = None  # running in CHECKING
+        self.weight_result: WeightResult | None = None  # the last check's
+        self.weight_checked = not settings.selftest.enabled  # passed since start-up
         self.f_hat_max_n = 0.0
         self._enabled = False
         self._enable_deadline = 0
@@ -254,6 +258,15 @@ class Daemon:
         At the caution level the reference holds still (jog and lane do not advance).
         """
         state = self.state
+        check = self.weight_check
+        if state is DaemonState.CHECKING and check is not None:
+            fb = self.client.feedback
+            check.observe(fb.r_m, fb.theta_rad, fb.r_vel_m_per_s, fb.theta_vel_rad_per_s,
+                          fb.current_r_a, fb.current_theta_a)
+            check.step()
+            if check.done:
+                self._judge_weight(check)
+            return check.reach_m, check.depth_m, False
         moving = state in (DaemonState.JOG, DaemonState.EXCAVATE)
         if self.supervisor.level is ForceLevel.CAUTION and moving:
             return self._ref[0], self._ref[1], True
@@ -311,6 +324,8 @@ class Daemon:
         if new is None:
             return False
         old, self.state = self.state, new
+        if old is DaemonState.CHECKING:
+            self.weight_check = None  # passed, or left unfinished (judged again next arm)
         if old in ARMED_STATES and new not in ARMED_STATES:
             self._enabled = False
             self.client.command(None, DriveCommand.QUICK_STOP if new is DaemonState.ESTOP
@@ -333,16 +348,34 @@ class Daemon:
         self._dump("estop")
 
     def arm(self) -> None:
-        """Hold the present pose and step the drives to OPERATION ENABLED."""
-        fb = self.client.feedback
+        """Hold the present pose and step the drives to OPERATION ENABLED; the first time
+        after start-up, through the weight check (CHECKING)."""
+        fb, s = self.client.feedback, self.settings
         self.controller.reset(fb.r_m, fb.theta_rad)
         self.supervisor.reset()
         self.hold = (self.controller.reach_m, self.controller.depth_m)
         self._ref = self.hold
         self._enabled = False
-        self._enable_deadline = self.ticks + round(self.settings.daemon.enable_timeout_s
-                                                   * self.settings.rate_hz)
-        self._transition(Event.ARM)
+        self._enable_deadline = self.ticks + round(s.daemon.enable_timeout_s * s.rate_hz)
+        if self.weight_checked:
+            self._transition(Event.ARM)
+            return
+        self.weight_check = WeightCheck(s.selftest, s.clamp, s.motors.r, s.motors.theta,
+                                        self.dt_s, *self.hold)
+        self._transition(Event.CHECK, "weight check first")
+
+    def _judge_weight(self, check: WeightCheck) -> None:
+        result = check.result
+        assert result is not None
+        self.weight_check, self.weight_result = None, result
+        self.hold = check.start
+        self.event("weight_check", passed=result.passed, weight_n=result.weight_n,
+                   expected_n=result.expected_n, samples=result.samples)
+        if result.passed:
+            self.weight_checked = True
+            self._transition(Event.CHECKED, result.message)
+        else:
+            self.fault(result.message)
 
     def start_reset(self) -> None:
         """Fault-reset the drives; FAULT/ESTOP → DISARMED once no problem is left (≤ 1 s)."""

@@ -62,7 +62,10 @@ def run_demo(out: Path, as_json: bool) -> int:
               file=status_out)
         bench.wait_for_state(["disarmed"], 60.0)
         bench.request("arm")
-        bench.wait_for_state(["armed"], 10.0)
+        armed = bench.wait_for_state(["armed", "fault"], 30.0)
+        print(f"demo: {armed['weight_check']['message']}", file=status_out)
+        if armed["state"] != "armed":
+            raise RakeError(f"the demo could not arm: {armed['fault']}")
         print("demo: armed; raking the demo lane", file=status_out)
         bench.request("excavate", **LANE)
         final = follow_excavation(bench.socket, status_out, timeout_s=600.0)

@@ -2,7 +2,7 @@
 
 The checks use other code than the clamp: the emulator's own friction band
 (rakectl.core.motor_model.joint_load_band), the Jacobian of rakectl.core.kinematics,
-the emulator's joint masses and gravity loads (drivers.arm), numpy's linear algebra,
+the emulator's joint masses and gravity loads (drivers.mechanics), numpy's linear algebra,
 a dense set of 721 contact directions (the clamp samples 37), and an RK4 simulation
 of the two joints meeting a spring-damper (not the clamp's formula).
 """

@@ -41,3 +41,14 @@ def test_motion_only_from_armed_states_and_never_straight_between_modes() -> Non
     assert next_state(DaemonState.EXCAVATE, Event.JOG) is None
     assert next_state(DaemonState.DISARMED, Event.JOG) is None
     assert next_state(DaemonState.FAULT, Event.ARM) is None
+
+
+def test_the_first_arming_goes_through_the_weight_check() -> None:
+    assert next_state(DaemonState.DISARMED, Event.CHECK) is DaemonState.CHECKING
+    assert next_state(DaemonState.CHECKING, Event.CHECKED) is DaemonState.ARMED
+    assert DaemonState.CHECKING in ARMED_STATES  # the drives hold the rake while it runs
+    for event in (Event.JOG, Event.EXCAVATE, Event.STOP, Event.ARM):
+        assert next_state(DaemonState.CHECKING, event) is None, event
+    assert next_state(DaemonState.CHECKING, Event.DISARM) is DaemonState.DISARMED
+    assert next_state(DaemonState.CHECKING, Event.FAULT) is DaemonState.FAULT
+    assert next_state(DaemonState.ARMED, Event.CHECKED) is None

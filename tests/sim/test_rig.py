@@ -45,7 +45,8 @@ def _states(out: Path) -> list[str]:
 def _armed(bench: Bench) -> None:
     bench.wait_for_state(["disarmed"], 60.0)
     bench.request("arm")
-    bench.wait_for_state(["armed"], 10.0)
+    armed = bench.wait_for_state(["armed"], 15.0)  # through the weight check, about 3 s
+    assert armed["weight_check"]["passed"], armed["weight_check"]
     time.sleep(0.3)
     assert all(d["state"] == "operation_enabled" for d in bench.request("status")["drives"])
 
@@ -68,8 +69,8 @@ def test_arm_jog_excavate_stop_against_the_ground_truth(tmp_path: Path) -> None:
         assert final["excavation"]["done"] and final["excavation"]["object_found"] is None
         bench.request("disarm")
         bench.wait_for_state(["disarmed"], 5.0)
-    assert _states(tmp_path) == ["DISARMED", "ARMED", "JOG", "HOLD", "EXCAVATE", "HOLD",
-                                 "DISARMED"]
+    assert _states(tmp_path) == ["DISARMED", "CHECKING", "ARMED", "JOG", "HOLD", "EXCAVATE",
+                                 "HOLD", "DISARMED"]
     truth = _truth(tmp_path)
     # while armed (drives enabled); disarmed, the rake sinks slowly under its own weight
     heights = [float(row["tip_height_m"]) for row in truth
@@ -79,6 +80,27 @@ def test_arm_jog_excavate_stop_against_the_ground_truth(tmp_path: Path) -> None:
     assert all(row["mine_activated"] == "0" for row in truth)
     dumps = list(tmp_path.glob("rakectl-*-shutdown.csv"))
     assert dumps and dumps[0].read_text().startswith("t_s,state,")
+
+
+def test_an_arm_without_its_counterweight_is_refused_by_the_weight_check(tmp_path: Path
+                                                                         ) -> None:
+    """The emulated arm without the 8 kg counterweight the clamp is configured for: the
+    first arming lifts the tip, measures twice the weight and faults, naming both; the
+    second arming checks again (the rake never becomes ARMED)."""
+    emulator_args = ["--set", "physics.arm.counterweight_kg=0"]
+    with emulated_bench(tmp_path, EMULATOR, DAEMON, emulator_args=emulator_args) as bench:
+        bench.wait_for_state(["disarmed"], 60.0)
+        bench.request("arm")
+        final = bench.wait_for_state(["fault", "armed"], 15.0)
+        assert final["state"] == "fault"
+        assert "does not match 19.6 N configured" in final["fault"]
+        assert final["weight_check"]["weight_n"] == pytest.approx(39.2, rel=0.1)
+        bench.request("reset")
+        bench.wait_for_state(["disarmed"], 5.0)
+        bench.request("arm")
+        assert bench.wait_for_state(["fault", "armed"], 15.0)["state"] == "fault"
+    print(f"\nno counterweight → {final['fault']}")
+    assert "ARMED" not in _states(tmp_path)
 
 
 def test_sigkill_of_the_controller_leaves_the_drives_at_0_v(tmp_path: Path) -> None:
