@@ -214,7 +214,7 @@ def _measure(rig: _Rig, ticks: int) -> TickFigures:
     rig.bring_up()
     rig.until(DaemonState.DISARMED, 3000)
     handle(_request(b'{"cmd": "arm"}'))
-    rig.until(DaemonState.ARMED, 1000)
+    rig.until(DaemonState.ARMED, 5000)  # through the weight check (about 2.7 s)
     for _ in range(500):  # the drives enable, the loops take the arm's weight
         rig.tick()
     handle(_request(EXCAVATE))

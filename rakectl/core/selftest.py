@@ -31,7 +31,7 @@ from rakectl.core.motor_model import MotorParams, joint_load_band, joint_resolut
 
 SETTLE_S = 0.3  # hold after each ramp
 WINDOW = (0.25, 0.75)  # the part of each ramp whose ticks are used
-MIN_LEVER = 0.05  # Σ a²/ticks below this (N² per N² of weight): no lever on the weight
+MIN_LEVER = 0.005  # mean a² (m² or 1) below this: gravity has no lever on the weight
 
 
 class Phase(enum.Enum):

@@ -62,7 +62,7 @@ def run_demo(out: Path, as_json: bool) -> int:
               file=status_out)
         bench.wait_for_state(["disarmed"], 60.0)
         bench.request("arm")
-        armed = bench.wait_for_state(["armed", "fault"], 30.0)
+        armed: dict[str, Any] = bench.wait_for_state(["armed", "fault"], 30.0)
         print(f"demo: {armed['weight_check']['message']}", file=status_out)
         if armed["state"] != "armed":
             raise RakeError(f"the demo could not arm: {armed['fault']}")

@@ -1,0 +1,122 @@
+"""What the daemon does besides the tick: the slack's work, events, dumps, the end of a run.
+
+The base of :class:`rakectl.daemon.loop.Daemon`. Everything here runs in the
+tick's slack with a hard time budget (the command socket's poll, flight-recorder
+dumps, bus traces, log lines, systemd's watchdog, the garbage collector while
+disarmed), or once when the loop ends: it can delay nothing but itself.
+"""
+
+from __future__ import annotations
+
+import collections
+import gc
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rakectl.config.settings import Settings
+from rakectl.daemon.events import EventLog
+from rakectl.daemon.recorder import DumpWriter, FlightRecorder
+from rakectl.daemon.sdnotify import Notifier
+from rakectl.daemon.states import ARMED_STATES, DaemonState
+from rakectl.daemon.timing import LoopTiming, TickTimer
+from rakectl.drive.canbus import TraceRecorder
+from rakectl.drive.client import DriveClient
+
+SLACK_GUARD_S = 250e-6  # slack work stops this long before the next deadline
+
+
+class SlackWork:
+    """The slack's work and the run's end; the loop's state is the subclass's."""
+
+    settings: Settings
+    client: DriveClient
+    notifier: Notifier
+    dump_dir: Path
+    timer: TickTimer
+    timing: LoopTiming
+    recorder: FlightRecorder
+    events: EventLog
+    state: DaemonState
+    ticks: int
+    slack_hook: Callable[[float], object] | None  # the command server's poll
+    trace: TraceRecorder | None  # bus trace, drained in the slack
+    _dumps: collections.deque[DumpWriter]
+    _clock_ns: Callable[[], int]
+    _next_stats_tick: int
+    _next_watchdog_tick: int
+
+    def finish(self) -> None:
+        """0 V, drives disabled, the recorder dumped: the end of every run."""
+        self.notifier.stopping()
+        self.client.stop_all()
+        self._dump("shutdown")
+        self.event("bus_latency", **self.bus_latency())
+        while self._dumps:
+            self._dumps[0].work(1.0)
+            if self._dumps[0].done:
+                self._dumps.popleft()
+        self.events.flush(self.state.name)
+
+
+    # ------------------------------------------------------------------ slack
+
+    def slack(self) -> None:
+        """Work that is not the tick, within the time left before the next deadline."""
+        deadline_ns = self.timer.deadline_of(self.timer.tick_index + 1)
+        budget_s = (deadline_ns - self._clock_ns()) * 1e-9 - SLACK_GUARD_S
+        if budget_s <= 0.0:
+            return
+        started = time.perf_counter()
+        if self.slack_hook is not None:
+            self.slack_hook(budget_s * 0.5)
+        if self._dumps:
+            left = budget_s - (time.perf_counter() - started)
+            if left > 0 and self._dumps[0].work(left):
+                writer = self._dumps.popleft()
+                self.event("recorder_dumped", path=str(writer.path))
+        if self.trace is not None:
+            self.trace.drain(32)
+        self.events.flush(self.state.name, 1)
+        self._periodic()
+
+    def _periodic(self) -> None:
+        if self.ticks >= self._next_watchdog_tick:
+            self.notifier.watchdog(self.ticks)  # only sent if the tick counter advanced
+            self._next_watchdog_tick = self.ticks + round(0.1 * self.settings.rate_hz)
+        if self.ticks >= self._next_stats_tick:
+            self._next_stats_tick = self.ticks + round(self.settings.daemon.stats_interval_s
+                                                       * self.settings.rate_hz)
+            if self.ticks > 1:
+                self.event("timing", **self.timing.summary())
+        if self.state not in ARMED_STATES and self.ticks % 1000 == 0:
+            gc.collect(1)  # never while armed: the collector is off then (see cli)
+
+    def bus_latency(self) -> dict[str, Any]:
+        """SYNC → TPDO1 arrival percentiles (µs) and the bus counters (off the hot path)."""
+        samples = self.client.sync_to_tpdo_s()
+        out: dict[str, Any] = {"samples": len(samples), **self.client.stats.as_dict()}
+        if samples:
+            values = np.array(samples) * 1e6
+            for name, q in (("p50", 50), ("p99", 99), ("p99.9", 99.9)):
+                out[f"sync_to_tpdo_{name}_us"] = round(float(np.percentile(values, q)), 1)
+            out["sync_to_tpdo_max_us"] = round(float(values.max()), 1)
+        return out
+
+    # ------------------------------------------------------------------ events and dumps
+
+    def event(self, name: str, **fields: Any) -> None:
+        """Queue a log line; it is written in the slack, never in the tick."""
+        self.events.add(name, fields)
+
+    def _dump(self, reason: str) -> Path:
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        path = self.dump_dir / f"rakectl-{stamp}-{self.ticks}-{reason}.csv"
+        return self.dump_to(path)
+
+    def dump_to(self, path: Path) -> Path:
+        self._dumps.append(self.recorder.start_dump(path))
+        return path
