@@ -38,7 +38,7 @@ from drivers.settings import EmulatorConfig, TimingMode
 from rakectl.config.loader import load_settings
 from rakectl.config.settings import BusInterface, BusSettings
 from rakectl.errors import ConfigError
-from rakectl.protocol import codec
+from rakectl.protocol import codec, nmt
 from rakectl.protocol.cia402 import DriveCommand
 
 UDP_MULTICAST_OPTIONS = {"fd": False}  # CAN 2.0 frames; the IPv4 group is given as channel
@@ -148,7 +148,7 @@ def bench(config: EmulatorConfig, cycles: int) -> None:
         def send(can_id: int, data: bytes) -> None:
             controller.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
 
-        send(codec.NMT_COB_ID, codec.encode_nmt(codec.NmtCommand.START, 0))
+        send(codec.NMT_COB_ID, nmt.encode_nmt(nmt.NmtCommand.START, 0))
         counter, started_s = 0, 0.0
         bring_up = [DriveCommand.SHUTDOWN, DriveCommand.SWITCH_ON]
         bring_up += [DriveCommand.ENABLE_OPERATION] * cycles

@@ -40,8 +40,9 @@ from canopen import SdoAbortedError
 
 from rakectl.core.motor_model import MotorParams, joint_resolution
 from rakectl.protocol.cia402 import DriveState
-from rakectl.protocol.codec import SYNC_COUNTER_MAX, FunctionCode, NmtState, cob_id
+from rakectl.protocol.codec import SYNC_COUNTER_MAX, FunctionCode, cob_id
 from rakectl.protocol.files import EDS_DIR
+from rakectl.protocol.nmt import NmtState
 
 Frame = tuple[int, bytes | bytearray]
 Reader = Callable[[], int]

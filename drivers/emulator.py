@@ -55,7 +55,8 @@ from drivers.settings import EmulatorConfig, TimingMode
 from drivers.stats import BadInput, InputStats
 from rakectl.core.kinematics import Workspace
 from rakectl.core.motor_model import MotorParams, joint_per_motor_rad
-from rakectl.protocol.codec import SYNC_COB_ID, EmcyCode
+from rakectl.protocol.codec import SYNC_COB_ID
+from rakectl.protocol.nmt import EmcyCode
 
 REPORT_INTERVAL_S: Final = 0.25  # how often counters are checked for the rate-limited log
 LOG_INTERVAL_S: Final = 1.0  # at most one log event per kind per this

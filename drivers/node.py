@@ -35,18 +35,20 @@ from rakectl.protocol.codec import (
     NMT_COB_ID,
     RPDO1_SIZE,
     SYNC_COB_ID,
-    EmcyCode,
     FunctionCode,
-    NmtCommand,
-    NmtState,
     current_a_to_ma,
-    decode_heartbeat,
-    decode_nmt,
     decode_rpdo,
-    encode_emcy,
     lost_syncs,
     pack_tpdo1_into,
     rad_per_s_to_rpm,
+)
+from rakectl.protocol.nmt import (
+    EmcyCode,
+    NmtCommand,
+    NmtState,
+    decode_heartbeat,
+    decode_nmt,
+    encode_emcy,
 )
 
 _NMT_TARGET: Final = {NmtCommand.START: NmtState.OPERATIONAL, NmtCommand.STOP: NmtState.STOPPED,

@@ -20,16 +20,13 @@ from drivers.stats import NodeStats
 from rakectl.protocol import cia402
 from rakectl.protocol.cia402 import DriveCommand, DriveState, StatusFlag
 from rakectl.protocol.codec import (
-    EMCY_ERROR_REGISTER,
-    EmcyCode,
     FunctionCode,
-    NmtState,
     cob_id,
     current_a_to_ma,
-    encode_emcy,
     pack_tpdo2_into,
     rad_per_s_to_rpm,
 )
+from rakectl.protocol.nmt import EMCY_ERROR_REGISTER, EmcyCode, NmtState, encode_emcy
 
 NO_FRAMES: Final[tuple[Frame, ...]] = ()
 OVERCURRENT_SHARE: Final = 0.95  # |i| ≥ this share of the limit counts as "at the limit"

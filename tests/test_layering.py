@@ -39,7 +39,8 @@ ALLOWED: dict[str, tuple[str, ...]] = {
 }
 # The pure core: numbers in, numbers out (no I/O, no clock, no logging).
 IMPURE = ("can", "canopen", "yaml", "structlog", "time", "socket", "threading", "subprocess")
-PURE = ("rakectl.core", "rakectl.protocol.codec", "rakectl.protocol.cia402")
+PURE = ("rakectl.core", "rakectl.protocol.codec", "rakectl.protocol.nmt",
+        "rakectl.protocol.cia402")
 
 
 def _module_name(path: Path) -> str:

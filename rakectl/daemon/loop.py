@@ -46,7 +46,7 @@ from rakectl.drive.client import DriveClient
 from rakectl.drive.joints import Joint
 from rakectl.errors import CommsTimeout
 from rakectl.protocol.cia402 import DriveCommand, DriveState, path_to_enabled
-from rakectl.protocol.codec import NmtState
+from rakectl.protocol.nmt import NmtState
 
 RECORDER_COLUMNS = (
     "t_s", "state", "reach_ref_m", "depth_ref_m", "reach_m", "depth_m", "x_ref_m", "f_hat_n",

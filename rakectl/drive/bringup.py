@@ -69,14 +69,8 @@ from rakectl.drive.joints import (
 )
 from rakectl.errors import CommsTimeout, ConfigError, DriveFault, FrameError
 from rakectl.protocol.cia402 import DriveState, decode_statusword
-from rakectl.protocol.codec import (
-    NMT_COB_ID,
-    FunctionCode,
-    NmtCommand,
-    NmtState,
-    cob_id,
-    encode_nmt,
-)
+from rakectl.protocol.codec import NMT_COB_ID, FunctionCode, cob_id
+from rakectl.protocol.nmt import NmtCommand, NmtState, encode_nmt
 
 NOTIFIER_POLL_S = 0.02  # bring-up Notifier's recv timeout: how fast it stops
 NOTIFIER_JOIN_S = 2.0

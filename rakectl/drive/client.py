@@ -80,28 +80,30 @@ from rakectl.drive.joints import (
 from rakectl.errors import FrameError
 from rakectl.protocol.cia402 import FAULT_RESET_BIT, DriveCommand, DriveState, decode_statusword
 from rakectl.protocol.codec import (
-    EMCY_SIZE,
     NMT_COB_ID,
     RPDO1_SIZE,
     SYNC_COB_ID,
     SYNC_COUNTER_MAX,
     TPDO1_SIZE,
     TPDO2_SIZE,
-    EmcyCode,
     FunctionCode,
-    NmtCommand,
-    NmtState,
     cob_id,
     current_ma_to_a,
-    decode_emcy,
-    decode_heartbeat,
     decode_tpdo1,
     decode_tpdo2,
-    encode_heartbeat,
-    encode_nmt,
     pack_rpdo_into,
     rpm_to_rad_per_s,
     voltage_v_to_mv,
+)
+from rakectl.protocol.nmt import (
+    EMCY_SIZE,
+    EmcyCode,
+    NmtCommand,
+    NmtState,
+    decode_emcy,
+    decode_heartbeat,
+    encode_heartbeat,
+    encode_nmt,
 )
 
 CAN_ERR_BUSOFF = 0x040  # error class of a socketcan error frame (linux/can/error.h)

@@ -14,7 +14,7 @@ import math
 from rakectl.config.settings import DrivesSettings
 from rakectl.drive.joints import JOINTS, drive_label, node_ids
 from rakectl.protocol.cia402 import DriveState
-from rakectl.protocol.codec import Emcy, NmtState, emcy_code
+from rakectl.protocol.nmt import Emcy, NmtState, emcy_code
 
 
 class Feedback:

@@ -10,10 +10,10 @@ signals from the mapping objects (0x1600/0x1A00 …), bit lengths and
 signedness from the mapped objects' data types. Only the physical scaling is
 added here (:data:`SIGNAL_STYLES`, by object index): voltage and current in
 V and A, velocity in rad/s, position left in encoder counts (its scale,
-0x2004, is configurable). SYNC, NMT, heartbeats and EMCY follow
-:mod:`rakectl.protocol.codec`; value tables come from :mod:`rakectl.protocol.codec` and
-:mod:`rakectl.protocol.cia402`. :func:`dbc_text` is pure; ``tests/protocol/test_eds_dbc.py``
-checks that the committed file is its output.
+0x2004, is configurable). SYNC follows :mod:`rakectl.protocol.codec`, NMT,
+heartbeats and EMCY :mod:`rakectl.protocol.nmt`; value tables come from
+:mod:`rakectl.protocol.nmt` and :mod:`rakectl.protocol.cia402`. :func:`dbc_text` is
+pure; ``tests/protocol/test_eds_dbc.py`` checks that the committed file is its output.
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVari
 from rakectl.protocol import codec
 from rakectl.protocol.cia402 import DriveCommand
 from rakectl.protocol.files import EDS_DIR
+from rakectl.protocol.nmt import EMCY_SIZE, EmcyCode, NmtCommand, NmtState
 
 DC_SERVO_EDS: Final = EDS_DIR / "dc_servo_drive.eds"
 GEARED_MOTOR_EDS: Final = EDS_DIR / "geared_motor_drive.eds"
@@ -166,7 +167,7 @@ def pdo_messages(drive: Drive) -> list[Message]:
 
 
 def _heartbeat(label: str, node_id: int, receivers: tuple[str, ...]) -> Message:
-    state = Signal("nmt_state", 0, 8, False, receivers, choices=_choices(codec.NmtState))
+    state = Signal("nmt_state", 0, 8, False, receivers, choices=_choices(NmtState))
     cob = codec.cob_id(codec.FunctionCode.HEARTBEAT, node_id)
     return Message(cob, f"{label}_HEARTBEAT", 1, label, (state,), f"Heartbeat of node {node_id}")
 
@@ -174,12 +175,12 @@ def _heartbeat(label: str, node_id: int, receivers: tuple[str, ...]) -> Message:
 def _emcy(drive: Drive) -> Message:
     to = (CONTROLLER,)
     signals = (
-        Signal("error_code", 0, 16, False, to, choices=_choices(codec.EmcyCode)),
+        Signal("error_code", 0, 16, False, to, choices=_choices(EmcyCode)),
         Signal("error_register", 16, 8, False, to),
         Signal("manufacturer_data", 24, 40, False, to),
     )
     cob = codec.cob_id(codec.FunctionCode.EMCY, drive.node_id)
-    return Message(cob, f"{drive.label}_EMCY", codec.EMCY_SIZE, drive.label, signals,
+    return Message(cob, f"{drive.label}_EMCY", EMCY_SIZE, drive.label, signals,
                    f"EMCY of node {drive.node_id}")
 
 
@@ -188,7 +189,7 @@ def fixed_messages(drives: Sequence[Drive]) -> list[Message]:
     to_drives = tuple(d.label for d in drives)
     sync = Signal("sync_counter", 0, 8, False, to_drives, comment="1..240, then 1 again",
                   raw_range=(1, codec.SYNC_COUNTER_MAX))
-    nmt = (Signal("command", 0, 8, False, to_drives, choices=_choices(codec.NmtCommand)),
+    nmt = (Signal("command", 0, 8, False, to_drives, choices=_choices(NmtCommand)),
            Signal("node_id", 8, 8, False, to_drives, comment="0 = every node"))
     return [
         Message(codec.NMT_COB_ID, "NMT", 2, CONTROLLER, nmt, "NMT command"),

@@ -40,7 +40,17 @@ from rakectl.drive.joints import Joint, drive_parameters, load_drive_od, own_ids
 from rakectl.errors import CommsTimeout, ConfigError, DriveFault, NonFiniteError
 from rakectl.protocol import cia402, codec
 from rakectl.protocol.cia402 import DriveCommand, DriveState
-from rakectl.protocol.codec import FunctionCode, NmtCommand, NmtState, cob_id
+from rakectl.protocol.codec import FunctionCode, cob_id
+from rakectl.protocol.nmt import (
+    EMCY_ERROR_REGISTER,
+    EmcyCode,
+    NmtCommand,
+    NmtState,
+    decode_nmt,
+    encode_emcy,
+    encode_heartbeat,
+    encode_nmt,
+)
 
 DRIVES = DrivesSettings()
 MOTORS = MotorsSettings()
@@ -123,7 +133,7 @@ def rpdo(node: int, voltage_mv: int, controlword: int) -> tuple[int, bytes]:
 
 
 def heartbeat(node: int, state: NmtState) -> tuple[int, bytes]:
-    return cob_id(FunctionCode.HEARTBEAT, node), codec.encode_heartbeat(state)
+    return cob_id(FunctionCode.HEARTBEAT, node), encode_heartbeat(state)
 
 
 def sync(counter: int) -> tuple[int, bytes]:
@@ -186,16 +196,16 @@ def test_tpdo2_gives_the_cia402_state_and_the_fault_flag(bus: FakeBus,
 
 
 def test_emcy_is_recorded_and_faults_until_no_error(bus: FakeBus, client: DriveClient) -> None:
-    code = codec.EmcyCode.COMMAND_WATCHDOG_TIMEOUT
-    register = codec.EMCY_ERROR_REGISTER[code]
-    bus.feed(cob_id(FunctionCode.EMCY, R_NODE), codec.encode_emcy(code, register))
+    code = EmcyCode.COMMAND_WATCHDOG_TIMEOUT
+    register = EMCY_ERROR_REGISTER[code]
+    bus.feed(cob_id(FunctionCode.EMCY, R_NODE), encode_emcy(code, register))
     client.receive()
     emcy = client.feedback.last_emcy[Joint.R]
     assert emcy is not None and (emcy.code, emcy.error_register) == (code, register)
     assert client.drive_faults() and client.stats.emcy_received == 1
     assert any("EMCY 0x8250 COMMAND_WATCHDOG_TIMEOUT" in line
                for line in client.describe_problems(100.0, 3))
-    bus.feed(cob_id(FunctionCode.EMCY, R_NODE), codec.encode_emcy(codec.EmcyCode.NO_ERROR, 0))
+    bus.feed(cob_id(FunctionCode.EMCY, R_NODE), encode_emcy(EmcyCode.NO_ERROR, 0))
     client.receive()
     assert not client.drive_faults() and client.stats.emcy_received == 2
 
@@ -385,8 +395,8 @@ def test_stop_all_sends_zero_volts_disable_voltage_and_a_sync(bus: FakeBus,
     assert bus.take_sent() == [rpdo(R_NODE, 0, 0), rpdo(THETA_NODE, 0, 0), sync(1),
                                heartbeat(DRIVES.controller_node_id, NmtState.OPERATIONAL)]
     client.shutdown()
-    assert bus.take_sent()[-2:] == [(0x000, codec.encode_nmt(NmtCommand.STOP, R_NODE)),
-                                    (0x000, codec.encode_nmt(NmtCommand.STOP, THETA_NODE))]
+    assert bus.take_sent()[-2:] == [(0x000, encode_nmt(NmtCommand.STOP, R_NODE)),
+                                    (0x000, encode_nmt(NmtCommand.STOP, THETA_NODE))]
 
 
 def test_a_send_error_is_counted_and_flagged_not_raised(bus: FakeBus,
@@ -554,14 +564,14 @@ class FakeDrive:
         network.subscribe(codec.NMT_COB_ID, self._on_nmt)
 
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        command, node = codec.decode_nmt(data)
+        command, node = decode_nmt(data)
         if node in (0, self.node_id) and self.answers_reset and command in (
                 NmtCommand.RESET_COMMUNICATION, NmtCommand.RESET_NODE):
             self.announce(NmtState.BOOT_UP)
 
     def announce(self, state: NmtState = NmtState.PRE_OPERATIONAL) -> None:
         self.network.send_message(cob_id(FunctionCode.HEARTBEAT, self.node_id),
-                                  codec.encode_heartbeat(state))
+                                  encode_heartbeat(state))
 
     def value(self, index: int, subindex: int = 0) -> int:
         raw = self.node.get_data(index, subindex)
@@ -613,7 +623,7 @@ def test_bring_up_configures_verifies_and_starts_both_drives(
         DRIVES.watchdog_timeout_ms, 2000, DRIVES.heartbeat_period_ms, consumer)
     r_drive, theta_drive = fake_drives
     assert r_drive.value(0x2002) == 6000 and theta_drive.value(0x1016, 1) == consumer
-    nmt = [codec.decode_nmt(data) for can_id, data in network.log if can_id == 0]
+    nmt = [decode_nmt(data) for can_id, data in network.log if can_id == 0]
     assert nmt == [(NmtCommand.RESET_COMMUNICATION, 1), (NmtCommand.RESET_COMMUNICATION, 2),
                    (NmtCommand.START, 1), (NmtCommand.START, 2)]
     assert r_drive.node.nmt.state == "OPERATIONAL"
@@ -867,12 +877,12 @@ def test_watchdog_fault_and_fault_reset_against_the_emulator(rig: Rig) -> None:
     fb = rig.client.feedback
     assert rig.client.drive_faults() and fb.state == [DriveState.FAULT] * 2
     assert [e.code if e else None for e in fb.last_emcy] == [
-        codec.EmcyCode.COMMAND_WATCHDOG_TIMEOUT] * 2
+        EmcyCode.COMMAND_WATCHDOG_TIMEOUT] * 2
     rig.client.command(None, DriveCommand.FAULT_RESET)
     lock_step(rig, 3)  # controlword 0, then 0x80: the rising edge
     rig.client.receive()
     assert fb.state == [DriveState.SWITCH_ON_DISABLED] * 2
-    assert [e.code if e else None for e in fb.last_emcy] == [codec.EmcyCode.NO_ERROR] * 2
+    assert [e.code if e else None for e in fb.last_emcy] == [EmcyCode.NO_ERROR] * 2
     assert not rig.client.drive_faults()
     enable(rig, 6)
     assert fb.state == [DriveState.OPERATION_ENABLED] * 2

@@ -30,7 +30,7 @@ from rakectl.core.motor_model import MotorParams, joint_per_motor_rad, joint_res
 from rakectl.errors import ConfigError
 from rakectl.protocol import codec
 from rakectl.protocol.cia402 import DriveCommand, DriveState, decode_statusword
-from rakectl.protocol.codec import EmcyCode, NmtCommand
+from rakectl.protocol.nmt import EmcyCode, NmtCommand, decode_emcy, encode_nmt
 from tests.drivers.test_node import sdo_download, sdo_reply, sdo_upload
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -77,7 +77,7 @@ class Controller:
         return sdo_reply(self.exchange(), 0x580 + node_id)
 
     def nmt(self, command: NmtCommand, node_id: int = 0) -> Frames:
-        self.send(codec.NMT_COB_ID, codec.encode_nmt(command, node_id))
+        self.send(codec.NMT_COB_ID, encode_nmt(command, node_id))
         return self.exchange()
 
     def cycle(self, commands: dict[int, tuple[int, int]]) -> Frames:
@@ -113,7 +113,7 @@ def of(frames: Frames, can_id: int) -> list[bytes]:
 
 
 def emcy_codes(frames: Frames) -> dict[int, list[int]]:
-    return {n: [codec.decode_emcy(d).code for d in of(frames, 0x80 + n)] for n in NODES}
+    return {n: [decode_emcy(d).code for d in of(frames, 0x80 + n)] for n in NODES}
 
 
 def bring_up(ctl: Controller, watchdog_ms: int = 50) -> None:

@@ -27,7 +27,7 @@ from drivers.emulator import Emulator
 from drivers.settings import EmulatorConfig
 from rakectl.config.settings import DrivesSettings, MotorsSettings
 from rakectl.drive.client import DriveClient
-from rakectl.protocol.codec import EmcyCode
+from rakectl.protocol.nmt import EmcyCode
 from tests.drivers.test_emulator_bus import RecordingLog
 
 _channels = itertools.count()

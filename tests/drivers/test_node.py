@@ -22,7 +22,7 @@ from drivers.stats import BadInput
 from rakectl.core.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, joint_resolution
 from rakectl.protocol import codec
 from rakectl.protocol.cia402 import DriveCommand, DriveState, decode_statusword
-from rakectl.protocol.codec import EmcyCode, NmtCommand, NmtState
+from rakectl.protocol.nmt import EmcyCode, NmtCommand, NmtState, decode_emcy, encode_nmt
 
 NODE_ID = 1
 CONTROLLER = 10
@@ -80,7 +80,7 @@ class Bench:
         return self._copy(self.node.poll(self.now_s))
 
     def nmt(self, command: NmtCommand, node_id: int = 0) -> list[tuple[int, bytes]]:
-        return self.rx(codec.NMT_COB_ID, codec.encode_nmt(command, node_id))
+        return self.rx(codec.NMT_COB_ID, encode_nmt(command, node_id))
 
     def sync(self, dt_s: float = 0.001) -> list[tuple[int, bytes]]:
         self.now_s += dt_s
@@ -131,7 +131,7 @@ def ids(frames: Sequence[tuple[int, bytes]]) -> list[int]:
 
 
 def emcys(frames: Sequence[tuple[int, bytes]]) -> list[int]:
-    return [codec.decode_emcy(d).code for i, d in frames if i == EMCY]
+    return [decode_emcy(d).code for i, d in frames if i == EMCY]
 
 
 def states(frames: Sequence[tuple[int, bytes]]) -> list[DriveState]:
@@ -332,7 +332,7 @@ def test_fault_reset_acts_on_the_rising_edge_of_bit_7(drive: Bench) -> None:
     drive.rpdo(0, DriveCommand.FAULT_RESET)
     frames = drive.sync()
     assert emcys(frames) == [EmcyCode.NO_ERROR]
-    assert codec.decode_emcy(next(d for i, d in frames if i == EMCY)).error_register == 0
+    assert decode_emcy(next(d for i, d in frames if i == EMCY)).error_register == 0
     assert states(frames) == [DriveState.SWITCH_ON_DISABLED]
     drive.rpdo(0, 0x86)  # bit 7 held, plus SHUTDOWN: no command while bit 7 stays set
     drive.sync()
@@ -420,7 +420,7 @@ def test_no_frame_sequence_makes_the_drive_raise(frames: list[tuple[int, bytes]]
 def test_sync_of_the_wrong_length_sends_one_emcy_a_run_and_is_ignored(drive: Bench) -> None:
     drive.nmt(NmtCommand.START)
     first, second = drive.rx(codec.SYNC_COB_ID, b""), drive.rx(codec.SYNC_COB_ID, b"")
-    assert [(i, codec.decode_emcy(d)[0]) for i, d in first] == [
+    assert [(i, decode_emcy(d)[0]) for i, d in first] == [
         (EMCY, EmcyCode.SYNC_DATA_LENGTH)]
     assert second == []  # one EMCY a run, not one a millisecond
     assert drive.node.stats.bad.counts[BadInput.WRONG_LENGTH] == 2
@@ -436,7 +436,7 @@ def test_sync_without_counter_once_0x1019_is_0(drive: Bench) -> None:
     drive.nmt(NmtCommand.START)
     assert [i for i, _ in drive.rx(codec.SYNC_COB_ID, b"")] == [TPDO1]
     emcy = drive.rx(codec.SYNC_COB_ID, b"\x01")  # a counter now is the wrong length
-    assert [(i, codec.decode_emcy(d)[0]) for i, d in emcy] == [(EMCY, EmcyCode.SYNC_DATA_LENGTH)]
+    assert [(i, decode_emcy(d)[0]) for i, d in emcy] == [(EMCY, EmcyCode.SYNC_DATA_LENGTH)]
     assert drive.node.stats.syncs == 1
     assert drive.sdo(sdo_download(0x1019, 0, 10, 1)) == ("abort", SdoAbort.DEVICE_STATE)
     drive.nmt(NmtCommand.ENTER_PRE_OPERATIONAL)

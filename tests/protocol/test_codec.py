@@ -11,8 +11,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from rakectl.errors import FrameError, NonFiniteError, RakeError
-from rakectl.protocol import codec
-from rakectl.protocol.codec import EmcyCode, ErrorRegister, FunctionCode, NmtCommand, NmtState
+from rakectl.protocol import codec, nmt
+from rakectl.protocol.codec import FunctionCode
+from rakectl.protocol.nmt import EmcyCode, ErrorRegister, NmtCommand, NmtState
 
 INT8 = st.integers(-(2**7), 2**7 - 1)
 UINT8 = st.integers(0, 2**8 - 1)
@@ -26,9 +27,9 @@ DECODERS = [
     ("TPDO1", codec.decode_tpdo1, codec.TPDO1_SIZE),
     ("TPDO2", codec.decode_tpdo2, codec.TPDO2_SIZE),
     ("SYNC", codec.decode_sync, codec.SYNC_SIZE),
-    ("heartbeat", codec.decode_heartbeat, 1),
-    ("NMT", codec.decode_nmt, 2),
-    ("EMCY", codec.decode_emcy, codec.EMCY_SIZE),
+    ("heartbeat", nmt.decode_heartbeat, 1),
+    ("NMT", nmt.decode_nmt, 2),
+    ("EMCY", nmt.decode_emcy, nmt.EMCY_SIZE),
 ]
 
 
@@ -57,7 +58,7 @@ def test_frame_error_is_a_rake_error_and_a_value_error() -> None:
 
 def test_frame_sizes_are_the_protocols() -> None:
     assert (codec.TPDO1_SIZE, codec.TPDO2_SIZE, codec.RPDO1_SIZE) == (8, 3, 4)
-    assert (codec.SYNC_SIZE, codec.EMCY_SIZE) == (1, 8)
+    assert (codec.SYNC_SIZE, nmt.EMCY_SIZE) == (1, 8)
 
 
 def test_field_layout_is_little_endian_in_mapping_order() -> None:
@@ -109,17 +110,17 @@ def test_sync_round_trip(counter: int) -> None:
 
 @pytest.mark.parametrize("state", list(NmtState))
 def test_heartbeat_round_trip(state: NmtState) -> None:
-    assert codec.decode_heartbeat(codec.encode_heartbeat(state)) is state
+    assert nmt.decode_heartbeat(nmt.encode_heartbeat(state)) is state
 
 
 @given(st.sampled_from(NmtCommand), st.integers(0, 127))
 def test_nmt_round_trip(command: NmtCommand, node_id: int) -> None:
-    assert codec.decode_nmt(codec.encode_nmt(command, node_id)) == (command, node_id)
+    assert nmt.decode_nmt(nmt.encode_nmt(command, node_id)) == (command, node_id)
 
 
 @given(UINT16, UINT8, st.binary(min_size=5, max_size=5))
 def test_emcy_round_trip(code: int, error_register: int, manufacturer_data: bytes) -> None:
-    emcy = codec.decode_emcy(codec.encode_emcy(code, error_register, manufacturer_data))
+    emcy = nmt.decode_emcy(nmt.encode_emcy(code, error_register, manufacturer_data))
     assert emcy == (code, error_register, manufacturer_data)
 
 
@@ -180,20 +181,20 @@ def test_sync_counter_outside_1_to_240_is_rejected(counter: int) -> None:
 
 def test_undefined_heartbeat_and_nmt_values_are_rejected() -> None:
     with pytest.raises(FrameError, match="0x01 is no NMT state"):
-        codec.decode_heartbeat(b"\x01")
+        nmt.decode_heartbeat(b"\x01")
     with pytest.raises(FrameError, match="is no NMT state"):
-        codec.encode_heartbeat(3)  # type: ignore[arg-type]
+        nmt.encode_heartbeat(3)  # type: ignore[arg-type]
     with pytest.raises(FrameError, match="0x03 is no NMT command"):
-        codec.decode_nmt(b"\x03\x01")
+        nmt.decode_nmt(b"\x03\x01")
     with pytest.raises(FrameError, match=r"node-ID 0\.\.127"):
-        codec.encode_nmt(NmtCommand.START, 128)
+        nmt.encode_nmt(NmtCommand.START, 128)
 
 
 def test_emcy_fields_are_checked() -> None:
     with pytest.raises(FrameError, match="5 bytes, got 4"):
-        codec.encode_emcy(EmcyCode.OVER_CURRENT, 3, bytes(4))
+        nmt.encode_emcy(EmcyCode.OVER_CURRENT, 3, bytes(4))
     with pytest.raises(FrameError, match="code=65536"):
-        codec.encode_emcy(0x10000, 0)
+        nmt.encode_emcy(0x10000, 0)
 
 
 # --------------------------------------------------------------------------- SYNC counter
@@ -250,8 +251,8 @@ def test_cob_id_rejects_bad_node_ids(node_id: int) -> None:
 
 
 def test_every_emcy_code_has_its_error_register() -> None:
-    assert set(codec.EMCY_ERROR_REGISTER) == set(EmcyCode)
-    for code, register in codec.EMCY_ERROR_REGISTER.items():
+    assert set(nmt.EMCY_ERROR_REGISTER) == set(EmcyCode)
+    for code, register in nmt.EMCY_ERROR_REGISTER.items():
         assert bool(register & ErrorRegister.GENERIC) == (code is not EmcyCode.NO_ERROR)
 
 
@@ -259,8 +260,8 @@ def test_emcy_codes_are_standard_or_manufacturer_specific() -> None:
     standard = {0x0000, 0x2310, 0x3210, 0x3220, 0x7305, 0x8130, 0x8240, 0x8250}
     for code in EmcyCode:
         assert code in standard or 0xFF00 <= code <= 0xFFFF, hex(code)
-    assert codec.emcy_code(0x8250) is EmcyCode.COMMAND_WATCHDOG_TIMEOUT
-    assert codec.emcy_code(0x1000) is None
+    assert nmt.emcy_code(0x8250) is EmcyCode.COMMAND_WATCHDOG_TIMEOUT
+    assert nmt.emcy_code(0x1000) is None
 
 
 # --------------------------------------------------------------------------- units

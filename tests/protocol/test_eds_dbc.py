@@ -20,7 +20,7 @@ from canopen.sdo.exceptions import SdoAbortedError
 from hypothesis import given
 from hypothesis import strategies as st
 
-from rakectl.protocol import codec, gen_dbc
+from rakectl.protocol import codec, gen_dbc, nmt
 from rakectl.protocol.codec import Field, FunctionCode
 from rakectl.protocol.files import DBC_PATH
 
@@ -200,7 +200,7 @@ def test_dbc_has_every_frame_at_the_codecs_id_and_size(db: Any) -> None:
         expected |= {codec.cob_id(FunctionCode.TPDO1, node): codec.TPDO1_SIZE,
                      codec.cob_id(FunctionCode.TPDO2, node): codec.TPDO2_SIZE,
                      codec.cob_id(FunctionCode.RPDO1, node): codec.RPDO1_SIZE,
-                     codec.cob_id(FunctionCode.EMCY, node): codec.EMCY_SIZE,
+                     codec.cob_id(FunctionCode.EMCY, node): nmt.EMCY_SIZE,
                      codec.cob_id(FunctionCode.HEARTBEAT, node): 1}
     assert {m.frame_id: m.length for m in db.messages} == expected
 
@@ -240,11 +240,11 @@ def test_tpdo2_values_agree(db: Any, node: int, statusword: int, error_register:
     assert signals == {"statusword": statusword, "error_register": error_register}
 
 
-@given(NODES, st.sampled_from(codec.EmcyCode), st.integers(0, 255), st.binary(min_size=5,
+@given(NODES, st.sampled_from(nmt.EmcyCode), st.integers(0, 255), st.binary(min_size=5,
                                                                                  max_size=5))
 def test_emcy_values_agree(db: Any, node: int, code: int, register: int, extra: bytes) -> None:
     frame_id = codec.cob_id(FunctionCode.EMCY, node)
-    signals = _decoded(db, frame_id, codec.encode_emcy(code, register, extra))
+    signals = _decoded(db, frame_id, nmt.encode_emcy(code, register, extra))
     assert signals == {"error_code": code, "error_register": register,
                        "manufacturer_data": int.from_bytes(extra, "little")}
 
@@ -253,10 +253,10 @@ def test_emcy_values_agree(db: Any, node: int, code: int, register: int, extra: 
     ("frame_id", "data", "expected"),
     [
         (codec.SYNC_COB_ID, codec.encode_sync(240), {"sync_counter": 240}),
-        (codec.NMT_COB_ID, codec.encode_nmt(codec.NmtCommand.START, 2),
+        (codec.NMT_COB_ID, nmt.encode_nmt(nmt.NmtCommand.START, 2),
          {"command": 1, "node_id": 2}),
-        (0x70A, codec.encode_heartbeat(codec.NmtState.OPERATIONAL), {"nmt_state": 5}),
-        (0x701, codec.encode_heartbeat(codec.NmtState.PRE_OPERATIONAL), {"nmt_state": 127}),
+        (0x70A, nmt.encode_heartbeat(nmt.NmtState.OPERATIONAL), {"nmt_state": 5}),
+        (0x701, nmt.encode_heartbeat(nmt.NmtState.PRE_OPERATIONAL), {"nmt_state": 127}),
     ],
 )
 def test_fixed_frames_agree(db: Any, frame_id: int, data: bytes, expected: dict[str, int]) -> None:
