@@ -70,7 +70,8 @@ def _events(out: Path, name: str, event: str) -> list[dict[str, object]]:
 def _armed(bench: VcanBench) -> None:
     bench.wait_for_state(["disarmed"], START_TIMEOUT_S)
     bench.request("arm")
-    bench.wait_for_state(["armed"], 30.0)
+    check = bench.wait_for_state(["armed"], 30.0)["weight_check"]  # through the weight check
+    assert isinstance(check, dict) and check["passed"], check
     deadline = time.monotonic() + 30.0
     while any(d["state"] != "operation_enabled" for d in _drives(bench)):
         assert time.monotonic() < deadline, f"drives not enabled: {_drives(bench)}"
@@ -157,8 +158,8 @@ def test_bring_up_jog_excavate_and_estop_on_the_wire(tmp_path: Path) -> None:
     assert bench.process.returncode == 0
 
     states = [e["new"] for e in _events(tmp_path, "daemon.log", "state")]
-    assert states == ["DISARMED", "ARMED", "JOG", "HOLD", "EXCAVATE", "HOLD", "ESTOP",
-                      "DISARMED"]
+    assert states == ["DISARMED", "CHECKING", "ARMED", "JOG", "HOLD", "EXCAVATE", "HOLD",
+                      "ESTOP", "DISARMED"]
     truth = _truth(tmp_path)
     _check_truth(truth)
     _check_bring_up_on_the_wire(read_trace(wire))
