@@ -149,14 +149,18 @@ def test_bring_up_jog_excavate_and_estop_on_the_wire(tmp_path: Path) -> None:
         # the bus counters tell whether the emulator fell behind (late TPDOs) if not
         assert excavation["done"] and excavation["object_found"] is None, final["bus"]
         force = final["force"]
-        hard_n = SETTINGS.supervision.hard_force_n  # never backed off
-        assert isinstance(force, dict) and force["f_hat_max_n"] < hard_n, final["bus"]
+        assert isinstance(force, dict)
+        print(f"\nF̂ at most {force['f_hat_max_n']:.1f} N (one tick; the supervision judges "
+              "it filtered)")
         bench.request("estop")
         bench.wait_for_state(["estop"], 30.0)
         bench.request("reset")
         bench.wait_for_state(["disarmed"], 30.0)
     assert bench.process.returncode == 0
 
+    # never backed off: the supervision's hard level (its filtered force) was not reached;
+    # F̂ of one tick may spike at 50 Hz (a 0.5 mm step of depth in 20 ms, times K_e)
+    assert _events(tmp_path, "daemon.log", "force_limit") == []
     states = [e["new"] for e in _events(tmp_path, "daemon.log", "state")]
     assert states == ["DISARMED", "CHECKING", "ARMED", "JOG", "HOLD", "EXCAVATE", "HOLD",
                       "ESTOP", "DISARMED"]
