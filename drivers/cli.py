@@ -36,7 +36,7 @@ import structlog
 from drivers.emulator import Emulator
 from drivers.settings import EmulatorConfig, TimingMode
 from rakectl.config.loader import load_settings
-from rakectl.config.settings import BusInterface, BusSettings
+from rakectl.config.service import BusInterface, BusSettings
 from rakectl.errors import ConfigError
 from rakectl.protocol import codec, nmt
 from rakectl.protocol.cia402 import DriveCommand

@@ -9,7 +9,8 @@ from drivers.arm import DEFAULT_SUBSTEP_S
 from drivers.mechanics import ArmParams
 from drivers.objects import GroundParams
 from rakectl.config.declare import section, setting
-from rakectl.config.settings import BusSettings, GeometrySettings
+from rakectl.config.service import BusSettings
+from rakectl.config.settings import GeometrySettings
 from rakectl.core.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, MotorParams
 
 

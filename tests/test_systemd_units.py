@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from rakectl.api.schema import SERVICE_RUNTIME_DIR
-from rakectl.config.settings import BusSettings
+from rakectl.config.service import BusSettings
 
 SYSTEMD = Path(__file__).resolve().parents[1] / "systemd"
 UNITS = ("rakectl.service", "rakectl-emulator.service")

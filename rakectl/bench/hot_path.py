@@ -18,7 +18,8 @@ from collections.abc import Callable
 
 import can
 
-from rakectl.config.settings import BusInterface, BusSettings, DrivesSettings, MotorsSettings
+from rakectl.config.service import BusInterface, BusSettings, DrivesSettings
+from rakectl.config.settings import MotorsSettings
 from rakectl.drive.canbus import TraceRecorder, open_bus
 from rakectl.drive.client import DriveClient
 from rakectl.drive.joints import node_ids, receive_ids

@@ -34,7 +34,8 @@ import numpy as np
 from drivers.emulator import Emulator
 from drivers.settings import EmulatorConfig
 from rakectl.api.schema import Request, decode_request
-from rakectl.config.settings import BusInterface, BusSettings, Settings
+from rakectl.config.service import BusInterface, BusSettings
+from rakectl.config.settings import Settings
 from rakectl.core.lane import LanePhase
 from rakectl.daemon.handlers import make_handler
 from rakectl.daemon.loop import Daemon

@@ -26,7 +26,8 @@ import enum
 import math
 from dataclasses import dataclass
 
-from rakectl.config.settings import ClampSettings, SelfTestSettings
+from rakectl.config.service import SelfTestSettings
+from rakectl.config.settings import ClampSettings
 from rakectl.core.motor_model import MotorParams, joint_load_band, joint_resolution
 
 SETTLE_S = 0.3  # hold after each ramp

@@ -50,7 +50,8 @@ import can
 import canopen
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
-from rakectl.config.settings import DrivesSettings, MotorsSettings
+from rakectl.config.service import DrivesSettings
+from rakectl.config.settings import MotorsSettings
 from rakectl.drive.canbus import BusError
 from rakectl.drive.joints import (
     EDS_FILES,

@@ -39,7 +39,7 @@ from typing import Any, Protocol
 
 import can
 
-from rakectl.config.settings import BusInterface, BusSettings
+from rakectl.config.service import BusInterface, BusSettings
 from rakectl.errors import RakeError
 
 STANDARD_ID_MASK = 0x7FF

@@ -64,7 +64,8 @@ from collections.abc import Callable
 
 import can
 
-from rakectl.config.settings import DrivesSettings, MotorsSettings
+from rakectl.config.service import DrivesSettings
+from rakectl.config.settings import MotorsSettings
 from rakectl.core.motor_model import joint_per_motor_rad, joint_resolution
 from rakectl.drive.bringup import run_bring_up
 from rakectl.drive.canbus import TraceRecorder

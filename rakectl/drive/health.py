@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from rakectl.config.settings import DrivesSettings
+from rakectl.config.service import DrivesSettings
 from rakectl.drive.joints import JOINTS, drive_label, node_ids
 from rakectl.protocol.cia402 import DriveState
 from rakectl.protocol.nmt import Emcy, NmtState, emcy_code

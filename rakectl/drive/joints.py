@@ -9,7 +9,8 @@ from dataclasses import dataclass
 import canopen
 from canopen.objectdictionary import ObjectDictionary, ODVariable, datatypes
 
-from rakectl.config.settings import DrivesSettings, MotorsSettings
+from rakectl.config.service import DrivesSettings
+from rakectl.config.settings import MotorsSettings
 from rakectl.core.motor_model import MotorParams
 from rakectl.errors import ConfigError
 from rakectl.protocol.cia402 import DriveState

@@ -9,7 +9,8 @@ import math
 
 import pytest
 
-from rakectl.config.settings import ClampSettings, MotorsSettings, SelfTestSettings
+from rakectl.config.service import SelfTestSettings
+from rakectl.config.settings import ClampSettings, MotorsSettings
 from rakectl.core.motor_model import MotorParams, joint_per_motor_rad
 from rakectl.core.selftest import Phase, WeightCheck
 from rakectl.sim.rake_plant import RakeLoop

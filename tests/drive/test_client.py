@@ -30,7 +30,8 @@ from hypothesis import strategies as st
 
 from drivers.emulator import Emulator
 from drivers.settings import EmulatorConfig
-from rakectl.config.settings import BusInterface, BusSettings, DrivesSettings, MotorsSettings
+from rakectl.config.service import BusInterface, BusSettings, DrivesSettings
+from rakectl.config.settings import MotorsSettings
 from rakectl.core.motor_model import joint_per_motor_rad, joint_resolution
 from rakectl.drive import canbus
 from rakectl.drive.bringup import BringUp

@@ -25,7 +25,8 @@ import pytest
 from drivers.dictionary import DriveKind
 from drivers.emulator import Emulator
 from drivers.settings import EmulatorConfig
-from rakectl.config.settings import DrivesSettings, MotorsSettings
+from rakectl.config.service import DrivesSettings
+from rakectl.config.settings import MotorsSettings
 from rakectl.drive.client import DriveClient
 from rakectl.protocol.nmt import EmcyCode
 from tests.drivers.test_emulator_bus import RecordingLog

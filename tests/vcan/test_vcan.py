@@ -30,7 +30,8 @@ import pytest
 from drivers.cli import load_config
 from drivers.emulator import Emulator
 from rakectl.config.loader import load_settings
-from rakectl.config.settings import BusInterface, BusSettings, Settings
+from rakectl.config.service import BusInterface, BusSettings
+from rakectl.config.settings import Settings
 from rakectl.drive.canbus import open_bus
 from rakectl.protocol.cia402 import DriveCommand, DriveState, decode_statusword
 from tests.vcan.vcan_bench import (

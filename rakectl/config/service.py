@@ -1,0 +1,108 @@
+"""The service's options, declared once (pure): the CAN bus, the drives' bring-up and
+supervision, the daemon (real time, socket, recorder) and the weight check before the
+first arming. Sections of :class:`rakectl.config.settings.Settings`.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+from rakectl.config.declare import setting
+
+
+class BusInterface(enum.StrEnum):
+    """python-can interfaces the controller and the emulator can use."""
+
+    VIRTUAL = "virtual"  # in one process (tests)
+    UDP_MULTICAST = "udp_multicast"  # across processes, only inside a private network namespace
+    SOCKETCAN = "socketcan"  # can0 / vcan0 on Linux
+
+
+class RtModeSetting(enum.StrEnum):
+    """What the daemon does when a real-time set-up step fails."""
+
+    ENFORCE = "enforce"  # refuse to start, naming what failed
+    IGNORE = "ignore"  # warn and run anyway
+    OFF = "off"  # do not try (tests, development)
+
+
+@dataclass(frozen=True)
+class BusSettings:
+    """The CAN bus to the drives."""
+
+    interface: BusInterface = setting(BusInterface.VIRTUAL, "python-can interface.")
+    channel: str = setting("rakectl", "Channel: vcan0/can0 for socketcan, a group address "
+                           "(239.74.163.2) for udp_multicast, any name for virtual.")
+    bitrate: int = setting(1_000_000, "Nominal bit rate (set on the link for socketcan).",
+                           unit="bit/s", ge=125_000, le=1_000_000)
+    trace_path: str = setting("", "Record every frame to this candump .log file; empty: off.")
+
+
+@dataclass(frozen=True)
+class DrivesSettings:
+    """The two CANopen drives: node-IDs, limits written at bring-up, supervision."""
+
+    r_node_id: int = setting(1, "Node-ID of the r (DC-servo) drive.", ge=1, le=127)
+    theta_node_id: int = setting(2, "Node-ID of the θ (geared-motor) drive.", ge=1, le=127)
+    controller_node_id: int = setting(10, "Node-ID of the controller's heartbeat.", ge=1, le=127)
+    watchdog_timeout_ms: int = setting(
+        20, "Drive command watchdog: no RPDO or SYNC this long → 0 V, quick stop, fault.",
+        unit="ms", ge=2, le=1000)
+    heartbeat_period_ms: int = setting(100, "Heartbeat period of every node.", unit="ms",
+                                       ge=10, le=1000)
+    heartbeat_timeout_ms: int = setting(250, "Heartbeat silence that counts as a lost node.",
+                                        unit="ms", ge=20, le=5000)
+    sdo_timeout_s: float = setting(0.5, "Timeout of one SDO exchange at bring-up.", unit="s",
+                                   gt=0, le=10)
+    feedback_timeout_cycles: int = setting(
+        3, "Cycles in a row without a drive's TPDO before the feedback counts as stale.",
+        ge=1, le=100)
+    sync_counter_overflow: int = setting(
+        240, "SYNC counter overflow (0x1019), written to every drive at bring-up: 0 sends "
+        "SYNC without data (what most masters and PLCs send), 2 … 240 a counter 1 … N.",
+        ge=0, le=240)
+
+
+@dataclass(frozen=True)
+class SelfTestSettings:
+    """The weight check before the first arming (rakectl.core.selftest)."""
+
+    enabled: bool = setting(
+        True, "Before the first arming after start-up, lift the tip and lower it back and "
+        "compare the rake's unbalanced weight, measured through the motor currents, with "
+        "the clamp's model (clamp.rake_mass_kg, counterweight_kg, counterbalance_share); a "
+        "mismatch faults instead of arming.")
+    lift_m: float = setting(0.02, "How far the tip is lifted (straight up).", unit="m", gt=0,
+                            le=0.1)
+    speed_m_per_s: float = setting(0.02, "Lift and lowering speed.", unit="m/s", gt=0, le=0.1)
+    tolerance: float = setting(
+        0.3, "Largest relative difference between the measured and the configured unbalanced "
+        "weight (a missing counterweight doubles it).", gt=0, lt=1)
+
+
+@dataclass(frozen=True)
+class DaemonSettings:
+    """The service: real-time set-up, command socket, flight recorder, supervision."""
+
+    rt_mode: RtModeSetting = setting(RtModeSetting.IGNORE, "Real-time set-up failures: "
+                                     "enforce, ignore or off.")
+    rt_priority: int = setting(80, "SCHED_FIFO priority of the loop.", ge=1, le=99)
+    cpu: int = setting(-1, "CPU to pin the loop to; -1: no pinning.", ge=-1, le=1023)
+    socket_path: str = setting("", "Command socket; empty: /run/rakectl/rakectl.sock under "
+                               "systemd, a per-user path otherwise.")
+    socket_group: str = setting("", "Group that may use the command socket (mode 0660); "
+                                "empty: the daemon's own group.")
+    dump_dir: str = setting("", "Where flight-recorder dumps go; empty: $STATE_DIRECTORY "
+                            "under systemd, else the current directory.")
+    recorder_s: float = setting(4.0, "History kept by the flight recorder.", unit="s", ge=2,
+                                le=60)
+    boot_timeout_s: float = setting(3.0, "How long bring-up waits for each drive's boot-up.",
+                                    unit="s", gt=0, le=60)
+    enable_timeout_s: float = setting(0.5, "How long arming waits for both drives to report "
+                                      "OPERATION ENABLED.", unit="s", gt=0, le=10)
+    overrun_fault_streak: int = setting(
+        50, "Late ticks in a row that count as a fault (the loop cannot keep time).", ge=2,
+        le=100000)
+    stats_interval_s: float = setting(10.0, "How often timing statistics are logged.", unit="s",
+                                      gt=0, le=3600)
