@@ -19,7 +19,10 @@ LowLimit/HighLimit and the drive's own bounds and rejects a write by raising
 nothing): 0x2001 ≤ the supply, 0x2002 in 1 … the hardware current limit and
 0x2004 only while not OPERATION_ENABLED (0x08000022), 0x6060 only −1,
 0x1019 (SYNC counter overflow: 0 = no counter, 2 … 240) only outside
-OPERATIONAL (0x08000022; 1 or above 240: 0x06090030). Other
+OPERATIONAL (0x08000022; 1 or above 240: 0x06090030). 0x1003, the pre-defined
+error field, holds the last 8 EMCY error codes, newest at sub 1; an entry
+beyond sub 0's count answers 0x08000024, and writing 0 to sub 0 clears it
+(any other value: 0x06090030); reset communication clears it too. Other
 writable communication objects (COB-IDs, transmission types) are fixed in this
 drive: writing their present value succeeds, any other value aborts. Identity
 0x1018: product code from the EDS, serial number from the configuration.
@@ -47,6 +50,7 @@ from rakectl.protocol.nmt import NmtState
 Frame = tuple[int, bytes | bytearray]
 Reader = Callable[[], int]
 Writer = Callable[[int], None]
+ERROR_HISTORY: Final = 8  # entries of 0x1003 (its EDS has sub 1 … 8)
 MAX_COUNTS_PER_REV: Final = 10**9  # MotorParams' bound on encoder_counts_per_rev
 _COMM_RANGE: Final = range(0x1000, 0x2000)
 _SDO_ABORT: Final = struct.Struct("<BHBL")  # command 0x80, index, subindex, abort code
@@ -71,6 +75,7 @@ class SdoAbort(enum.IntEnum):
     VALUE_TOO_HIGH = 0x06090031
     VALUE_TOO_LOW = 0x06090032
     DEVICE_STATE = 0x08000022
+    NO_DATA = 0x08000024  # e.g. an error history entry beyond the number of errors
 
 
 @dataclass(frozen=True)
@@ -122,6 +127,7 @@ class DriveObjects:
     _resolution: float
     _tpdo2_refresh: int
     _sync_overflow: int  # 0x1019: 0 = SYNC without counter, else the counter's top
+    _errors: list[int]  # 0x1003 pre-defined error field: newest first, at most 8
 
     def __init__(self, spec: DriveSpec) -> None:
         self.spec, self.node_id = spec, spec.node_id
@@ -189,6 +195,7 @@ class DriveObjects:
             del self._od.data_store[index]
         self._heartbeat_ms, self._consumer = self._power_on[0x1017], self._power_on[0x1016]
         self._sync_overflow = self._power_on[0x1019]
+        self._errors = []
         self._next_heartbeat_s = now_s + self._heartbeat_ms * 0.001
         self._heartbeat_seen_s = None
         self._heartbeat_lost = False
@@ -211,6 +218,8 @@ class DriveObjects:
             (0x1016, 1): lambda: self._consumer,
             (0x1017, 0): lambda: self._heartbeat_ms,
             (0x1019, 0): lambda: self._sync_overflow,
+            (0x1003, 0): lambda: len(self._errors),
+            **{(0x1003, k): self._error_entry(k) for k in range(1, ERROR_HISTORY + 1)},
             (0x1018, 4): lambda: self.spec.serial_number,
             (0x2001, 0): lambda: self._max_voltage_mv,
             (0x2002, 0): lambda: self._current_limit_ma,
@@ -224,6 +233,7 @@ class DriveObjects:
             (0x1016, 1): self._write_consumer,
             (0x1017, 0): self._write_heartbeat_period,
             (0x1019, 0): self._write_sync_overflow,
+            (0x1003, 0): self._clear_errors,
             (0x2002, 0): self._write_current_limit,
             (0x2003, 0): self._write_watchdog,
             (0x2004, 0): self._write_counts_per_rev,
@@ -248,6 +258,23 @@ class DriveObjects:
             writer(value)
         elif value != od.decode_raw(self._od.get_data(index, subindex)):
             raise SdoAbortedError(SdoAbort.VALUE_RANGE)  # fixed in this drive
+
+    def record_error(self, code: int) -> None:
+        """An EMCY error code into the history 0x1003 (newest at sub 1)."""
+        self._errors.insert(0, code & 0xFFFF)
+        del self._errors[ERROR_HISTORY:]
+
+    def _error_entry(self, subindex: int) -> Reader:
+        def read() -> int:
+            if subindex > len(self._errors):
+                raise SdoAbortedError(SdoAbort.NO_DATA)
+            return self._errors[subindex - 1]
+        return read
+
+    def _clear_errors(self, value: int) -> None:
+        if value != 0:  # CiA 301: only 0 may be written, and it clears the history
+            raise SdoAbortedError(SdoAbort.VALUE_RANGE)
+        self._errors.clear()
 
     def _require_not_enabled(self) -> None:
         if self.state is DriveState.OPERATION_ENABLED:

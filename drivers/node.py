@@ -176,6 +176,7 @@ class DriveNode(PowerStage):
             return NO_FRAMES
         self._sync_length_error = True
         code = EmcyCode.SYNC_DATA_LENGTH
+        self.record_error(code)
         self.stats.emcys += 1
         return [(self._ids[FunctionCode.EMCY],
                  encode_emcy(code, self._register() | REGISTER[code]))]

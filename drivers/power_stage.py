@@ -120,6 +120,8 @@ class PowerStage(DriveObjects):
         return register | (REGISTER[EmcyCode.INVALID_COMMAND] if self._clamping else 0)
 
     def _emcy(self, code: EmcyCode, out: list[Frame]) -> None:
+        if code is not EmcyCode.NO_ERROR:
+            self.record_error(code)
         if self.nmt in EMCY_STATES:
             out.append((self._ids[FunctionCode.EMCY], encode_emcy(code, self._register())))
             self.stats.emcys += 1

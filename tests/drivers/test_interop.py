@@ -123,6 +123,9 @@ def test_canopen_master_brings_up_and_cycles_the_drives(
     # A SYNC with a counter is now the wrong length: EMCY 0x8240, ignored.
     network.sync.transmit(1)
     assert r.emcy.wait(EmcyCode.SYNC_DATA_LENGTH, TIMEOUT_S) is not None
+    assert r.sdo[0x1003][0].raw >= 1  # the pre-defined error field, newest first
+    assert r.sdo[0x1003][1].raw & 0xFFFF == EmcyCode.SYNC_DATA_LENGTH
+    assert r.sdo[0x1001].raw == 0  # a warning: no error register bit stays set
 
     # Back to PRE-OPERATIONAL: 0 V at once, no PDOs (CiA 301).
     network.nmt.state = "PRE-OPERATIONAL"

@@ -488,6 +488,29 @@ def test_sdo_writes_out_of_range_abort_and_change_nothing(drive: Bench, index: i
     assert drive.sdo(sdo_upload(index, subindex)) == before
 
 
+def test_error_history_0x1003_keeps_the_emcy_codes_newest_first(drive: Bench) -> None:
+    assert drive.sdo(sdo_upload(0x1003, 0)) == ("value", 0)
+    assert drive.sdo(sdo_upload(0x1003, 1)) == ("abort", SdoAbort.NO_DATA)
+    drive.enable()
+    drive.cycle(0)
+    drive.at(drive.now_s + 0.05).poll()  # everything stops: the command watchdog faults
+    drive.cycle(30000, DriveCommand.FAULT_RESET)  # beyond 0x2001: clamped, a warning
+    drive.sync()  # applied at the next SYNC
+    assert drive.sdo(sdo_upload(0x1003, 0)) == ("value", 2)
+    assert drive.sdo(sdo_upload(0x1003, 1)) == ("value", EmcyCode.INVALID_COMMAND)
+    assert drive.sdo(sdo_upload(0x1003, 2)) == ("value", EmcyCode.COMMAND_WATCHDOG_TIMEOUT)
+    assert drive.sdo(sdo_upload(0x1003, 3)) == ("abort", SdoAbort.NO_DATA)
+    assert drive.sdo(sdo_download(0x1003, 0, 1, 1)) == ("abort", SdoAbort.VALUE_RANGE)
+    assert drive.sdo(sdo_download(0x1003, 0, 0, 1)) == ("ok", 0)
+    assert drive.sdo(sdo_upload(0x1003, 0)) == ("value", 0)
+    for _ in range(10):  # a run of wrong-length SYNCs is one EMCY each run
+        drive.rx(codec.SYNC_COB_ID, b"")
+        drive.sync()
+    assert drive.sdo(sdo_upload(0x1003, 0)) == ("value", 8)  # at most 8 kept
+    drive.nmt(NmtCommand.RESET_COMMUNICATION)
+    assert drive.sdo(sdo_upload(0x1003, 0)) == ("value", 0)
+
+
 def test_current_limit_rebuilds_the_motor_and_is_refused_while_enabled(drive: Bench) -> None:
     assert drive.sdo(sdo_download(0x2002, 0, 3000, 2)) == ("ok", 0)
     assert drive.node.motor_params == dataclasses.replace(R_MOTOR_DEFAULT, current_limit_a=3.0)
