@@ -115,7 +115,7 @@ def emulated_bench(out: Path, emulator_config: Path, daemon_config: Path,
                EMU_ARGS=" ".join(emulator_args), DAEMON_ARGS=" ".join(daemon_args),
                EMU_PREFIX=f"chrt -f {emulator_rt_priority}" if emulator_rt_priority > 0 else "")
     process = subprocess.Popen([*unshare_command(), "sh", str(script)], env=env,
-                               start_new_session=True)
+                               process_group=0)  # its own group: killpg ends it and its children
     bench = Bench(out, socket_path, process)
     try:
         yield bench

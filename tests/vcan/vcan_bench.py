@@ -111,7 +111,7 @@ def _start(args: Sequence[str], log: Path, nice: int = 0, **env: str
         return subprocess.Popen([*prefix, sys.executable, *args], stdout=out,
                                 stderr=subprocess.STDOUT,
                                 env=dict(os.environ, PYTHONUNBUFFERED="1", **env),
-                                start_new_session=True)
+                                process_group=0)  # its own group: killpg ends it and its children
 
 
 @contextlib.contextmanager
