@@ -79,6 +79,8 @@ def status(args: argparse.Namespace) -> int:
         lines.append(f"timing     wake-up p50 {lat['p50'] / 1e3:.0f} µs, p99 "
                      f"{lat['p99'] / 1e3:.0f} µs, max {lat['max'] / 1e3:.0f} µs, "
                      f"overruns {timing.get('overruns', 0)}")
+    if reply.get("timing_check", "ok") != "ok":
+        lines.append(f"arming     {reply['timing_check']}")
     if reply.get("excavation"):
         lines.append(_progress_text(reply))
     print("\n".join(lines))

@@ -104,8 +104,8 @@ def measure_loop(seconds: float, out: Path) -> LoopFigures:
                         daemon_args=["--set", "daemon.rt_mode=enforce"],
                         emulator_rt_priority=70) as bench:
         bench.wait_for_state(["disarmed"], 60.0)
-        bench.request("arm")
-        bench.wait_for_state(["armed"], 10.0)
+        bench.arm_when_timed(30.0)  # enforce: the loop measures its timing before arming
+        bench.wait_for_state(["armed"], 15.0)
         time.sleep(1.0)
         idle = _phase(bench.socket, seconds, 0.0)
         loaded = _phase(bench.socket, seconds, 100.0)

@@ -106,3 +106,15 @@ class DaemonSettings:
         le=100000)
     stats_interval_s: float = setting(10.0, "How often timing statistics are logged.", unit="s",
                                       gt=0, le=3600)
+    arm_timing_s: float = setting(
+        2.0, "Before the first arming, the loop measures its own timing for at least this "
+        "long; with rt_mode enforce, arming is refused before.", unit="s", ge=0, le=600)
+    arm_max_latency_p99_us: float = setting(
+        500.0, "With rt_mode enforce, arming is refused while the p99 of the loop's wake-up "
+        "latency (how late its sleep woke, as cyclictest measures; since start-up) is above "
+        "this; otherwise it is logged.",
+        unit="µs", gt=0, le=1e6)
+    arm_max_late_share: float = setting(
+        0.001, "With rt_mode enforce, arming is refused while the share of late ticks "
+        "(overruns per tick, since start-up) is above this; otherwise it is logged.",
+        ge=0, le=1)

@@ -14,11 +14,13 @@ from pathlib import Path
 from typing import Any
 
 from rakectl.api.schema import ApiCommand, JogSpace, Request
+from rakectl.config.service import RtModeSetting
 from rakectl.core import kinematics
 from rakectl.core.jog import Jog, JogFrame
 from rakectl.core.lane import LanePlanner
 from rakectl.daemon.loop import Daemon
 from rakectl.daemon.states import ARMED_STATES, DaemonState, Event, next_state
+from rakectl.daemon.timing import timing_verdict
 from rakectl.errors import CommandRejected, KinematicsError
 
 Reply = Mapping[str, Any]
@@ -62,6 +64,7 @@ def status(daemon: Daemon) -> dict[str, Any]:
                     "stale_cycles": fb.stale_cycles[j]} for j, s in enumerate(fb.state)],
         "bus": client.stats.as_dict(),
         "timing": daemon.timing.summary(),
+        "timing_check": _timing_verdict(daemon) or "ok",
     }
     check = daemon.weight_result
     reply["weight_check"] = (
@@ -123,6 +126,25 @@ def _dump(daemon: Daemon, request: Request) -> Reply:
     return {"path": str(path)}
 
 
+def _timing_verdict(daemon: Daemon) -> str:
+    s = daemon.settings
+    return timing_verdict(daemon.timing.summary(), daemon.ticks, s.rate_hz, s.daemon)
+
+
+def _check_timing(daemon: Daemon) -> None:
+    """The loop's timing since start-up, judged before arming: with rt_mode enforce a
+    loop that cannot keep time is not armed; otherwise the verdict is logged."""
+    if next_state(daemon.state, Event.ARM) is None:
+        return  # refused below, naming the state
+    verdict = _timing_verdict(daemon)
+    if not verdict:
+        return
+    if daemon.settings.daemon.rt_mode is RtModeSetting.ENFORCE:
+        daemon.event("arm_refused", reason=verdict)
+        raise CommandRejected(f"cannot arm: {verdict} (daemon.rt_mode: enforce)")
+    daemon.event("timing_warning", reason=verdict)
+
+
 def _simple(daemon: Daemon, event: Event, what: str, action: Callable[[], None]) -> Reply:
     _require(daemon, event, what)
     action()
@@ -139,6 +161,7 @@ def make_handler(daemon: Daemon) -> Callable[[Request], Reply]:
         if cmd is ApiCommand.ARM:
             if daemon.client.stale_feedback(daemon.settings.drives.feedback_timeout_cycles):
                 raise CommandRejected("cannot arm: the drives' feedback is stale")
+            _check_timing(daemon)
             return _simple(daemon, Event.ARM, "arm", daemon.arm)
         if cmd is ApiCommand.DISARM:
             return _simple(daemon, Event.DISARM, "disarm", daemon.disarm)

@@ -36,6 +36,7 @@ from typing import Any, TypedDict
 
 import numpy as np
 
+from rakectl.config.service import DaemonSettings
 from rakectl.daemon.histogram import Histogram
 from rakectl.errors import ConfigError
 
@@ -283,3 +284,27 @@ class LoopTiming:
             "skipped": self.timer.skipped_total,
             "gc_collections": [g["collections"] for g in gc.get_stats()],
         }
+
+
+def timing_verdict(summary: dict[str, Any], ticks: int, rate_hz: float,
+                   daemon: DaemonSettings) -> str:
+    """Why the loop's timing since start-up should not be armed on, or "" (pure).
+
+    ``summary`` is :meth:`LoopTiming.summary`; ``ticks`` the ticks run so far. The
+    wake-up latency is the OS's (how late the sleep woke, before the spin: what
+    cyclictest measures); late ticks are the overruns.
+    """
+    measured_s = ticks / rate_hz
+    if measured_s < daemon.arm_timing_s:
+        return (f"the loop has measured its timing for {measured_s:.1f} s of the "
+                f"{daemon.arm_timing_s:g} s daemon.arm_timing_s asks; arm again shortly")
+    p99_us = summary["oversleep_ns"]["p99"] * 1e-3
+    if p99_us > daemon.arm_max_latency_p99_us:
+        return (f"the loop's p99 wake-up latency is {p99_us:.0f} µs, above "
+                f"daemon.arm_max_latency_p99_us ({daemon.arm_max_latency_p99_us:g} µs) by "
+                f"{p99_us - daemon.arm_max_latency_p99_us:.0f} µs")
+    late_share = summary["overruns"] / max(1, ticks)
+    if late_share > daemon.arm_max_late_share:
+        return (f"{summary['overruns']} of {ticks} ticks were late ({late_share:.2%}), above "
+                f"daemon.arm_max_late_share ({daemon.arm_max_late_share:.2%})")
+    return ""

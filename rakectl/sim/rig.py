@@ -79,6 +79,18 @@ class Bench:
     def request(self, cmd: str, **args: object) -> dict[str, object]:
         return call(self.socket, {"cmd": cmd, **args})
 
+    def arm_when_timed(self, timeout_s: float) -> dict[str, object]:
+        """Arm, asking again while the daemon is still measuring its own timing (with
+        rt_mode enforce it arms only after daemon.arm_timing_s of ticks)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                return self.request("arm")
+            except ApiError as error:
+                if "measured its timing" not in str(error) or time.monotonic() > deadline:
+                    raise
+            time.sleep(0.2)
+
     def wait_for_state(self, states: Sequence[str], timeout_s: float) -> dict[str, object]:
         """Poll status until the daemon is in one of ``states``; CommsTimeout otherwise."""
         deadline, reply = time.monotonic() + timeout_s, {}

@@ -11,7 +11,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from rakectl.daemon.timing import TickTimer, TimingStats, percentiles_ns
+from rakectl.config.service import DaemonSettings
+from rakectl.daemon.timing import TickTimer, TimingStats, percentiles_ns, timing_verdict
 from rakectl.errors import ConfigError
 from tests.memory import assert_no_growth
 
@@ -192,3 +193,19 @@ def test_record_keeps_no_memory_per_call() -> None:
             stats.record(PERIOD_NS * k + 1_000_000_007, 40_000 + k, 12_000, 0)
 
     assert_no_growth(run)
+
+
+def _summary(p99_us: float, overruns: int) -> dict[str, object]:
+    return {"oversleep_ns": {"p99": round(p99_us * 1000)}, "overruns": overruns}
+
+
+def test_the_timing_verdict_before_arming_names_what_and_by_how_much() -> None:
+    daemon = DaemonSettings()  # 2 s measured, p99 ≤ 500 µs, ≤ 0.1 % late ticks
+    assert timing_verdict(_summary(80, 1), 5000, 1000.0, daemon) == ""
+    assert "measured its timing for 1.5 s of the 2 s" in timing_verdict(
+        _summary(80, 0), 1500, 1000.0, daemon)
+    late = timing_verdict(_summary(812, 0), 5000, 1000.0, daemon)
+    assert late == ("the loop's p99 wake-up latency is 812 µs, above "
+                    "daemon.arm_max_latency_p99_us (500 µs) by 312 µs")
+    assert "12 of 5000 ticks were late (0.24%), above daemon.arm_max_late_share (0.10%)" in \
+        timing_verdict(_summary(80, 12), 5000, 1000.0, daemon)

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 
+from rakectl.errors import ApiError
 from rakectl.sim.rig import Bench, emulated_bench, namespaces_unavailable
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"
@@ -101,6 +102,25 @@ def test_an_arm_without_its_counterweight_is_refused_by_the_weight_check(tmp_pat
         assert bench.wait_for_state(["fault", "armed"], 15.0)["state"] == "fault"
     print(f"\nno counterweight → {final['fault']}")
     assert "ARMED" not in _states(tmp_path)
+
+
+def test_a_loop_that_cannot_keep_time_is_not_armed_in_enforce_mode(tmp_path: Path) -> None:
+    """rt_mode enforce with a p99 limit no loop meets (1 µs): arming is refused with one
+    line naming the key and the excess, and status says why; nothing moved."""
+    daemon_args = ["--set", "daemon.rt_mode=enforce", "--set",
+                   "daemon.arm_max_latency_p99_us=1", "--set", "daemon.arm_timing_s=0.5"]
+    with emulated_bench(tmp_path, EMULATOR, DAEMON, daemon_args=daemon_args) as bench:
+        bench.wait_for_state(["disarmed"], 60.0)
+        time.sleep(1.0)
+        with pytest.raises(ApiError) as refused:
+            bench.request("arm")
+        status = bench.request("status")
+    message = str(refused.value)
+    assert "cannot arm: the loop's p99 wake-up latency is" in message
+    assert "above daemon.arm_max_latency_p99_us (1 µs) by" in message
+    assert "daemon.rt_mode: enforce" in message
+    assert status["state"] == "disarmed" and "arm_max_latency_p99_us" in status["timing_check"]
+    print(f"\nenforce → {message}")
 
 
 def test_sigkill_of_the_controller_leaves_the_drives_at_0_v(tmp_path: Path) -> None:
