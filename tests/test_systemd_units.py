@@ -168,6 +168,24 @@ def test_systemd_analyze_verify(tmp_path: Path) -> None:
     assert done.returncode == 0 and not complaints, done.stdout + done.stderr
 
 
+EXPOSURE_LIMIT = 1.5  # systemd-analyze security's score; docs/installation.md explains it
+
+
+def test_security_exposure_stays_low() -> None:
+    """systemd's own rating of the unit's sandbox (offline: no running systemd needed)."""
+    analyze = shutil.which("systemd-analyze")
+    if analyze is None:
+        pytest.skip("systemd-analyze is not installed (apt-get install systemd)")
+    done = subprocess.run([analyze, "security", "--offline=yes", "--no-pager",
+                           str(SYSTEMD / "rakectl.service")],
+                          capture_output=True, text=True, timeout=120)
+    found = re.search(r"Overall exposure level for rakectl.service: ([0-9.]+)", done.stdout)
+    assert found, done.stdout + done.stderr
+    score = float(found.group(1))
+    print(f"\nsystemd-analyze security: exposure {score}")
+    assert score <= EXPOSURE_LIMIT, done.stdout
+
+
 def test_sysusers_creates_the_user_and_group(tmp_path: Path) -> None:
     sysusers = shutil.which("systemd-sysusers")
     if sysusers is None:
