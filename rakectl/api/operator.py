@@ -20,6 +20,7 @@ from rakectl.api.schema import DEAD_MAN_PERIOD_S
 
 POLL_S = 0.2
 CHECK_TIMEOUT_S = 30.0  # the weight check takes about 3 s
+DUMP_TIMEOUT_S = 30.0  # a dump is written in the loop's slack, a few hundred ms
 Ops = Callable[[argparse.Namespace], int]
 
 
@@ -88,11 +89,28 @@ def status(args: argparse.Namespace) -> int:
 
 
 def dump(args: argparse.Namespace) -> int:
+    """Ask for a dump and wait until the daemon has written it (or says it could not)."""
     request: dict[str, Any] = {"cmd": "dump"}
     if args.path:
-        request["path"] = str(args.path)
-    reply = call(_path(args), request)
-    _print(args, reply, f"dump: {reply['path']}")
+        request["path"] = str(args.path.absolute())  # the daemon runs elsewhere
+    path = _path(args)
+    reply = call(path, request)
+    written, deadline = reply["path"], time.monotonic() + DUMP_TIMEOUT_S
+    with Client(path) as client:
+        while True:
+            dumps = client.request({"cmd": "status"}).get("dumps", {})
+            failed = [f for f in dumps.get("failed", []) if written in f]
+            if failed:
+                print(f"dump: {failed[-1]}", file=sys.stderr)
+                return 1
+            if written not in dumps.get("pending", []):
+                break
+            if time.monotonic() > deadline:
+                print(f"dump: {written} still being written after {DUMP_TIMEOUT_S:g} s",
+                      file=sys.stderr)
+                return 1
+            time.sleep(POLL_S / 4)
+    _print(args, reply, f"dump: {written}")
     return 0
 
 

@@ -3,7 +3,7 @@
 The tick never formats or writes a log line: it appends (name, fields) to a
 bounded queue, and the slack writes a few at a time through structlog. Events
 that repeat every tick or so (timing summaries) are written at most once per
-``every_s``.
+``every_s``. Faults are logged as errors, refusals and failures as warnings.
 """
 
 from __future__ import annotations
@@ -16,6 +16,22 @@ from typing import Any
 
 QUEUE_LENGTH = 256  # events kept while the slack is too short to write them (oldest dropped)
 LOG_EVERY_S = 1.0  # a rate-limited event is written at most this often
+
+
+WARNINGS = frozenset({"arm_refused", "timing_warning", "recorder_dump_failed", "reset_failed",
+                      "force_limit", "object_found"})
+ERROR_STATES = frozenset({"FAULT", "ESTOP"})
+
+
+def level_of(name: str, fields: dict[str, Any]) -> str:
+    """The log level of an event: entering FAULT or ESTOP and a failed weight check are
+    errors, refusals and failures warnings (``journalctl -p warning`` shows them), the
+    rest info."""
+    if name == "state" and fields.get("new") in ERROR_STATES:
+        return "error"
+    if name == "weight_check" and not fields.get("passed", True):
+        return "error"
+    return "warning" if name in WARNINGS else "info"
 
 
 class EventLog:
@@ -47,4 +63,4 @@ class EventLog:
                     now - self._last_s.get(name, -math.inf) < LOG_EVERY_S:
                 continue
             self._last_s[name] = now
-            self._log.info(name, state=state, **fields)
+            getattr(self._log, level_of(name, fields))(name, state=state, **fields)

@@ -19,6 +19,7 @@ from rakectl.core import kinematics
 from rakectl.core.jog import Jog, JogFrame
 from rakectl.core.lane import LanePlanner
 from rakectl.daemon.loop import Daemon
+from rakectl.daemon.recorder import DumpError
 from rakectl.daemon.states import ARMED_STATES, DaemonState, Event, next_state
 from rakectl.daemon.timing import timing_verdict
 from rakectl.errors import CommandRejected, KinematicsError
@@ -65,6 +66,7 @@ def status(daemon: Daemon) -> dict[str, Any]:
         "bus": client.stats.as_dict(),
         "timing": daemon.timing.summary(),
         "timing_check": _timing_verdict(daemon) or "ok",
+        "dumps": {"pending": daemon.pending_dumps(), "failed": list(daemon.dump_failures)},
     }
     check = daemon.weight_result
     reply["weight_check"] = (
@@ -121,9 +123,21 @@ def _excavate(daemon: Daemon, request: Request) -> Reply:
 
 
 def _dump(daemon: Daemon, request: Request) -> Reply:
+    """Start a dump; the reply names the file, written in the slack (``status`` lists it
+    under ``dumps.pending`` until it is complete). A path that cannot be written is
+    refused here, before anything is queued."""
     given = request.text("path")
-    path = daemon.dump_to(Path(given)) if given else daemon._dump("request")
-    return {"path": str(path)}
+    if not given:
+        return {"path": str(daemon._dump("request")), "pending": True}
+    path = Path(given)
+    if not path.is_absolute():
+        raise CommandRejected(f"dump path must be absolute (the daemon's working directory "
+                              f"is not the client's), got {given!r}")
+    try:
+        daemon.dump_to(path, open_now=True)
+    except DumpError as error:
+        raise CommandRejected(f"cannot dump: {error}") from None
+    return {"path": str(path), "pending": True}
 
 
 def _timing_verdict(daemon: Daemon) -> str:

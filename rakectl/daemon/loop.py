@@ -96,6 +96,7 @@ class Daemon(SlackWork):
         self._overrun_streak = 0
         self._stop_requested = False
         self._dumps: collections.deque[DumpWriter] = collections.deque()
+        self.dump_failures: collections.deque[str] = collections.deque(maxlen=5)
         self.events = EventLog(log, rate_limited=("timing",))
         self._clock_ns = clock_ns
         self._next_stats_tick = 0

@@ -119,6 +119,14 @@ class DumpWriter:
         self.rows_written = 0
         self.done = False
 
+    def open_now(self) -> None:
+        """Create the partial file at once, so that a path it cannot be written to is an
+        error of the request (DumpError naming the file), not of the loop later."""
+        try:
+            self._open()
+        except OSError as exc:
+            raise DumpError(f"flight-recorder dump {self.path}: {exc.strerror or exc}") from exc
+
     def work(self, budget_s: float) -> bool:
         """Write for about ``budget_s`` (at least one batch); True once the file is final."""
         if self.done:

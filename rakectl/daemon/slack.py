@@ -19,7 +19,7 @@ import numpy as np
 
 from rakectl.config.settings import Settings
 from rakectl.daemon.events import EventLog
-from rakectl.daemon.recorder import DumpWriter, FlightRecorder
+from rakectl.daemon.recorder import DumpError, DumpWriter, FlightRecorder
 from rakectl.daemon.sdnotify import Notifier
 from rakectl.daemon.states import ARMED_STATES, DaemonState
 from rakectl.daemon.timing import LoopTiming, TickTimer
@@ -45,6 +45,7 @@ class SlackWork:
     slack_hook: Callable[[float], object] | None  # the command server's poll
     trace: TraceRecorder | None  # bus trace, drained in the slack
     _dumps: collections.deque[DumpWriter]
+    dump_failures: collections.deque[str]  # the last dumps that could not be written
     _clock_ns: Callable[[], int]
     _next_stats_tick: int
     _next_watchdog_tick: int
@@ -56,9 +57,7 @@ class SlackWork:
         self._dump("shutdown")
         self.event("bus_latency", **self.bus_latency())
         while self._dumps:
-            self._dumps[0].work(1.0)
-            if self._dumps[0].done:
-                self._dumps.popleft()
+            self._work_on_dump(1.0)
         self.events.flush(self.state.name)
 
 
@@ -75,13 +74,30 @@ class SlackWork:
             self.slack_hook(budget_s * 0.5)
         if self._dumps:
             left = budget_s - (time.perf_counter() - started)
-            if left > 0 and self._dumps[0].work(left):
-                writer = self._dumps.popleft()
-                self.event("recorder_dumped", path=str(writer.path))
+            if left > 0:
+                self._work_on_dump(left)
         if self.trace is not None:
             self.trace.drain(32)
         self.events.flush(self.state.name, 1)
         self._periodic()
+
+    def _work_on_dump(self, budget_s: float) -> None:
+        """Write on the oldest dump; a dump that cannot be written is dropped and logged,
+        never a reason for the loop to stop."""
+        writer = self._dumps[0]
+        try:
+            done = writer.work(budget_s)
+        except DumpError as error:
+            self._dumps.popleft()
+            self.dump_failures.append(str(error))
+            self.event("recorder_dump_failed", path=str(writer.path), error=str(error))
+            return
+        if done:
+            self._dumps.popleft()
+            self.event("recorder_dumped", path=str(writer.path))
+
+    def pending_dumps(self) -> list[str]:
+        return [str(writer.path) for writer in self._dumps]
 
     def _periodic(self) -> None:
         if self.ticks >= self._next_watchdog_tick:
@@ -117,6 +133,11 @@ class SlackWork:
         path = self.dump_dir / f"rakectl-{stamp}-{self.ticks}-{reason}.csv"
         return self.dump_to(path)
 
-    def dump_to(self, path: Path) -> Path:
-        self._dumps.append(self.recorder.start_dump(path))
+    def dump_to(self, path: Path, open_now: bool = False) -> Path:
+        """Snapshot the recorder now, to be written to ``path`` in the slack; with
+        ``open_now`` the file is created first (DumpError if it cannot be)."""
+        writer = self.recorder.start_dump(path)
+        if open_now:
+            writer.open_now()
+        self._dumps.append(writer)
         return path

@@ -11,8 +11,19 @@ class Captured:
     def __init__(self) -> None:
         self.lines: list[tuple[str, dict[str, Any]]] = []
 
+        self.levels: list[tuple[str, str]] = []
+
     def info(self, name: str, **fields: Any) -> None:
         self.lines.append((name, fields))
+        self.levels.append(("info", name))
+
+    def warning(self, name: str, **fields: Any) -> None:
+        self.lines.append((name, fields))
+        self.levels.append(("warning", name))
+
+    def error(self, name: str, **fields: Any) -> None:
+        self.lines.append((name, fields))
+        self.levels.append(("error", name))
 
 
 def test_events_are_written_in_order_with_the_state_and_only_when_flushed() -> None:
@@ -46,3 +57,16 @@ def test_the_queue_is_bounded_and_keeps_the_newest() -> None:
     events.flush("INIT")
     assert len(log.lines) == QUEUE_LENGTH
     assert log.lines[0][1]["i"] == 10
+
+
+def test_faults_are_errors_and_refusals_warnings() -> None:
+    log = Captured()
+    events = EventLog(log)
+    for name, fields in (("state", {"new": "ARMED"}), ("state", {"new": "FAULT"}),
+                         ("state", {"new": "ESTOP"}), ("arm_refused", {"reason": "late"}),
+                         ("recorder_dump_failed", {}), ("weight_check", {"passed": False}),
+                         ("weight_check", {"passed": True}), ("drives_enabled", {})):
+        events.add(name, fields)
+    events.flush("X")
+    assert [level for level, _ in log.levels] == [
+        "info", "error", "error", "warning", "warning", "error", "info", "info"]

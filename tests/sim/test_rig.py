@@ -13,6 +13,8 @@ import json
 import os
 import signal
 import socket
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -121,6 +123,33 @@ def test_a_loop_that_cannot_keep_time_is_not_armed_in_enforce_mode(tmp_path: Pat
     assert "daemon.rt_mode: enforce" in message
     assert status["state"] == "disarmed" and "arm_max_latency_p99_us" in status["timing_check"]
     print(f"\nenforce → {message}")
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "rakectl", *args], capture_output=True,
+                          text=True, timeout=60)
+
+
+def test_a_dump_to_a_path_it_cannot_write_is_refused_and_the_loop_goes_on(tmp_path: Path
+                                                                          ) -> None:
+    """A dump request is refused, with the file and why, when its path cannot be written
+    (no request may end the daemon); `rakectl dump` returns once the file is complete."""
+    with emulated_bench(tmp_path, EMULATOR, DAEMON) as bench:
+        _armed(bench)
+        socket_path = str(bench.socket)
+        bad = _cli("dump", "--socket", socket_path, "--path", "/nonexistent/x.csv")
+        assert bad.returncode != 0
+        assert "cannot dump" in bad.stderr and "/nonexistent/x.csv" in bad.stderr
+        assert "No such file or directory" in bad.stderr and len(bad.stderr.splitlines()) == 1
+        with pytest.raises(ApiError, match="must be absolute"):
+            bench.request("dump", path="relative.csv")
+        good = _cli("dump", "--socket", socket_path, "--path", str(tmp_path / "asked.csv"))
+        assert good.returncode == 0, good.stderr
+        assert (tmp_path / "asked.csv").read_text().startswith("t_s,state,")
+        assert not (tmp_path / "asked.csv.partial").exists()
+        status = bench.request("status")
+        assert status["state"] == "armed" and status["dumps"] == {"pending": [], "failed": []}
+        bench.request("disarm")
 
 
 def test_sigkill_of_the_controller_leaves_the_drives_at_0_v(tmp_path: Path) -> None:
