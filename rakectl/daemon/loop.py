@@ -117,7 +117,9 @@ class Daemon(SlackWork):
         infos = self.client.bring_up(self.settings.daemon.boot_timeout_s)
         self.event("drives_configured", drives=[
             {"node": i.node_id, "serial": i.identity.serial,
-             "max_voltage_mv": i.limits.max_voltage_mv} for i in infos])
+             "max_voltage_mv": i.limits.max_voltage_mv,
+             "cleared_fault": f"0x{i.cleared_fault:04X}" if i.cleared_fault else None}
+            for i in infos])
 
     def run(self) -> None:
         """The loop, until a stop is requested. Ends with 0 V, drives disabled, a dump."""

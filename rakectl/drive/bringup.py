@@ -23,7 +23,10 @@ in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.settings.Driv
    a value outside the EDS's data type or limits is a ConfigError before anything is sent;
 5. SDO read every one of them back and compare.
 
-Then the statusword 0x6041 of each (the CiA 402 state the hot path starts
+Then a drive still in FAULT from the previous run (it lost that run's
+heartbeat) is fault-reset over SDO (controlword 0x6040: 0, 0x80, 0), now that
+reset communication has cleared the cause (``DriveFault`` if it stays); then
+the statusword 0x6041 of each (the CiA 402 state the hot path starts
 from: the TPDO2 a drive sends on entering OPERATIONAL may reach the bring-up
 Notifier instead), and NMT start for each node (OPERATIONAL). Start ticking right away: an
 enabled drive faults when RPDO1 or SYNC stop for 0x2003 ms, and every drive
@@ -124,15 +127,34 @@ class BringUp:
     def run(self) -> tuple[DriveInfo, DriveInfo]:
         """Configure and verify both drives, read their statusword, start them (OPERATIONAL)."""
         configured = [self._configure(joint) for joint in JOINTS]
+        cleared = [self._clear_old_fault(joint) for joint in JOINTS]
         statuswords = [self._read(joint, 0x6041, 0, "statusword") for joint in JOINTS]
         for joint in JOINTS:
             self._nmt(joint, NmtCommand.START)
         r_info, theta_info = (
             DriveInfo(joint, self._node_id[joint], identity, limits, statusword,
-                      self._state_of(joint, statusword))
-            for joint, (identity, limits), statusword in zip(JOINTS, configured, statuswords,
-                                                             strict=True))
+                      self._state_of(joint, statusword), code)
+            for joint, (identity, limits), statusword, code in zip(
+                JOINTS, configured, statuswords, cleared, strict=True))
         return r_info, theta_info
+
+    def _clear_old_fault(self, joint: Joint) -> int:
+        """A drive still in FAULT from the previous run (its controller's heartbeat was
+        lost when that run ended) is fault-reset here, now that reset communication has
+        cleared the cause: a rising edge of controlword bit 7 over SDO. Returns the code
+        cleared (0x603F), 0 if none; DriveFault if the fault stays."""
+        state = self._state_of(joint, self._read(joint, 0x6041, 0, "statusword"))
+        if state not in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
+            return 0
+        code = self._read(joint, 0x603F, 0, "error code")
+        for controlword in (0x0000, 0x0080, 0x0000):
+            self._write(joint, Parameter(0x6040, 0, "controlword", "", controlword,
+                                         "bring-up fault reset"))
+        state = self._state_of(joint, self._read(joint, 0x6041, 0, "statusword"))
+        if state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
+            raise DriveFault(f"{self._label(joint)}: in FAULT (0x603F = 0x{code:04X}) since "
+                             "before bring-up, and a fault reset does not clear it")
+        return code
 
     def _label(self, joint: Joint) -> str:
         return drive_label(joint, self._node_id[joint])

@@ -96,6 +96,7 @@ class DriveInfo:
     limits: DriveLimits
     statusword: int  # 0x6041 read just before NMT start
     state: DriveState
+    cleared_fault: int = 0  # 0x603F of a fault the previous run left, reset at bring-up
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,7 @@ from drivers.settings import EmulatorConfig
 from rakectl.config.service import DrivesSettings
 from rakectl.config.settings import MotorsSettings
 from rakectl.drive.client import DriveClient
+from rakectl.protocol.cia402 import DriveState
 from rakectl.protocol.nmt import EmcyCode
 from tests.drivers.test_emulator_bus import RecordingLog
 
@@ -159,6 +160,43 @@ def test_the_controller_runs_the_drives_on_sync_without_counter() -> None:
         assert [node.stats.bad.total for node in emulator.nodes] == [0, 0]
         assert emulator.stats.syncs == 50
         client.shutdown()
+    finally:
+        stop.set()
+        thread.join(5.0)
+        emulator.close()
+        controller_bus.shutdown()
+        emulator_bus.shutdown()
+
+
+def test_a_fault_the_previous_run_left_is_cleared_at_bring_up() -> None:
+    """A controller that stops (its heartbeat lost: both drives fault, 0x8130) and a new
+    one that brings the same drives up: they are fault-reset during bring-up, once reset
+    communication has cleared the cause, and start SWITCH ON DISABLED, not in FAULT."""
+    channel = f"test-interop-{os.getpid()}-{next(_channels)}"
+    emulator_bus = can.Bus(interface="virtual", channel=channel)
+    controller_bus = can.Bus(interface="virtual", channel=channel)
+    emulator = Emulator(EmulatorConfig(), emulator_bus, log=RecordingLog())
+    stop = threading.Event()
+    thread = threading.Thread(target=emulator.run, args=(stop.is_set, 0.005), daemon=True)
+    try:
+        emulator.start()
+        thread.start()
+        first = DriveClient(controller_bus, DrivesSettings(), MotorsSettings(), rate_hz=1000.0)
+        first.bring_up(boot_timeout_s=TIMEOUT_S)
+        for _ in range(20):  # the drives monitor the controller's heartbeat from now on
+            first.sync()
+            time.sleep(0.001)
+        deadline_s = time.monotonic() + TIMEOUT_S  # the controller dies: silence
+        while any(node.fault is None for node in emulator.nodes):
+            assert time.monotonic() < deadline_s, "the drives did not fault"
+            time.sleep(0.01)
+        assert {node.fault for node in emulator.nodes} == {EmcyCode.HEARTBEAT_LOST}
+        second = DriveClient(controller_bus, DrivesSettings(), MotorsSettings(), rate_hz=1000.0)
+        infos = second.bring_up(boot_timeout_s=TIMEOUT_S)
+        assert [i.cleared_fault for i in infos] == [EmcyCode.HEARTBEAT_LOST] * 2
+        assert [i.state for i in infos] == [DriveState.SWITCH_ON_DISABLED] * 2
+        assert all(node.fault is None for node in emulator.nodes)
+        second.shutdown()
     finally:
         stop.set()
         thread.join(5.0)
