@@ -20,6 +20,7 @@ from rakectl.api.schema import DEAD_MAN_PERIOD_S
 
 POLL_S = 0.2
 CHECK_TIMEOUT_S = 30.0  # the weight check takes about 3 s
+RESET_TIMEOUT_S = 2.0  # the daemon gives the drives 1 s to clear
 DUMP_TIMEOUT_S = 30.0  # a dump is written in the loop's slack, a few hundred ms
 Ops = Callable[[argparse.Namespace], int]
 
@@ -33,7 +34,7 @@ def _print(args: argparse.Namespace, reply: dict[str, Any], text: str) -> None:
 
 
 def simple(cmd: str) -> Ops:
-    """status-less commands: disarm, stop, estop, reset, shutdown."""
+    """status-less commands: disarm, stop, estop, shutdown."""
 
     def op(args: argparse.Namespace) -> int:
         reply = call(_path(args), {"cmd": cmd})
@@ -59,6 +60,22 @@ def arm(args: argparse.Namespace) -> int:
     _print(args, reply, f"arm: {reply.get('state', 'ok')}"
            + (f" ({reply['fault']})" if reply.get("fault") else ""))
     return 0 if reply.get("state") == "armed" else 1
+
+
+def reset(args: argparse.Namespace) -> int:
+    """Reset, then wait for the daemon's verdict (it fault-resets the drives and leaves
+    FAULT or ESTOP only once no drive problem is left, within about 1 s)."""
+    path = _path(args)
+    reply = call(path, {"cmd": "reset"})
+    deadline = time.monotonic() + RESET_TIMEOUT_S
+    with Client(path) as client:
+        while reply.get("state") in ("fault", "estop") and time.monotonic() < deadline:
+            time.sleep(POLL_S / 2)
+            reply = client.request({"cmd": "status"})
+    ok = reply.get("state") == "disarmed"
+    _print(args, reply, f"reset: {reply.get('state')}"
+           + ("" if ok else f" ({reply.get('fault') or 'the drives did not clear'})"))
+    return 0 if ok else 1
 
 
 def status(args: argparse.Namespace) -> int:
@@ -196,10 +213,12 @@ def add_parsers(sub: Any, parent: argparse.ArgumentParser) -> dict[str, Ops]:
     sub.add_parser("arm", parents=[parent], help="enable the drives and hold the pose (the "
                    "first time, after the weight check)")
     ops["arm"] = arm
+    sub.add_parser("reset", parents=[parent], help="clear a fault or e-stop once its cause "
+                   "is gone (exit status 1 if it stays)")
+    ops["reset"] = reset
     for name, help_text in (("disarm", "stop and disable the drives"),
                             ("stop", "stop jogging or excavating, hold the pose"),
                             ("estop", "emergency stop (latched until reset)"),
-                            ("reset", "clear a fault or e-stop once its cause is gone"),
                             ("shutdown", "end the daemon (tests, bench set-ups)")):
         sub.add_parser(name, parents=[parent], help=help_text)
         ops[name] = simple(name)

@@ -123,7 +123,7 @@ class TickFigures:
     state: str  # the daemon's state at the end (EXCAVATE or DONE → HOLD expected)
 
 
-class _Rig:
+class LockstepRig:
     """Daemon and emulator on one fresh virtual channel, in lock-step."""
 
     def __init__(self, directory: Path) -> None:
@@ -203,14 +203,14 @@ def _p(values: np.ndarray, q: float) -> float:
 def bench_tick(ticks: int) -> TickFigures:
     """Run the daemon's tick ``ticks`` times bare, then ``ticks`` times with the timers."""
     with tempfile.TemporaryDirectory(prefix="rakectl-bench-tick-") as directory:
-        rig = _Rig(Path(directory))
+        rig = LockstepRig(Path(directory))
         try:
             return _measure(rig, ticks)
         finally:
             rig.close()
 
 
-def _measure(rig: _Rig, ticks: int) -> TickFigures:
+def _measure(rig: LockstepRig, ticks: int) -> TickFigures:
     daemon, handle = rig.daemon, make_handler(rig.daemon)
     rig.bring_up()
     rig.until(DaemonState.DISARMED, 3000)

@@ -84,6 +84,11 @@ class VoltageClamp:
         self.worst_case_n = 0.0  # the largest worst-case push F_u of the voltages returned
         self.worst_direction_rad = 0.0  # the direction φ it is along
 
+    def clear_latched(self) -> None:
+        """Forget ``non_finite`` and ``infeasible`` once the fault they raised was handled
+        (a new arming starts from a clean clamp)."""
+        self.non_finite = self.infeasible = False
+
     @property
     def budget_n(self) -> float:
         """This tick's smallest budget over the directions."""

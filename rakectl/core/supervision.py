@@ -23,7 +23,7 @@ from __future__ import annotations
 import enum
 import math
 
-from rakectl.config.settings import ClampSettings, SupervisionSettings
+from rakectl.config.settings import ClampSettings, GeometrySettings, SupervisionSettings
 from rakectl.core import kinematics
 from rakectl.core.motor_model import MotorParams, joint_per_motor_rad
 
@@ -85,3 +85,29 @@ class ForceSupervisor:
         self.level = (ForceLevel.HARD if sustained > self.hard_n else
                       ForceLevel.CAUTION if force > self.caution_n else ForceLevel.OK)
         return self.level
+
+
+PLAUSIBLE_MARGIN = (0.05, 0.1)  # m on r, rad on θ: beyond the workspace's limits by more
+Range = tuple[float, float]
+
+
+def plausible_ranges(geometry: GeometrySettings) -> tuple[Range, Range]:
+    """The joint positions a robot of this geometry can report: its limits (its end
+    stops) widened by :data:`PLAUSIBLE_MARGIN`."""
+    g, (margin_r, margin_theta) = geometry, PLAUSIBLE_MARGIN
+    return ((g.r_min_m - margin_r, g.r_max_m + margin_r),
+            (g.theta_min_rad - margin_theta, g.theta_max_rad + margin_theta))
+
+
+def implausible_joints(r_m: float, theta_rad: float, ranges: tuple[Range, Range],
+                       nodes: tuple[int, int]) -> str:
+    """One line naming the drive whose position no robot of this geometry can have (a
+    corrupt or absurd TPDO, an encoder fault), or "" when both are plausible."""
+    for name, node, value, (low, high), unit, margin in (
+            ("r", nodes[0], r_m, ranges[0], "m", PLAUSIBLE_MARGIN[0]),
+            ("θ", nodes[1], theta_rad, ranges[1], "rad", PLAUSIBLE_MARGIN[1])):
+        if not low <= value <= high:
+            return (f"implausible feedback: {name} drive (node {node}) reports {value:.6g} "
+                    f"{unit}, outside {low:.3g} … {high:.3g} {unit} (the workspace's limits, "
+                    f"geometry.*, ± {margin:g} {unit})")
+    return ""

@@ -175,6 +175,9 @@ def make_handler(daemon: Daemon) -> Callable[[Request], Reply]:
         if cmd is ApiCommand.ARM:
             if daemon.client.stale_feedback(daemon.settings.drives.feedback_timeout_cycles):
                 raise CommandRejected("cannot arm: the drives' feedback is stale")
+            implausible = daemon.implausible_feedback()
+            if implausible and next_state(daemon.state, Event.ARM) is not None:
+                raise CommandRejected(f"cannot arm: {implausible}")
             _check_timing(daemon)
             return _simple(daemon, Event.ARM, "arm", daemon.arm)
         if cmd is ApiCommand.DISARM:

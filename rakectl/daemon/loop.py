@@ -34,7 +34,12 @@ from rakectl.core.control import TipController
 from rakectl.core.jog import Jog
 from rakectl.core.lane import LanePlanner
 from rakectl.core.selftest import WeightCheck, WeightResult
-from rakectl.core.supervision import ForceLevel, ForceSupervisor
+from rakectl.core.supervision import (
+    ForceLevel,
+    ForceSupervisor,
+    implausible_joints,
+    plausible_ranges,
+)
 from rakectl.daemon.events import EventLog
 from rakectl.daemon.recorder import DumpWriter, FlightRecorder
 from rakectl.daemon.sdnotify import Notifier
@@ -88,6 +93,7 @@ class Daemon(SlackWork):
         self.weight_check: WeightCheck | None = None  # running in CHECKING
         self.weight_result: WeightResult | None = None  # the last check's
         self.weight_checked = not settings.selftest.enabled  # passed since start-up
+        self._plausible = plausible_ranges(settings.geometry)
         self.f_hat_max_n = 0.0
         self._enabled = False
         self._enable_deadline = 0
@@ -193,11 +199,21 @@ class Daemon(SlackWork):
         if not (math.isfinite(fb.r_m) and math.isfinite(fb.theta_rad)
                 and math.isfinite(fb.r_vel_m_per_s) and math.isfinite(fb.theta_vel_rad_per_s)):
             return "non-finite joint feedback"
+        r_range, theta_range = self._plausible
+        if not (r_range[0] <= fb.r_m <= r_range[1]
+                and theta_range[0] <= fb.theta_rad <= theta_range[1]):
+            return self.implausible_feedback()
         if self._send_failures >= SEND_FAILURE_STREAK:
             return f"CAN send failed {self._send_failures} ticks in a row: {client.last_send_error}"
         if self._overrun_streak >= self.settings.daemon.overrun_fault_streak:
             return f"{self._overrun_streak} late ticks in a row: the loop cannot keep time"
         return ""
+
+    def implausible_feedback(self) -> str:
+        """Which drive reports a joint position no robot of this geometry can have, or ""."""
+        fb, d = self.client.feedback, self.settings.drives
+        return implausible_joints(fb.r_m, fb.theta_rad, self._plausible,
+                                  (d.r_node_id, d.theta_node_id))
 
     def _control(self) -> tuple[float, float]:
         if not self._enabled and not self._enable_drives():
@@ -340,6 +356,7 @@ class Daemon(SlackWork):
         after start-up, through the weight check (CHECKING)."""
         fb, s = self.client.feedback, self.settings
         self.controller.reset(fb.r_m, fb.theta_rad)
+        self.controller.clamp.clear_latched()  # a fault it raised before was reset
         self.supervisor.reset()
         self.hold = (self.controller.reach_m, self.controller.depth_m)
         self._ref = self.hold
@@ -382,6 +399,7 @@ class Daemon(SlackWork):
         elif self.ticks > self._reset_deadline:
             self._reset_deadline = -1
             problems = client.describe_problems(time.monotonic(), limit)
+            self.fault_reason = "reset failed: " + ("; ".join(problems) or "a drive problem")
             self.event("reset_failed", problems=problems)
 
     def disarm(self) -> None:

@@ -183,6 +183,9 @@ def test_a_drive_that_goes_silent_faults_the_controller(tmp_path: Path) -> None:
     with emulated_bench(tmp_path, EMULATOR, DAEMON, emulator_args=emulator_args) as bench:
         _armed(bench)
         final = bench.wait_for_state(["fault"], 20.0)
+        reset = _cli("reset", "--socket", str(bench.socket))  # the drive is still silent
+    assert reset.returncode == 1, reset.stdout + reset.stderr
+    assert "reset: fault (reset failed: " in reset.stdout and "θ drive" in reset.stdout
     assert "θ drive (node 2)" in final["fault"]
     bus = final["bus"]
     assert bus["tpdo_received_r"] > bus["tpdo_received_theta"]  # r kept answering
