@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from collections.abc import Callable
@@ -17,11 +18,14 @@ from typing import Any, TextIO
 
 from rakectl.api.client import Client, call, socket_path
 from rakectl.api.schema import DEAD_MAN_PERIOD_S
+from rakectl.errors import ApiError
 
 POLL_S = 0.2
+CLEAR_TO_END = "\x1b[K"  # ANSI: erase from the cursor to the end of the line
 CHECK_TIMEOUT_S = 30.0  # the weight check takes about 3 s
 RESET_TIMEOUT_S = 2.0  # the daemon gives the drives 1 s to clear
-DUMP_TIMEOUT_S = 30.0  # a dump is written in the loop's slack, a few hundred ms
+DUMP_TIMEOUT_S = 30.0
+MAX_JOG_S = 600.0  # a dump is written in the loop's slack, a few hundred ms
 Ops = Callable[[argparse.Namespace], int]
 
 
@@ -132,23 +136,43 @@ def dump(args: argparse.Namespace) -> int:
 
 
 def jog(args: argparse.Namespace) -> int:
-    """Send the jog every 0.1 s for ``--duration`` (the daemon's dead-man), then stop."""
+    """Send the jog every 0.1 s (the daemon's dead-man) while this command runs: for
+    ``--duration`` seconds, or until Ctrl-C without it; then stop."""
+    speeds = {"--reach": args.reach, "--height": args.height, "--r": args.r,
+              "--theta": args.theta}
+    for flag, value in speeds.items():
+        if not math.isfinite(value):
+            raise ApiError(f"jog: {flag} must be a finite speed, got {value}")
+    other = ("--r", "--theta") if args.space == "task" else ("--reach", "--height")
+    given = [flag for flag in other if speeds[flag]]
+    if given:
+        raise ApiError(f"jog: {' and '.join(given)} {'does' if len(given) == 1 else 'do'} "
+                       f"not apply in {args.space} space "
+                       f"(task: --reach/--height; joint: --r/--theta)")
+    if args.duration is not None and not 0.0 < args.duration <= MAX_JOG_S:
+        raise ApiError(f"jog: --duration must be in (0, {MAX_JOG_S:g}] s, got {args.duration}")
     if args.space == "task":
         request = {"cmd": "jog", "space": "task", "reach_m_per_s": args.reach,
                    "height_m_per_s": args.height}
     else:
         request = {"cmd": "jog", "space": "joint", "r_m_per_s": args.r,
                    "theta_rad_per_s": args.theta}
-    end = time.monotonic() + args.duration
+    started = time.monotonic()
+    end = started + (args.duration if args.duration is not None else math.inf)
+    if args.duration is None:
+        print("jog: moving while this runs; Ctrl-C stops", file=sys.stderr)
     with Client(_path(args)) as client:
-        reply: dict[str, Any] = {}
-        while time.monotonic() < end:
-            reply = client.request(request)
-            time.sleep(DEAD_MAN_PERIOD_S)
-        reply = client.request({"cmd": "stop"})
+        try:
+            while time.monotonic() < end:
+                client.request(request)
+                time.sleep(DEAD_MAN_PERIOD_S)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            client.request({"cmd": "stop"})
         reply = client.request({"cmd": "status"})
-    _print(args, reply, f"jogged {args.duration:g} s; tip at reach {reply['tip']['reach_m']:.3f}"
-           f" m, depth {1e3 * reply['tip']['depth_m']:.1f} mm")
+    _print(args, reply, f"jogged {time.monotonic() - started:.1f} s; tip at reach "
+           f"{reply['tip']['reach_m']:.3f} m, depth {1e3 * reply['tip']['depth_m']:.1f} mm")
     return 0
 
 
@@ -181,7 +205,9 @@ def follow_excavation(path: Path, out: TextIO, timeout_s: float = 3600.0) -> dic
             if tty or now - last_line >= 2.0 or finished:
                 share = ex.get("depth_m", 0.0) / max(ex.get("target_depth_m", 1.0), 1e-9)
                 line = f"{_bar(share)} {_progress_text(reply)}" if ex else reply["state"]
-                out.write(("\r" if tty else "") + line + ("" if tty and not finished else "\n"))
+                # on a terminal: back to the line's start, and clear what a longer line left
+                out.write(("\r" if tty else "") + line + (CLEAR_TO_END if tty else "")
+                          + ("" if tty and not finished else "\n"))
                 out.flush()
                 last_line = now
             if finished:
@@ -233,7 +259,8 @@ def add_parsers(sub: Any, parent: argparse.ArgumentParser) -> dict[str, Ops]:
     p.add_argument("--height", type=float, default=0.0, help="tip m/s, + up")
     p.add_argument("--r", type=float, default=0.0, help="joint r m/s (joint space)")
     p.add_argument("--theta", type=float, default=0.0, help="joint θ rad/s, + lowers the rake")
-    p.add_argument("--duration", type=float, default=1.0, help="seconds to keep moving")
+    p.add_argument("--duration", type=float, default=None,
+                   help="seconds to keep moving (default: until Ctrl-C)")
     ops["jog"] = jog
     p = sub.add_parser("excavate", parents=[parent], help="rake a lane deeper and deeper")
     p.add_argument("--reach-far", type=float, required=True, help="stroke start, m")

@@ -35,6 +35,7 @@ class _Value:
 
     value: Any
     where: str
+    text: str | None = None  # a scalar's text as written (YAML 1.1 reads "on" as True)
 
 
 def _where(source: str, node: yaml.Node) -> str:
@@ -55,7 +56,8 @@ def _plain(source: str, node: yaml.Node) -> Any:
         return out
     if isinstance(node, yaml.SequenceNode):
         return [(_where(source, item), _plain(source, item)) for item in node.value]
-    return _Value(yaml.safe_load(yaml.serialize(node)), _where(source, node))
+    text = node.value if isinstance(node, yaml.ScalarNode) else None
+    return _Value(yaml.safe_load(yaml.serialize(node)), _where(source, node), text)
 
 
 def parse_yaml(text: str, source: str) -> dict[str, Any]:
@@ -102,7 +104,9 @@ def _apply_override(tree: dict[str, Any], assignment: str) -> None:
             entry = (where, {})
             node[part] = entry
         node = entry[1]
-    node[parts[-1]] = (where, _annotate(value, where))
+    leaf = _Value(value, where, text.strip()) if not isinstance(value, dict | list) \
+        else _annotate(value, where)
+    node[parts[-1]] = (where, leaf)
 
 
 def _suggest(key: str, known: Iterable[str]) -> str:
@@ -114,9 +118,8 @@ def _coerce(tp: Any, raw: _Value, dotted: str, bounds: Bounds | None) -> Any:
     value, where = raw.value, raw.where
     if isinstance(tp, type) and issubclass(tp, enum.Enum):
         choices = ", ".join(m.value for m in tp)
-        if isinstance(value, bool):  # YAML 1.1 reads off/on/yes/no as booleans
-            spellings = ("true", "yes", "on") if value else ("false", "no", "off")
-            value = next((w for w in spellings if w in {m.value for m in tp}), value)
+        if isinstance(value, bool):  # YAML 1.1 reads off/on/yes/no as booleans: as written
+            value = raw.text.lower() if raw.text is not None else str(value).lower()
         if value not in {m.value for m in tp}:
             raise ConfigError(f"{where}: {dotted} must be one of {choices}, got {value!r}")
         return tp(value)
@@ -220,7 +223,13 @@ def load_settings(
             text = Path(path).read_text(encoding="utf-8")
         except OSError as exc:
             raise ConfigError(f"{source}: cannot read: {exc.strerror or exc}") from None
+        except UnicodeDecodeError as exc:
+            raise ConfigError(f"{source}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} "
+                              f"at offset {exc.start})") from None
         tree = parse_yaml(text, source)
+        if not tree:
+            raise ConfigError(f"{source}: no settings in the file (an empty configuration is "
+                              "a mistake on a robot; leave --config out for the defaults)")
     for assignment in overrides:
         _apply_override(tree, assignment)
     settings = _build(root, tree, "", source)

@@ -102,3 +102,21 @@ def test_unknown_options_elsewhere_are_one_line_errors() -> None:
     assert done.returncode == 2
     assert "unrecognized arguments: --bogus" in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(("args", "expected"), [
+    (("--space", "task", "--theta", "0.1"), "jog: --theta does not apply in task space"),
+    (("--space", "joint", "--reach", "0.1", "--height", "0.1"),
+     "jog: --reach and --height do not apply in joint space"),
+    (("--duration", "-5"), "jog: --duration must be in (0, 600] s, got -5.0"),
+    (("--duration", "nan"), "jog: --duration must be in (0, 600] s, got nan"),
+    (("--height", "inf"), "jog: --height must be a finite speed, got inf"),
+])
+def test_jog_arguments_are_checked_before_anything_is_sent(tmp_path: Path,
+                                                           args: tuple[str, ...],
+                                                           expected: str) -> None:
+    """No daemon listens on this socket: a checked argument fails first, in one line."""
+    done = _rakectl("jog", "--socket", str(tmp_path / "none.sock"), *args)
+    assert done.returncode != 0
+    assert done.stderr.startswith(f"rakectl: error: {expected}")
+    assert len(done.stderr.strip().splitlines()) == 1

@@ -79,6 +79,10 @@ def test_number_literals_yaml_1_1_would_read_as_strings(tmp_path: Path) -> None:
          ":2: estimator.delay_s must be a whole number of loop periods"),
         ("geometry:\n  r_min_m: 1.0\n  r_max_m: 0.5\n",
          ":3: geometry.r_max_m must be > geometry.r_min_m (1)"),
+        ("daemon:\n  rt_mode: on\n",
+         ":2: daemon.rt_mode must be one of enforce, ignore, off, got 'on'"),
+        ("", ": no settings in the file"),
+        ("# only a comment\n", ": no settings in the file"),
         ("drives:\n  sync_counter_overflow: 1\n",
          ":2: drives.sync_counter_overflow must be 0 (SYNC without counter) or 2 … 240"),
     ],
@@ -88,6 +92,19 @@ def test_bad_files_name_file_line_and_key(tmp_path: Path, text: str, expected: s
     message = _error(path)
     assert message.startswith(str(path))
     assert expected in message
+
+
+def test_a_file_that_is_not_utf8_is_one_line(tmp_path: Path) -> None:
+    path = tmp_path / "latin1.yaml"
+    path.write_bytes("daemon:\n  socket_group: op\xe9rateurs\n".encode("latin-1"))
+    assert _error(path).endswith("latin1.yaml: not UTF-8 text (byte 0xe9 at offset 26)")
+
+
+def test_set_names_the_value_as_written(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="--set daemon.rt_mode=on: daemon.rt_mode must be "
+                                          "one of enforce, ignore, off, got 'on'"):
+        load_settings(None, ["daemon.rt_mode=on"])
+    assert load_settings(None, ["daemon.rt_mode=Off"]).daemon.rt_mode.value == "off"
 
 
 def test_missing_file_is_one_line(tmp_path: Path) -> None:
