@@ -63,7 +63,7 @@ def configure_logging(stream: TextIO = sys.stderr) -> None:
 def open_bus(settings: BusSettings) -> can.BusABC:
     options: dict[str, Any] = {}
     if settings.interface is BusInterface.UDP_MULTICAST:
-        options.update(UDP_MULTICAST_OPTIONS)
+        options.update(UDP_MULTICAST_OPTIONS, port=settings.udp_port)  # the controller's
     return can.Bus(interface=settings.interface.value, channel=settings.channel, **options)
 
 

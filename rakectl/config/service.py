@@ -6,9 +6,13 @@ first arming. Sections of :class:`rakectl.config.settings.Settings`.
 from __future__ import annotations
 
 import enum
+import zlib
 from dataclasses import dataclass
 
 from rakectl.config.declare import setting
+
+UDP_PORT_BASE = 43113  # python-can's default udp_multicast port
+UDP_PORT_SPAN = 1000
 
 
 class BusInterface(enum.StrEnum):
@@ -37,6 +41,13 @@ class BusSettings:
     bitrate: int = setting(1_000_000, "Nominal bit rate (set on the link for socketcan).",
                            unit="bit/s", ge=125_000, le=1_000_000)
     trace_path: str = setting("", "Record every frame to this candump .log file; empty: off.")
+
+    @property
+    def udp_port(self) -> int:
+        """udp_multicast's UDP port, derived from the group address (``channel``): a socket
+        bound to a port receives every group joined on that port, so benches on different
+        groups get different ports and cannot hear each other."""
+        return UDP_PORT_BASE + zlib.crc32(self.channel.encode()) % UDP_PORT_SPAN
 
 
 @dataclass(frozen=True)

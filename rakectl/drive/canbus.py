@@ -20,8 +20,9 @@ Receive filters, per interface:
   ``udp_multicast``. The drive client classifies frames itself instead:
   echoes of its own IDs are counted as such and ignored, anything else is
   counted as unknown. ``udp_multicast`` is opened with ``fd=False`` (classic
-  CAN) and needs ``msgpack``; only ever use it inside a private network
-  namespace (see design/MACHINE.md).
+  CAN) on a port derived from its group address (:attr:`BusSettings.udp_port`:
+  benches on different groups do not hear each other) and needs ``msgpack``;
+  only ever use it inside a private network namespace (docs/development.md).
 
 :class:`TraceRecorder` copies every frame sent and received into a
 preallocated ring in the hot path (no allocation, no I/O) and writes them to
@@ -64,6 +65,7 @@ def bus_kwargs(settings: BusSettings, receive_ids: Iterable[int]) -> dict[str, A
         kwargs["can_filters"] = can_filters(receive_ids)
     elif settings.interface is BusInterface.UDP_MULTICAST:
         kwargs["fd"] = False
+        kwargs["port"] = settings.udp_port  # one port per group address: no cross-talk
     return kwargs
 
 

@@ -449,8 +449,13 @@ def test_bus_arguments_per_interface() -> None:
     assert len(socketcan["can_filters"]) == 10
     udp = canbus.bus_kwargs(BusSettings(interface=BusInterface.UDP_MULTICAST,
                                         channel="239.74.163.2"), ids)
+    port = udp.pop("port")
     assert udp == {"interface": "udp_multicast", "channel": "239.74.163.2", "fd": False}
     assert canbus.bus_kwargs(BusSettings(), ids) == {"interface": "virtual", "channel": "rakectl"}
+    # one port per group: a socket bound to a port hears every group joined on it
+    ports = {BusSettings(interface=BusInterface.UDP_MULTICAST, channel=f"239.74.163.{k}"
+                         ).udp_port for k in range(1, 9)}
+    assert len(ports) == 8 and port in range(43113, 44113)
 
 
 def test_open_bus_failure_is_one_line_naming_interface_and_channel() -> None:
