@@ -55,7 +55,7 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from rakectl.config.service import DrivesSettings
 from rakectl.config.settings import MotorsSettings
-from rakectl.drive.canbus import BusError
+from rakectl.drive.canbus import BusError, TraceRecorder
 from rakectl.drive.joints import (
     EDS_FILES,
     JOINTS,
@@ -70,6 +70,7 @@ from rakectl.drive.joints import (
     load_drive_od,
     node_ids,
     od_variable,
+    own_ids,
 )
 from rakectl.errors import CommsTimeout, ConfigError, DriveFault, FrameError
 from rakectl.protocol.cia402 import DriveState, decode_statusword
@@ -244,13 +245,49 @@ class BringUp:
             raise BusError(f"{label}: bus error {what}: {error}") from error
 
 
+class _TraceListener(can.Listener):
+    """Frames the bring-up receives, into the bus trace (echoes of its own left out)."""
+
+    def __init__(self, trace: TraceRecorder, own: frozenset[int], lock: threading.Lock) -> None:
+        self._trace, self._own, self._lock = trace, own, lock
+
+    def on_message_received(self, msg: can.Message) -> None:  # the notifier's thread
+        if msg.arbitration_id not in self._own:
+            with self._lock:
+                self._trace.record(msg, True)
+
+
+class _TracedNetwork(canopen.Network):
+    """The bring-up's network, with every frame it sends and receives in the bus trace,
+    once (udp_multicast's echoes of frames sent are left out)."""
+
+    def __init__(self, bus: can.BusABC, trace: TraceRecorder, own: frozenset[int]) -> None:
+        super().__init__(bus)
+        self._trace, self._lock = trace, threading.Lock()
+        self.trace_listener = _TraceListener(trace, own, self._lock)  # for the notifier
+
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        super().send_message(can_id, data, remote)
+        msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF,
+                          is_remote_frame=remote)
+        with self._lock:
+            self._trace.record(msg, False)
+
+
 def run_bring_up(bus: can.BusABC, drives: DrivesSettings, motors: MotorsSettings,
-                 boot_timeout_s: float) -> tuple[DriveInfo, DriveInfo]:
+                 boot_timeout_s: float, trace: TraceRecorder | None = None
+                 ) -> tuple[DriveInfo, DriveInfo]:
     """:class:`BringUp` on a ``canopen.Network`` over ``bus``, fed by a temporary
-    ``can.Notifier`` that is stopped and joined before this returns (the module docstring)."""
-    network = canopen.Network(bus)
+    ``can.Notifier`` that is stopped and joined before this returns (the module docstring);
+    with ``trace``, its frames go to the bus trace too."""
+    listeners: list[can.Listener] = []
+    if trace is None:
+        network = canopen.Network(bus)
+    else:
+        network = _TracedNetwork(bus, trace, frozenset(own_ids(drives)))
+        listeners.append(network.trace_listener)
     sequence = BringUp(network, drives, motors, boot_timeout_s)
-    notifier = can.Notifier(bus, network.listeners, timeout=NOTIFIER_POLL_S)
+    notifier = can.Notifier(bus, [*network.listeners, *listeners], timeout=NOTIFIER_POLL_S)
     try:
         infos = sequence.run()
     finally:

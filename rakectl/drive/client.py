@@ -180,7 +180,8 @@ class DriveClient(DriveSupervision):
 
     def bring_up(self, boot_timeout_s: float = 2.0) -> tuple[DriveInfo, DriveInfo]:
         """Configure, verify and start both drives (blocking; see rakectl.drive.bringup)."""
-        infos = run_bring_up(self._bus, self._drives, self._motors, boot_timeout_s)
+        infos = run_bring_up(self._bus, self._drives, self._motors, boot_timeout_s,
+                             self._trace)
         self.infos = infos
         self._heard_s = [self._clock(), self._clock()]
         self._rebooted = [False, False]
@@ -213,12 +214,14 @@ class DriveClient(DriveSupervision):
             if msg is None:
                 break
             count += 1
-            if trace is not None:
-                trace.record(msg, True)
             if msg.is_error_frame or msg.is_extended_id or msg.is_remote_frame:
+                if trace is not None:
+                    trace.record(msg, True)
                 self._on_odd_frame(msg)
                 continue
             kind_joint = route.get(msg.arbitration_id)
+            if trace is not None and (kind_joint is None or kind_joint[0] != _OWN):
+                trace.record(msg, True)  # an echo of a frame sent is traced once, as sent
             if kind_joint is None:
                 stats.frames_unknown += 1
                 continue

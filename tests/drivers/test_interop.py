@@ -17,6 +17,7 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import replace
+from pathlib import Path
 
 import can
 import canopen
@@ -25,8 +26,9 @@ import pytest
 from drivers.dictionary import DriveKind
 from drivers.emulator import Emulator
 from drivers.settings import EmulatorConfig
-from rakectl.config.service import DrivesSettings
+from rakectl.config.service import BusSettings, DrivesSettings
 from rakectl.config.settings import MotorsSettings
+from rakectl.drive.canbus import open_trace
 from rakectl.drive.client import DriveClient
 from rakectl.protocol.cia402 import DriveState
 from rakectl.protocol.nmt import EmcyCode
@@ -203,3 +205,45 @@ def test_a_fault_the_previous_run_left_is_cleared_at_bring_up() -> None:
         emulator.close()
         controller_bus.shutdown()
         emulator_bus.shutdown()
+
+
+def test_the_bus_trace_holds_the_bring_up_and_each_frame_once(tmp_path: Path) -> None:
+    """The daemon's trace (bus.trace_path) from the bring-up on: its SDO and NMT frames are
+    in it, and a frame the controller sent is in it once, as sent, even on a bus that
+    echoes it back (as udp_multicast does; python-can's virtual bus here, told to)."""
+    channel = f"test-interop-{os.getpid()}-{next(_channels)}"
+    emulator_bus = can.Bus(interface="virtual", channel=channel)
+    controller_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=True)
+    emulator = Emulator(EmulatorConfig(), emulator_bus, log=RecordingLog())
+    stop = threading.Event()
+    thread = threading.Thread(target=emulator.run, args=(stop.is_set, 0.005), daemon=True)
+    path = tmp_path / "trace.log"
+    trace = open_trace(BusSettings(trace_path=str(path)))
+    assert trace is not None
+    try:
+        emulator.start()
+        thread.start()
+        client = DriveClient(controller_bus, DrivesSettings(), MotorsSettings(), 1000.0, trace)
+        client.bring_up(boot_timeout_s=TIMEOUT_S)
+        for _ in range(20):
+            client.sync()
+            time.sleep(0.002)
+            client.receive()
+        client.shutdown()
+        trace.drain(1_000_000)
+        trace.close()
+    finally:
+        stop.set()
+        thread.join(5.0)
+        emulator.close()
+        controller_bus.shutdown()
+        emulator_bus.shutdown()
+    frames = list(can.CanutilsLogReader(str(path)))
+    sent = [f for f in frames if not f.is_rx]
+    received = [f for f in frames if f.is_rx]
+    assert any(f.arbitration_id == 0x601 for f in sent)  # the bring-up's SDO requests …
+    assert any(f.arbitration_id == 0x581 for f in received)  # … and the drives' answers
+    assert any(f.arbitration_id == 0x000 for f in sent)  # NMT
+    assert len([f for f in sent if f.arbitration_id == 0x080]) == 20 + 1  # + stop_all's SYNC
+    own = {0x000, 0x080, 0x201, 0x202, 0x601, 0x602, 0x70A}
+    assert not [f for f in received if f.arbitration_id in own]  # no echo twice, as R

@@ -229,15 +229,20 @@ def _check_bring_up_on_the_wire(frames: list[can.Message]) -> None:
 
 
 def _check_daemon_trace(frames: list[can.Message]) -> None:
-    """The daemon's own trace (bus.trace_path): every cyclic frame decodes with the DBC.
+    """The daemon's own trace (bus.trace_path): the bring-up's SDO in it, every frame once,
+    every cyclic frame decodes with the DBC.
 
     Sent frames are marked T, received ones R (python-can's candump format).
     """
     dbc = load_dbc()
     known = {m.frame_id for m in dbc.messages}
-    assert frames and all(f.arbitration_id in known for f in frames)  # the loop's frames only
-    sent = [(f.arbitration_id, _decode(dbc, f)) for f in frames if not f.is_rx]
-    received = [(f.arbitration_id, _decode(dbc, f)) for f in frames if f.is_rx]
+    sdo = [f for f in frames if 0x580 < f.arbitration_id < 0x680]  # the bring-up's, traced
+    assert any(f.is_rx for f in sdo) and any(not f.is_rx for f in sdo)
+    own = {0x000, 0x080, *(0x200 + n for n in NODES), *(0x600 + n for n in NODES)}
+    assert not [f for f in frames if f.is_rx and f.arbitration_id in own]  # each frame once
+    cyclic = [f for f in frames if f.arbitration_id in known]
+    sent = [(f.arbitration_id, _decode(dbc, f)) for f in cyclic if not f.is_rx]
+    received = [(f.arbitration_id, _decode(dbc, f)) for f in cyclic if f.is_rx]
     syncs = [d["sync_counter"] for can_id, d in sent if can_id == 0x080]
     assert len(syncs) > 250  # 5 s at 50 Hz
     assert all(b == a % 240 + 1 for a, b in itertools.pairwise(syncs))  # none lost from the trace
