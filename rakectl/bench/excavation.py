@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 
 from drivers.objects import Contact
 from drivers.soil import Soil
+from rakectl.config.files import config_dir
 from rakectl.config.loader import load_settings
 from rakectl.config.settings import LaneSettings
 from rakectl.core.lane import LanePhase, LanePlanner
@@ -46,7 +47,6 @@ from rakectl.sim.rake_plant import RakeLoop
 from rakectl.sim.scenario import Scenario
 from rakectl.sim.simulate import advance_reference, build_reference
 
-SCENARIOS = Path(__file__).resolve().parents[2] / "config" / "scenarios"
 SOILS = ("sand", "loam", "clay")
 HARDEST_SOIL = "clay"
 SPEEDUP_GOAL = 2.0  # over fixed-safe, in sand and loam
@@ -83,7 +83,7 @@ QUICK = LaneShape(reach_far_m=1.4, reach_near_m=1.0, target_depth_m=0.02)
 
 
 def scenario_path(soil: str) -> Path:
-    return SCENARIOS / f"excavate-{soil}.yaml"
+    return config_dir() / "scenarios" / f"excavate-{soil}.yaml"
 
 
 @dataclass(frozen=True)

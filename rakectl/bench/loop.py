@@ -18,10 +18,10 @@ from typing import Any
 
 from rakectl.api.client import Client
 from rakectl.bench.cyclictest import run_cyclictest
+from rakectl.config.files import config_dir
 from rakectl.errors import RakeError
 from rakectl.sim.rig import emulated_bench, namespaces_unavailable
 
-CONFIG = Path(__file__).resolve().parents[2] / "config"
 FRAME_OVERHEAD_BITS = 47  # a standard-ID data frame without stuffing: 47 + 8 × data bytes
 BUS_BITS_PER_CYCLE = 55 + 2 * 111 + 2 * 79  # SYNC + 2 TPDO1 + 2 RPDO1, with frame overhead
 
@@ -100,7 +100,8 @@ def measure_loop(seconds: float, out: Path) -> LoopFigures:
         raise RakeError(f"the loop benchmark needs a network namespace: {reason}")
     reasons: list[str] = []
     cyclictest = run_cyclictest(seconds, why_not=reasons.append)
-    with emulated_bench(out, CONFIG / "emulator-demo.yaml", CONFIG / "rakectl-emulated.yaml",
+    config = config_dir()
+    with emulated_bench(out, config / "emulator-demo.yaml", config / "rakectl-emulated.yaml",
                         daemon_args=["--set", "daemon.rt_mode=enforce"],
                         emulator_rt_priority=70) as bench:
         bench.wait_for_state(["disarmed"], 60.0)

@@ -64,6 +64,10 @@ def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], i
     demo = sub.add_parser("demo", help="the whole system on an emulated bench: find a mine")
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="logs, truth, plot")
     demo.add_argument("--json", action="store_true", help="the summary as JSON on the last line")
+    files = sub.add_parser("files", help="where the example configurations and systemd "
+                           "files are (installed with the package), or copy them")
+    files.add_argument("--copy", type=Path, metavar="DIR", help="copy config/ and systemd/ "
+                       "into DIR (refused if DIR already holds them)")
     _add_bench(sub)
     return parser, ops
 
@@ -221,6 +225,24 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return run_demo(args.out, args.json)
 
 
+def _cmd_files(args: argparse.Namespace) -> int:
+    import shutil
+
+    from rakectl.config.files import shared_root
+
+    root = shared_root()
+    if args.copy is None:
+        print(root)
+        return 0
+    for name in ("config", "systemd"):
+        target = args.copy / name
+        if target.exists():
+            raise ConfigError(f"files: {target} exists; copy into an empty directory")
+        shutil.copytree(root / name, target)
+    print(f"files: config/ and systemd/ copied into {args.copy}")
+    return 0
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from rakectl.daemon.service import run
 
@@ -237,7 +259,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     commands: dict[str, Callable[[argparse.Namespace], int]] = {
         "simulate": _cmd_simulate, "config-docs": _cmd_config_docs, "bench": _cmd_bench,
         "api-docs": _cmd_api_docs,
-        "run": _cmd_run, "emulator": _cmd_emulator, "demo": _cmd_demo,
+        "run": _cmd_run, "emulator": _cmd_emulator, "demo": _cmd_demo, "files": _cmd_files,
         "fuzz": _cmd_fuzz}
     try:
         parser, ops = _build_parser()

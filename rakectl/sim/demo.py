@@ -16,11 +16,11 @@ from pathlib import Path
 from typing import Any
 
 from rakectl.api.operator import follow_excavation
+from rakectl.config.files import config_dir
 from rakectl.errors import RakeError
 from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim.rig import emulated_bench, namespaces_unavailable
 
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "config"
 # The demo lane: strokes from 1.25 m to 0.92 m reach, 15 mm deeper each cycle,
 # down to 60 mm at most; the mine's top is at 25 mm, centred at 1.08 m.
 LANE = {"reach_far_m": 1.25, "reach_near_m": 0.92, "target_depth_m": 0.06,
@@ -29,7 +29,7 @@ MINE = (1.08, 0.025, 0.08, 0.05)  # reach, top depth, width, thickness (config/e
 
 
 def _config(name: str) -> Path:
-    path = CONFIG_DIR / name
+    path = config_dir() / name
     if not path.is_file():
         raise RakeError(f"{path} is missing: run the demo from a checkout of rakectl")
     return path
