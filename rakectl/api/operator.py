@@ -162,14 +162,24 @@ def jog(args: argparse.Namespace) -> int:
     if args.duration is None:
         print("jog: moving while this runs; Ctrl-C stops", file=sys.stderr)
     with Client(_path(args)) as client:
+        moving, refused = False, None
         try:
             while time.monotonic() < end:
                 client.request(request)
+                moving = True
                 time.sleep(DEAD_MAN_PERIOD_S)
         except KeyboardInterrupt:
             pass
-        finally:
-            client.request({"cmd": "stop"})
+        except ApiError as error:  # the daemon's reason, not that of a stop after it
+            refused = error
+        if moving:
+            try:
+                client.request({"cmd": "stop"})
+            except ApiError:
+                if refused is None:
+                    raise
+        if refused is not None:
+            raise refused
         reply = client.request({"cmd": "status"})
     _print(args, reply, f"jogged {time.monotonic() - started:.1f} s; tip at reach "
            f"{reply['tip']['reach_m']:.3f} m, depth {1e3 * reply['tip']['depth_m']:.1f} mm")
@@ -193,6 +203,14 @@ def _bar(share: float, width: int = 24) -> str:
     return "[" + "#" * filled + "-" * (width - filled) + "]"
 
 
+def progress_line(text: str, tty: bool, finished: bool) -> str:
+    """On a terminal: back to the line's start, the text, and clear what a longer line
+    left there (a newline only at the end); elsewhere one line each time."""
+    if not tty:
+        return text + "\n"
+    return "\r" + text + CLEAR_TO_END + ("\n" if finished else "")
+
+
 def follow_excavation(path: Path, out: TextIO, timeout_s: float = 3600.0) -> dict[str, Any]:
     """Poll until the excavation ends; a progress bar on a terminal, lines elsewhere."""
     tty, last_line, started = out.isatty(), 0.0, time.monotonic()
@@ -205,9 +223,7 @@ def follow_excavation(path: Path, out: TextIO, timeout_s: float = 3600.0) -> dic
             if tty or now - last_line >= 2.0 or finished:
                 share = ex.get("depth_m", 0.0) / max(ex.get("target_depth_m", 1.0), 1e-9)
                 line = f"{_bar(share)} {_progress_text(reply)}" if ex else reply["state"]
-                # on a terminal: back to the line's start, and clear what a longer line left
-                out.write(("\r" if tty else "") + line + (CLEAR_TO_END if tty else "")
-                          + ("" if tty and not finished else "\n"))
+                out.write(progress_line(line, tty, finished))
                 out.flush()
                 last_line = now
             if finished:

@@ -120,3 +120,12 @@ def test_jog_arguments_are_checked_before_anything_is_sent(tmp_path: Path,
     assert done.returncode != 0
     assert done.stderr.startswith(f"rakectl: error: {expected}")
     assert len(done.stderr.strip().splitlines()) == 1
+
+
+def test_the_progress_line_clears_what_a_longer_line_left() -> None:
+    from rakectl.api.operator import CLEAR_TO_END, progress_line
+
+    assert progress_line("cycle 2, F̂ max 21.7 N", tty=True, finished=False) == (
+        "\rcycle 2, F̂ max 21.7 N" + CLEAR_TO_END)
+    assert progress_line("done", tty=True, finished=True) == "\rdone" + CLEAR_TO_END + "\n"
+    assert progress_line("cycle 2", tty=False, finished=False) == "cycle 2\n"

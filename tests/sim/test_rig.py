@@ -152,6 +152,34 @@ def test_a_dump_to_a_path_it_cannot_write_is_refused_and_the_loop_goes_on(tmp_pa
         bench.request("disarm")
 
 
+def test_the_operator_flow_on_the_cli_with_its_exit_statuses(tmp_path: Path) -> None:
+    """What an operator types, as processes: each command's exit status says what happened."""
+    with emulated_bench(tmp_path, EMULATOR, DAEMON) as bench:
+        bench.wait_for_state(["disarmed"], 60.0)
+        sock = ["--socket", str(bench.socket)]
+        steps = [
+            (("arm",), 0, "arm: armed"),
+            (("jog", "--height", "-0.02", "--duration", "0.5"), 0, "jogged"),
+            (("excavate", "--reach-far", "1.25", "--reach-near", "1.15", "--depth", "0.005",
+              "--step", "0.005"), 0, "excavate"),
+            (("estop",), 0, "estop: estop"),
+            (("jog", "--height", "0.01", "--duration", "0.3"), 1, "cannot jog while estop"),
+            (("reset",), 0, "reset: disarmed"),
+            (("dump", "--path", str(tmp_path / "flow.csv")), 0, "dump: "),
+            (("arm",), 0, "arm: armed"),
+            (("disarm",), 0, "disarm: disarmed"),
+            (("shutdown",), 0, "shutdown"),
+        ]
+        for args, status, text in steps:
+            done = _cli(args[0], *sock, *args[1:])
+            assert done.returncode == status, (args, done.stdout, done.stderr)
+            assert text in done.stdout + done.stderr, (args, done.stdout, done.stderr)
+        bench.process.wait(20.0)
+    assert (tmp_path / "flow.csv").read_text().startswith("t_s,state,")
+    assert _states(tmp_path) == ["DISARMED", "CHECKING", "ARMED", "JOG", "HOLD", "EXCAVATE",
+                                 "HOLD", "ESTOP", "DISARMED", "ARMED", "DISARMED"]
+
+
 def test_sigkill_of_the_controller_leaves_the_drives_at_0_v(tmp_path: Path) -> None:
     with emulated_bench(tmp_path, EMULATOR, DAEMON) as bench:
         _armed(bench)
