@@ -9,7 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from rakectl.limits import FORCE_LIMIT_N
-from rakectl.sim.campaign import WORST_CASE_FILE, Report, campaign, replay
+from rakectl.sim.campaign import RESULTS_FILE, WORST_CASE_FILE, Report, campaign, replay
 from rakectl.sim.progress import Progress
 
 
@@ -29,7 +29,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="index of the first case (default 0): a large campaign in parts")
     p.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
     p.add_argument("--json", action="store_true", help="one JSON object on the last line")
-    p.add_argument("--out", type=Path, default=None, help=f"directory for {WORST_CASE_FILE}")
+    p.add_argument("--out", type=Path, default=None,
+                   help=f"directory for {WORST_CASE_FILE} and {RESULTS_FILE} (each case's "
+                   "result as it finishes; cases already there are not run again: a "
+                   "campaign resumes, or is run in parts into one directory)")
     p.add_argument("--replay", type=Path, default=None,
                    help="re-run a case file (a worst case, or tests/data/fuzz/*.json)")
     return p
@@ -37,8 +40,9 @@ def _parser() -> argparse.ArgumentParser:
 
 def human(report: Report) -> str:
     s = report.summary()
+    resumed = f", {s['resumed']} of them read back from an earlier run" if s["resumed"] else ""
     lines = [f"{s['scenarios']} scenarios in {s['wall_time_s']:.0f} s "
-             f"({s['scenarios_per_min']:.0f}/min)",
+             f"({s['scenarios_per_min']:.0f}/min{resumed})",
              f"largest true vertical force on the ground: {s['f_true_z_max_n']:.1f} N "
              f"(limit {FORCE_LIMIT_N:g} N)",
              f"largest force on a mine: plate {s['f_mine_plate_max_n']:.1f} N, side "

@@ -19,7 +19,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 from drivers.objects import Contact
 from drivers.soil import original_surface_height_m
@@ -36,6 +36,7 @@ from rakectl.sim.scenario import PlantKind, PlantSettings, Scenario, TrajectoryK
 from rakectl.sim.simulate import HOLD_AFTER_DONE_S, Reference
 
 WORST_CASE_FILE = "worst-case.json"
+RESULTS_FILE = "results.jsonl"  # one case's result a line, appended as cases finish
 AFTER_FAULT_S = 1.0  # simulated at 0 V after a latched fault
 
 
@@ -208,6 +209,7 @@ class Report:
     worst_case: FuzzCase
     wall_time_s: float
     worst_case_path: str = ""
+    resumed: int = 0  # cases read back from an earlier run's results, not run again
 
     @property
     def f_true_z_max_n(self) -> float:
@@ -273,7 +275,9 @@ class Report:
                 "by_kind": self.by_kind(),
                 "worst": self.worst.to_dict(), "worst_case": self.worst_case.describe(),
                 "worst_case_path": self.worst_case_path, "wall_time_s": self.wall_time_s,
-                "scenarios_per_min": 60.0 * self.scenarios / max(self.wall_time_s, 1e-9)}
+                "resumed": self.resumed,  # read back, not run: the rate counts the others
+                "scenarios_per_min": 60.0 * (self.scenarios - self.resumed)
+                / max(self.wall_time_s, 1e-9)}
 
 
 def _run_index(job: tuple[int, int]) -> CaseResult:
@@ -287,24 +291,71 @@ def _severity(r: CaseResult) -> float:
 def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None = None,
              progress: Callable[[int, int], None] | None = None, first: int = 0) -> Report:
     """Run cases ``first`` … ``first + scenarios − 1`` of ``seed``; write the worst one
-    (the largest force on the ground or on a mine) to ``out_dir``."""
+    (the largest force on the ground or on a mine) to ``out_dir``.
+
+    With ``out_dir``, each case's result is appended to :data:`RESULTS_FILE` there as it
+    finishes, and a case already in that file (same seed and index) is not run again: an
+    interrupted campaign resumes where it stopped, and a long one can be run in parts into
+    one directory. Cases are deterministic from (seed, index), so the report is the same
+    whichever run computed each case."""
     if scenarios < 1:
         raise ValueError("scenarios must be >= 1")
     started = time.perf_counter()
-    results: list[CaseResult] = []
-    jobs = [(seed, first + i) for i in range(scenarios)]
-    for result in fork_map(_run_index, jobs, workers, ordered=False):
-        results.append(result)
-        if progress is not None:
+    wanted = range(first, first + scenarios)
+    done = _finished(out_dir / RESULTS_FILE, seed, wanted) if out_dir is not None else {}
+    results: list[CaseResult] = list(done.values())
+    jobs = [(seed, i) for i in wanted if i not in done]
+    sink = _open_results(out_dir) if out_dir is not None and jobs else None
+    try:
+        if progress is not None and results:
             progress(len(results), scenarios)
+        for result in fork_map(_run_index, jobs, workers, ordered=False):
+            results.append(result)
+            if sink is not None:
+                sink.write(json.dumps(result.to_dict()) + "\n")
+                sink.flush()
+            if progress is not None:
+                progress(len(results), scenarios)
+    finally:
+        if sink is not None:
+            sink.close()
     results.sort(key=lambda r: r.index)
     worst = max(results, key=_severity)
     report = Report(scenarios, tuple(results), worst, generate(seed, worst.index),
-                    time.perf_counter() - started)
+                    time.perf_counter() - started, resumed=len(done))
     if out_dir is None:
         return report
     path = write_case(out_dir / WORST_CASE_FILE, report.worst_case, worst)
     return dataclasses.replace(report, worst_case_path=str(path))
+
+
+def _finished(path: Path, seed: int, wanted: range) -> dict[int, CaseResult]:
+    """The results already in ``path`` for these cases (a line cut short by an
+    interruption is ignored: that case runs again)."""
+    done: dict[int, CaseResult] = {}
+    if not path.is_file():
+        return done
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            result = result_from_dict(json.loads(line))
+        except (ValueError, TypeError, KeyError):
+            continue
+        if result.seed == seed and result.index in wanted:
+            done[result.index] = result
+    return done
+
+
+def _open_results(out_dir: Path) -> TextIO:
+    """The results file, for appending; a line an interruption left unfinished is ended
+    first, so that the next result starts a line of its own."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / RESULTS_FILE
+    unfinished = path.is_file() and path.stat().st_size > 0 and \
+        path.read_bytes()[-1:] != b"\n"
+    sink = open(path, "a", encoding="utf-8")  # noqa: SIM115 (closed by the caller)
+    if unfinished:
+        sink.write("\n")
+    return sink
 
 
 def write_case(path: Path, case: FuzzCase, result: CaseResult) -> Path:

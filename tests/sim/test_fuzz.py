@@ -235,3 +235,22 @@ def test_an_adaptive_lane_is_governed_and_older_case_files_still_load() -> None:
     assert (result.clamped_ticks, result.f_true_z_max_n) != (as_fixed.clamped_ticks,
                                                               as_fixed.f_true_z_max_n)
     assert result.safe
+
+
+def test_a_campaign_streams_its_results_and_resumes_where_it_stopped(tmp_path: Path) -> None:
+    """Results are appended case by case; a second run into the same directory reads the
+    finished cases back and runs only the rest (a line cut short runs again); the report
+    is the same as one run's."""
+    whole = campaign.campaign(4, seed=3, workers=1)
+    first = campaign.campaign(2, seed=3, workers=1, out_dir=tmp_path)
+    lines = (tmp_path / campaign.RESULTS_FILE).read_text().splitlines()
+    assert len(lines) == 2 and first.resumed == 0
+    with open(tmp_path / campaign.RESULTS_FILE, "a") as results:
+        results.write(lines[0][: len(lines[0]) // 2])  # an interrupted write
+    resumed = campaign.campaign(4, seed=3, workers=1, out_dir=tmp_path)
+    assert resumed.resumed == 2
+    assert [r.to_dict() for r in resumed.results] == [r.to_dict() for r in whole.results]
+    again = campaign.campaign(4, seed=3, workers=1, out_dir=tmp_path)
+    assert again.resumed == 4 and again.results == resumed.results
+    other_seed = campaign.campaign(1, seed=4, workers=1, out_dir=tmp_path)
+    assert other_seed.resumed == 0
