@@ -11,6 +11,7 @@ the EDS declares it, heartbeats, EMCY.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import os
 import threading
@@ -135,20 +136,35 @@ def test_canopen_master_brings_up_and_cycles_the_drives(
     assert r.sdo[0x2000].raw == 0
 
 
+@contextlib.contextmanager
+def emulated_drives(receive_own: bool = False) -> Iterator[tuple[Emulator, can.BusABC]]:
+    """The emulator serviced in a thread on one virtual channel, and the controller's bus
+    on the same channel (``receive_own``: it echoes what it sends, as udp_multicast does)."""
+    channel = f"test-interop-{os.getpid()}-{next(_channels)}"
+    emulator_bus = can.Bus(interface="virtual", channel=channel)
+    controller_bus = can.Bus(interface="virtual", channel=channel,
+                             receive_own_messages=receive_own)
+    emulator = Emulator(EmulatorConfig(), emulator_bus, log=RecordingLog())
+    stop = threading.Event()
+    thread = threading.Thread(target=emulator.run, args=(stop.is_set, 0.005), daemon=True)
+    try:
+        emulator.start()
+        thread.start()
+        yield emulator, controller_bus
+    finally:
+        stop.set()
+        thread.join(5.0)
+        emulator.close()
+        controller_bus.shutdown()
+        emulator_bus.shutdown()
+
+
 def test_the_controller_runs_the_drives_on_sync_without_counter() -> None:
     """drives.sync_counter_overflow = 0: bring-up writes 0x1019 = 0 to both emulated
     drives and reads it back; every SYNC then goes out without data and each drive
     answers it with a TPDO1, with no EMCY and no drive fault."""
-    channel = f"test-interop-{os.getpid()}-{next(_channels)}"
-    emulator_bus = can.Bus(interface="virtual", channel=channel)
-    controller_bus = can.Bus(interface="virtual", channel=channel)
-    emulator = Emulator(EmulatorConfig(), emulator_bus, log=RecordingLog())
-    stop = threading.Event()
-    thread = threading.Thread(target=emulator.run, args=(stop.is_set, 0.005), daemon=True)
     drives = replace(DrivesSettings(), sync_counter_overflow=0)
-    try:
-        emulator.start()
-        thread.start()
+    with emulated_drives() as (emulator, controller_bus):
         client = DriveClient(controller_bus, drives, MotorsSettings(), rate_hz=1000.0)
         r_info, theta_info = client.bring_up(boot_timeout_s=TIMEOUT_S)
         assert r_info.limits.sync_counter_overflow == theta_info.limits.sync_counter_overflow == 0
@@ -162,27 +178,13 @@ def test_the_controller_runs_the_drives_on_sync_without_counter() -> None:
         assert [node.stats.bad.total for node in emulator.nodes] == [0, 0]
         assert emulator.stats.syncs == 50
         client.shutdown()
-    finally:
-        stop.set()
-        thread.join(5.0)
-        emulator.close()
-        controller_bus.shutdown()
-        emulator_bus.shutdown()
 
 
 def test_a_fault_the_previous_run_left_is_cleared_at_bring_up() -> None:
     """A controller that stops (its heartbeat lost: both drives fault, 0x8130) and a new
     one that brings the same drives up: they are fault-reset during bring-up, once reset
     communication has cleared the cause, and start SWITCH ON DISABLED, not in FAULT."""
-    channel = f"test-interop-{os.getpid()}-{next(_channels)}"
-    emulator_bus = can.Bus(interface="virtual", channel=channel)
-    controller_bus = can.Bus(interface="virtual", channel=channel)
-    emulator = Emulator(EmulatorConfig(), emulator_bus, log=RecordingLog())
-    stop = threading.Event()
-    thread = threading.Thread(target=emulator.run, args=(stop.is_set, 0.005), daemon=True)
-    try:
-        emulator.start()
-        thread.start()
+    with emulated_drives() as (emulator, controller_bus):
         first = DriveClient(controller_bus, DrivesSettings(), MotorsSettings(), rate_hz=1000.0)
         first.bring_up(boot_timeout_s=TIMEOUT_S)
         for _ in range(20):  # the drives monitor the controller's heartbeat from now on
@@ -199,30 +201,16 @@ def test_a_fault_the_previous_run_left_is_cleared_at_bring_up() -> None:
         assert [i.state for i in infos] == [DriveState.SWITCH_ON_DISABLED] * 2
         assert all(node.fault is None for node in emulator.nodes)
         second.shutdown()
-    finally:
-        stop.set()
-        thread.join(5.0)
-        emulator.close()
-        controller_bus.shutdown()
-        emulator_bus.shutdown()
 
 
 def test_the_bus_trace_holds_the_bring_up_and_each_frame_once(tmp_path: Path) -> None:
     """The daemon's trace (bus.trace_path) from the bring-up on: its SDO and NMT frames are
     in it, and a frame the controller sent is in it once, as sent, even on a bus that
     echoes it back (as udp_multicast does; python-can's virtual bus here, told to)."""
-    channel = f"test-interop-{os.getpid()}-{next(_channels)}"
-    emulator_bus = can.Bus(interface="virtual", channel=channel)
-    controller_bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=True)
-    emulator = Emulator(EmulatorConfig(), emulator_bus, log=RecordingLog())
-    stop = threading.Event()
-    thread = threading.Thread(target=emulator.run, args=(stop.is_set, 0.005), daemon=True)
     path = tmp_path / "trace.log"
     trace = open_trace(BusSettings(trace_path=str(path)))
     assert trace is not None
-    try:
-        emulator.start()
-        thread.start()
+    with emulated_drives(receive_own=True) as (_, controller_bus):
         client = DriveClient(controller_bus, DrivesSettings(), MotorsSettings(), 1000.0, trace)
         client.bring_up(boot_timeout_s=TIMEOUT_S)
         for _ in range(20):
@@ -232,12 +220,6 @@ def test_the_bus_trace_holds_the_bring_up_and_each_frame_once(tmp_path: Path) ->
         client.shutdown()
         trace.drain(1_000_000)
         trace.close()
-    finally:
-        stop.set()
-        thread.join(5.0)
-        emulator.close()
-        controller_bus.shutdown()
-        emulator_bus.shutdown()
     frames = list(can.CanutilsLogReader(str(path)))
     sent = [f for f in frames if not f.is_rx]
     received = [f for f in frames if f.is_rx]
