@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -101,8 +102,9 @@ def test_a_file_that_is_not_utf8_is_one_line(tmp_path: Path) -> None:
 
 
 def test_set_names_the_value_as_written(tmp_path: Path) -> None:
-    with pytest.raises(ConfigError, match="--set daemon.rt_mode=on: daemon.rt_mode must be "
-                                          "one of enforce, ignore, off, got 'on'"):
+    with pytest.raises(ConfigError, match=re.escape(
+            "--set daemon.rt_mode=on: daemon.rt_mode must be one of enforce, ignore, off, "
+            "got 'on'")):
         load_settings(None, ["daemon.rt_mode=on"])
     assert load_settings(None, ["daemon.rt_mode=Off"]).daemon.rt_mode.value == "off"
 
