@@ -359,9 +359,10 @@ class RegressionCase:
     case: FuzzCase
     why: str
     expect: dict[str, Any]
+    open: str = ""  # non-empty: still over the limit, not yet fixed (why, what it needs)
 
 
 def load_regression_case(path: Path) -> RegressionCase:
     data = json.loads(Path(path).read_text())
     return RegressionCase(Path(path), case_from_dict(data["case"]), str(data["why"]),
-                          dict(data["expect"]))
+                          dict(data["expect"]), str(data.get("open", "")))
