@@ -90,6 +90,12 @@ DIRECTIONS = 37  # contact directions sampled from −90° to 90° (every 5°)
 SAMPLING_MARGIN = 0.03  # kept back for directions between the samples (1.5 % measured)
 
 
+def unbalanced_weight_n(clamp: ClampSettings) -> float:
+    """The rake's weight the motors hold: what the counterweight (if any) leaves of it."""
+    share = clamp.counterbalance_share if clamp.counterweight_kg > 0.0 else 0.0
+    return (1.0 - share) * clamp.rake_mass_kg * clamp.gravity_m_per_s2
+
+
 @dataclass(frozen=True)
 class JointModel:
     """Precomputed constants of one motor and transmission."""
@@ -161,7 +167,7 @@ class ContactEnvelope:
         self.r = JointModel.of(motor_r, clamp, dt_s)
         self.theta = JointModel.of(motor_theta, clamp, dt_s)
         share = clamp.counterbalance_share if clamp.counterweight_kg > 0.0 else 0.0
-        self.weight_n = (1.0 - share) * clamp.rake_mass_kg * clamp.gravity_m_per_s2
+        self.weight_n = unbalanced_weight_n(clamp)
         balancing_kg = ((share * clamp.rake_mass_kg) ** 2 / clamp.counterweight_kg
                         if clamp.counterweight_kg > 0.0 else 0.0)
         self.half_length_m = 0.5 * clamp.rake_length_m

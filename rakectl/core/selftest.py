@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 from rakectl.config.service import SelfTestSettings
 from rakectl.config.settings import ClampSettings
+from rakectl.core.envelope import unbalanced_weight_n
 from rakectl.core.motor_model import MotorParams, joint_load_band, joint_resolution
 
 SETTLE_S = 0.3  # hold after each ramp
@@ -58,8 +59,7 @@ class WeightCheck:
     def __init__(self, settings: SelfTestSettings, clamp: ClampSettings, motor_r: MotorParams,
                  motor_theta: MotorParams, dt_s: float, reach_m: float, depth_m: float) -> None:
         self._settings = settings
-        share = clamp.counterbalance_share if clamp.counterweight_kg > 0.0 else 0.0
-        self.expected_n = (1.0 - share) * clamp.rake_mass_kg * clamp.gravity_m_per_s2
+        self.expected_n = unbalanced_weight_n(clamp)
         self._half_length_m = 0.5 * clamp.rake_length_m
         self._motors = (motor_r, motor_theta)
         # a joint counts as moving once it is 5 encoder counts from where the ramp began

@@ -47,6 +47,7 @@ def _tip(daemon: Daemon) -> dict[str, float | None]:
 
 def status(daemon: Daemon) -> dict[str, Any]:
     fb, c, client = daemon.client.feedback, daemon.controller, daemon.client
+    timing = daemon.timing.summary()
     reply: dict[str, Any] = {
         "state": daemon.state.name.lower(),
         "fault": daemon.fault_reason or None,
@@ -64,8 +65,8 @@ def status(daemon: Daemon) -> dict[str, Any]:
         "drives": [{"state": s.name.lower() if s is not None else None,
                     "stale_cycles": fb.stale_cycles[j]} for j, s in enumerate(fb.state)],
         "bus": client.stats.as_dict(),
-        "timing": daemon.timing.summary(),
-        "timing_check": _timing_verdict(daemon) or "ok",
+        "timing": timing,
+        "timing_check": _timing_verdict(daemon, timing) or "ok",
         "dumps": {"pending": daemon.pending_dumps(), "failed": list(daemon.dump_failures)},
     }
     check = daemon.weight_result
@@ -140,9 +141,10 @@ def _dump(daemon: Daemon, request: Request) -> Reply:
     return {"path": str(path), "pending": True}
 
 
-def _timing_verdict(daemon: Daemon) -> str:
+def _timing_verdict(daemon: Daemon, summary: dict[str, Any] | None = None) -> str:
     s = daemon.settings
-    return timing_verdict(daemon.timing.summary(), daemon.ticks, s.rate_hz, s.daemon)
+    summary = daemon.timing.summary() if summary is None else summary
+    return timing_verdict(summary, daemon.ticks, s.rate_hz, s.daemon)
 
 
 def _check_timing(daemon: Daemon) -> None:

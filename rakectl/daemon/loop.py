@@ -92,7 +92,6 @@ class Daemon(SlackWork):
         self.planner: LanePlanner | None = None
         self.weight_check: WeightCheck | None = None  # running in CHECKING
         self.weight_result: WeightResult | None = None  # the last check's
-        self.weight_checked = not settings.selftest.enabled  # passed since start-up
         self._plausible = plausible_ranges(settings.geometry)
         self.f_hat_max_n = 0.0
         self._enabled = False
@@ -369,15 +368,20 @@ class Daemon(SlackWork):
                                         self.dt_s, *self.hold)
         self._transition(Event.CHECK, "weight check first")
 
+    @property
+    def weight_checked(self) -> bool:
+        """The weight check passed since start-up (or is disabled): arming goes straight on."""
+        result = self.weight_result
+        return not self.settings.selftest.enabled or (result is not None and result.passed)
+
     def _judge_weight(self, check: WeightCheck) -> None:
         result = check.result
         assert result is not None
-        self.weight_check, self.weight_result = None, result
+        self.weight_result = result  # (_transition ends weight_check on leaving CHECKING)
         self.hold = check.start
         self.event("weight_check", passed=result.passed, weight_n=result.weight_n,
                    expected_n=result.expected_n, samples=result.samples)
         if result.passed:
-            self.weight_checked = True
             self._transition(Event.CHECKED, result.message)
         else:
             self.fault(result.message)

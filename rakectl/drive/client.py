@@ -92,6 +92,7 @@ from rakectl.protocol.codec import (
     current_ma_to_a,
     decode_tpdo1,
     decode_tpdo2,
+    next_sync_counter,
     pack_rpdo_into,
     rpm_to_rad_per_s,
     voltage_v_to_mv,
@@ -150,7 +151,7 @@ class DriveClient(DriveSupervision):
                             cob_id(FunctionCode.HEARTBEAT, node): (_HEARTBEAT, j)}
         self._rpdo = [_new_message(cob_id(FunctionCode.RPDO1, node), RPDO1_SIZE) for node in nodes]
         self._sync_counted = drives.sync_counter_overflow > 0  # else SYNC has no data
-        self._sync_top = drives.sync_counter_overflow or SYNC_COUNTER_MAX
+        self._sync_top = drives.sync_counter_overflow or SYNC_COUNTER_MAX  # counted here
         self._sync_msg = _new_message(SYNC_COB_ID, 1 if self._sync_counted else 0)
         self._heartbeat_msg = _new_message(cob_id(FunctionCode.HEARTBEAT,
                                                   drives.controller_node_id), 1)
@@ -370,7 +371,7 @@ class DriveClient(DriveSupervision):
 
     def sync(self) -> None:
         """Send SYNC with the next counter and, once per heartbeat period, the heartbeat."""
-        counter = self._sync_counter % self._sync_top + 1
+        counter = next_sync_counter(self._sync_counter, self._sync_top)
         self._sync_counter = counter
         if self._sync_counted:
             self._sync_msg.data[0] = counter

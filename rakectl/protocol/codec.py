@@ -281,9 +281,10 @@ def decode_sync(data: Data) -> int:
     return data[0]
 
 
-def next_sync_counter(counter: int) -> int:
-    """The counter after ``counter``: 240 is followed by 1 (CiA 301)."""
-    return counter % SYNC_COUNTER_MAX + 1
+def next_sync_counter(counter: int, overflow: int = SYNC_COUNTER_MAX) -> int:
+    """The counter after ``counter``: ``overflow`` (0x1019, 240 by default) is followed
+    by 1 (CiA 301)."""
+    return counter % overflow + 1
 
 
 def lost_syncs(previous: int, current: int, overflow: int = SYNC_COUNTER_MAX) -> int:

@@ -42,24 +42,14 @@ TIMEOUT_S = 2.0
 
 @pytest.fixture
 def master() -> Iterator[tuple[canopen.Network, Emulator]]:
-    """canopen's master and the emulator, each on its own bus object of one channel."""
-    channel = f"test-interop-{os.getpid()}-{next(_channels)}"
-    emulator_bus = can.Bus(interface="virtual", channel=channel)
-    emulator = Emulator(EmulatorConfig(), emulator_bus, log=RecordingLog())
-    network = canopen.Network()
-    network.connect(interface="virtual", channel=channel)
-    stop = threading.Event()
-    thread = threading.Thread(target=emulator.run, args=(stop.is_set, 0.005), daemon=True)
-    try:
-        emulator.start()
-        thread.start()
-        yield network, emulator
-    finally:
-        stop.set()
-        thread.join(5.0)
-        network.disconnect()
-        emulator.close()
-        emulator_bus.shutdown()
+    """canopen's master on the controller's bus, and the emulator (emulated_drives)."""
+    with emulated_drives() as (emulator, bus):
+        network = canopen.Network(bus)
+        network.connect()  # its Notifier on the bus given
+        try:
+            yield network, emulator
+        finally:
+            network.disconnect()
 
 
 def _remote(network: canopen.Network, node_id: int, kind: DriveKind) -> canopen.RemoteNode:
