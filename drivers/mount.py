@@ -174,8 +174,28 @@ class TineMount:
         else:  # not settled: the tines sit on a soil cell's edge; keep them in the laws' cell
             soil = ground.soil
             low_m, high_m = soil.cell_edges_m(soil.cell_index(laws_at))
-            e = min(max(e, low_m - reach_m), math.nextafter(high_m, -math.inf) - reach_m)
+            pinned = min(max(e, low_m - reach_m), math.nextafter(high_m, -math.inf) - reach_m)
+            d = self._no_deeper(ground, reach_m, height_m, (e, d), pinned)
+            e = pinned
         return e, d
+
+    @staticmethod
+    def _no_deeper(ground: Any, reach_m: float, height_m: float, solved: tuple[float, float],
+                   pinned_m: float) -> float:
+        """d for tines moved from the solved (e, d) to offset ``pinned_m`` at a cell's edge:
+        on an object's rounded edge, raised so that they are in it no deeper than the solve
+        put them. The move along the reach alone would put them deeper by n_reach/n_up of
+        it, a penetration the mount never carried (20261125/2781: a stone's edge read
+        141 N with the mount carrying 13 N)."""
+        e, d = solved
+        if pinned_m == e:
+            return d
+        depth_at = {i: law.depth_m for i, law in ground.normal_laws(reach_m + e, height_m + d)}
+        for i, law in ground.normal_laws(reach_m + pinned_m, height_m + d):
+            excess_m = law.depth_m - max(depth_at.get(i, 0.0), 0.0)
+            if law.n_up > 0.0 and excess_m > 0.0:
+                d = max(d, solved[1] + excess_m / law.n_up)
+        return d
 
     def commit(self, e: float, d: float, reach_vel: float) -> tuple[float, float]:
         """Take (e, d) as the new state; the mount's forces (sideways, vertical) on the arm."""

@@ -17,6 +17,7 @@ import pytest
 from drivers.arm import ArmPlant, ArmState
 from drivers.mechanics import ArmParams, joint_masses
 from drivers.motor import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, Bridge, joint_load_band
+from drivers.mount import TineMount
 from drivers.objects import BuriedObjects, Ground, GroundParams, MineParams, StoneParams
 from drivers.soil import SoilLayer, SoilParams, cutting_force_n
 from rakectl.core import kinematics
@@ -197,3 +198,36 @@ def test_on_a_rounded_edge_the_mount_carries_what_the_mine_reads() -> None:
         assert mount_up == pytest.approx(own_up, rel=0.05, abs=0.5)
     assert max(math.hypot(p[0], p[1]) for p in touching) == pytest.approx(
         max(body.peak_side_n, body.peak_down_n), rel=0.5)
+
+
+def test_tines_held_at_a_cells_edge_go_no_deeper_into_a_rounded_edge() -> None:
+    """Moved along the reach to a soil cell's edge (where the drag jumps and the solve
+    cannot settle), tines on a stone's rounded edge are raised to the depth the solve put
+    them at: hand-computed on the edge's circle, 2 µm in before and after, not the 7.1 µm
+    a move of 8 µm along the reach alone gives (the stone read 141 N where the mount carried 13 N,
+    20261125/2781)."""
+    stone = StoneParams(reach_m=1.0, depth_m=0.01, width_m=0.05, thickness_m=0.07,
+                        edge_radius_m=0.005)
+    ground = Ground(GroundParams(soil=AIR, objects=BuriedObjects(stones=(stone,))), seed=0)
+    rho, angle = 0.005, math.radians(40.0)  # a point on the far edge, 40° from the top
+    centre_x, centre_z = 1.025 - rho, -0.01 - rho
+    inside_m = 2e-6
+    tine_x = centre_x + (rho - inside_m) * math.sin(angle)
+    tine_z = centre_z + (rho - inside_m) * math.cos(angle)
+    arm_x, arm_z, e, d = 1.02, -0.02, tine_x - 1.02, tine_z + 0.02
+    moved_m = -8e-6  # toward the robot: deeper into the far edge
+    # by hand: the pinned point's distance from the edge's centre, raised back onto the
+    # 2 µm circle
+    x1 = tine_x + moved_m - centre_x
+    z_on_circle = centre_z + math.sqrt((rho - inside_m) ** 2 - x1 * x1)
+    [(_, before)] = ground.normal_laws(tine_x, tine_z)
+    assert before.depth_m == pytest.approx(inside_m, abs=1e-12)
+    [(_, alone)] = ground.normal_laws(tine_x + moved_m, tine_z)
+    # moved along the reach only: deeper by the move's share along the normal
+    assert alone.depth_m == pytest.approx(inside_m - moved_m * math.sin(angle), abs=1e-8)
+    raised = TineMount._no_deeper(ground, arm_x, arm_z, (e, d), e + moved_m)
+    # raised along the normal's vertical share: exact to the edge's curvature over the move
+    assert arm_z + raised == pytest.approx(z_on_circle, abs=5e-8)
+    [(_, after)] = ground.normal_laws(tine_x + moved_m, arm_z + raised)
+    assert after.depth_m == pytest.approx(inside_m, abs=5e-8)
+    assert TineMount._no_deeper(ground, arm_x, arm_z, (e, d), e) == d  # not moved: as solved
