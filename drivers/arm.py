@@ -50,6 +50,14 @@ DEFAULT_SUBSTEP_S = 5e-5  # set by the contact; see the module docstring
 MAX_EXPLICIT_DAMPING = 0.1  # largest allowed h·c/M of an explicitly integrated damper
 
 
+def _lift_n(ground: Any) -> float:
+    """What objects' bottoms push down on the tines with (a tine under an object rising
+    into it, ``GroundTruth.lift_n``): the mount gives only when compressed, so pushed
+    down the tines sit on its stop and the arm takes it whole."""
+    truth = getattr(ground, "truth", None)
+    return truth.lift_n if truth is not None else 0.0
+
+
 class ContactModel(Protocol):
     """The ground as the tip feels it (implemented by the soil model).
 
@@ -321,9 +329,10 @@ class ArmPlant:
             raise NonFiniteError(f"contact force must be finite, got {force}")
         if transmitted is not None and mount_n >= 0.0:
             # massless tines: the arm feels what the mount carries, and the ground gets it
-            # too (where the tines rest on a surface the soil's own law reads 0 there)
+            # too (where the tines rest on a surface the soil's own law reads 0 there); an
+            # object's bottom pushes them down onto the mount's stop: the arm feels it whole
             transmitted(mount_n)
-            force = (force[0], mount_n)
+            force = (force[0], mount_n - _lift_n(ground))
         self._last_tip_force_n = force
         self._last_contact_loads = kinematics.joint_loads(r_m, theta_rad, force[0], force[1])
         return self._last_contact_loads
@@ -354,6 +363,7 @@ class ArmPlant:
                 raise NonFiniteError(f"contact force must be finite, got {force}")
             if tines.vertical:
                 transmitted(down_n)
+                down_n -= _lift_n(ground)  # an object's bottom: through the mount's stop
             side_sum += side_n
             down_sum += down_n if tines.vertical else force[1]
         tines.step_s = h

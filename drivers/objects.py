@@ -7,14 +7,18 @@ top edges are rounded: a root's by half its size, a stone's and a mine's by
 ``edge_radius_m`` (5 and 3 mm: a round tine tip, 4.7 mm in radius, meets a
 square corner as a point meets a corner rounded by that radius). It is felt
 only while the tip is inside it. The face pressed is the one the tip is
-least deep behind (top, robot side, far side; the top on a tie), or, by a
-rounded edge, the edge: a penalty contact along the normal, F =
-K·penetration + K·τ·(approach speed along the normal), clipped at 0 (no
-pulling). Square, a tine dragged into just under a top was pushed sideways
-until the top was the nearer face, then read the whole overlap upward at
-once (110–190 N on the ground for a tick or two in the safety campaign; a
-mine's rim, 106 N, fired it). The law the tine mount solves folds in the
-reach speed only toward an edge (see ``vertical_law``). Above its bottom and
+least deep behind (top, robot side, far side, bottom; the top on a tie,
+then a side), or, by a rounded edge, the edge: a penalty contact along the
+normal, F = K·penetration + K·τ·(approach speed along the normal), clipped
+at 0 (no pulling). Square, a tine dragged into just under a top was pushed
+sideways until the top was the nearer face, then read the whole overlap
+upward at once (110–190 N on the ground for a tick or two in the safety
+campaign; a mine's rim, 106 N, fired it). Without a bottom, a tine that
+slid down a mine's side and under it read it, rising back, through the
+nearest side: 4.8 mm deep at once, 180 N (20261125/2993). The law the tine
+mount solves folds in the reach speed only toward an edge (see
+``vertical_law``); a bottom pushes the tines down onto the mount's stop, and
+the arm takes it whole (``GroundTruth.lift_n``). Above its bottom and
 within its extent an object shields the soil below its top: the soil model
 never sees the tip lower than the object's top.
 
@@ -32,7 +36,8 @@ never sees the tip lower than the object's top.
   pressure plate (conservative). It is activated — latched — the first step
   the vertical force on its top (its rounded rim included) exceeds
   ``activation_force_n``; a push on its
-  side does not activate it (side forces are recorded as ``peak_side_n``).
+  side or bottom does not activate it (those forces are recorded as
+  ``peak_side_n``).
   Force passed down through covering soil is not counted: it never exceeds the
   tip's total vertical force, which :class:`GroundTruth` records as
   ``max_force_down_n``, so the 90 N criterion on that total is the
@@ -162,8 +167,8 @@ class Body:
 
     def _contact(self, reach_m: float, height_m: float) -> tuple[float, float, float] | None:
         """(penetration, outward normal (n_reach, n_height)) of a tip at this point, or None
-        outside: the nearer of the top and the sides (the top on a tie; never the bottom),
-        or, within ``radius_m`` of a top corner, the rounded edge there."""
+        outside: the nearest of the top, the sides and the bottom (the top on a tie, then
+        a side), or, within ``radius_m`` of a top corner, the rounded edge there."""
         if self.broken or not (self.left_m < reach_m < self.right_m
                                and self.bottom_m < height_m < self.top_m):
             return None
@@ -176,6 +181,9 @@ class Body:
             if d >= rho:
                 return None
             return rho - d, math.copysign(q_x / d, x), q_z / d
+        above_bottom_m = height_m - self.bottom_m  # a tine under it that rose into it
+        if above_bottom_m < rho - max(q_x, q_z):
+            return above_bottom_m, 0.0, -1.0
         if q_z >= q_x:
             return (rho - q_z, 0.0, 1.0) if q_z < rho else None
         return (rho - q_x, math.copysign(1.0, x), 0.0) if q_x < rho else None
@@ -210,6 +218,8 @@ class Body:
         self.force_reach_n, self.force_up_n = normal_n * n_reach, normal_n * n_up
         if n_up > 0.0:
             self._record_top(self.force_up_n)
+        elif n_up < 0.0:  # its bottom, lifted: a force on its body, not on its plate
+            self._record_side(normal_n)
         if n_reach != 0.0:
             self._record_side(abs(self.force_reach_n))
         return True
@@ -296,15 +306,16 @@ class GroundTruth:
     soil interface x_e under the tip; ``surface_height_m``: top of the soil just
     ahead of the tip; ``cut_depth_m``; ``contact``; ``mine_activated`` (latched);
     ``max_force_down_n``: the largest vertical force so far, peaks inside a step
-    included.
+    included; ``lift_n``: the upward force the tip puts on objects' bottoms (≥ 0: a
+    tine under an object, rising into it).
     """
 
     __slots__ = ("contact", "cut_depth_m", "force_down_n", "force_drag_n",
-                 "interface_height_m", "max_force_down_n", "mine_activated",
+                 "interface_height_m", "lift_n", "max_force_down_n", "mine_activated",
                  "surface_height_m")
 
     def __init__(self) -> None:
-        self.force_down_n = self.force_drag_n = self.max_force_down_n = 0.0
+        self.force_down_n = self.force_drag_n = self.max_force_down_n = self.lift_n = 0.0
         self.interface_height_m = self.surface_height_m = self.cut_depth_m = 0.0
         self.contact = Contact.NONE
         self.mine_activated = False
@@ -336,7 +347,7 @@ class Ground:
         """
         if not math.isfinite(reach_m + height_m + reach_vel_m_per_s + height_vel_m_per_s + dt_s):
             raise NonFiniteError("Ground.step: non-finite tip state or time step")
-        truth, shield_m, f_reach_n, f_up_n = self.truth, -math.inf, 0.0, 0.0
+        truth, shield_m, f_reach_n, f_up_n, lift_n = self.truth, -math.inf, 0.0, 0.0, 0.0
         contact = Contact.NONE
         for body in self.bodies:
             if (not body.broken and body.left_m < reach_m < body.right_m
@@ -344,14 +355,18 @@ class Ground:
                 shield_m = max(shield_m, body.shield_m(reach_m))
             if body.touch(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s):
                 f_reach_n += body.force_reach_n
-                f_up_n += body.force_up_n
+                if body.force_up_n >= 0.0:
+                    f_up_n += body.force_up_n
+                else:
+                    lift_n -= body.force_up_n
                 contact = body.kind
                 if body.activated:
                     truth.mine_activated = True
         soil = self.soil
         soil.step(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s, shield_m)
         self._record(truth, contact, f_reach_n + soil.force_reach_n, f_up_n)
-        return truth.force_drag_n, truth.force_down_n
+        truth.lift_n = lift_n
+        return truth.force_drag_n, truth.force_down_n - lift_n
 
     def vertical_laws(self, reach_m: float, height_m: float, face_height_m: float,
                       reach_vel_m_per_s: float = 0.0, edges: bool = True

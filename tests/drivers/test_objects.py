@@ -203,6 +203,10 @@ def test_a_roots_law_for_the_tine_mount_is_what_it_reads(reach_m: float, height_
     law = root.vertical_law(reach_m, height_m, height_m)
     touching = root.touch(reach_m, height_m, 0.0, height_vel)
     if law is None:
+        contact = root._contact(reach_m, height_m)
+        if contact is not None and contact[2] < 0.0:  # nearest its bottom: it pushes the
+            assert root.force_up_n <= 0.0  # tines down, onto the mount's stop, not a law
+            return
         assert root.force_up_n == 0.0
         return
     elastic_n = min(law.stiffness_n_per_m * (law.ref_m - height_m), law.cap_n)
@@ -264,3 +268,23 @@ def test_tines_put_on_a_flat_tops_reference_are_not_inside_it(
     assert law is not None and law.ref_m >= mine.top_m
     assert mine._contact(reach_m, law.ref_m) is None
     assert not mine.touch(reach_m, law.ref_m, 0.0, -0.24) and mine.force_up_n == 0.0
+
+
+def test_a_tine_under_a_mine_rising_into_it_presses_its_bottom() -> None:
+    """Inside a mine nearer its bottom than its top or sides, the tine presses the bottom:
+    K·(height above the bottom) downward on the tine, recorded on the mine's body (not its
+    plate: it does not fire), the ground's vertical reading untouched, ``lift_n`` set."""
+    mine = MineParams(reach_m=1.0, depth_m=0.0, width_m=0.1, thickness_m=0.04,
+                      activation_force_n=50.0)
+    ground = Ground(GroundParams(objects=BuriedObjects(mines=(mine,))), seed=0)
+    body = ground.bodies[0]
+    above_bottom_m = 2e-5
+    force = ground.step(1.01, -0.04 + above_bottom_m, 0.0, 0.0, 1e-3)
+    assert body._contact(1.01, -0.04 + above_bottom_m) == pytest.approx(
+        (above_bottom_m, 0.0, -1.0))
+    expected_n = mine.stiffness_n_per_m * above_bottom_m  # 100 N: over its fuse's 50 N
+    assert body.force_up_n == pytest.approx(-expected_n)
+    assert body.peak_side_n == pytest.approx(expected_n) and body.peak_down_n == 0.0
+    assert not body.activated and not ground.truth.mine_activated
+    assert ground.truth.lift_n == pytest.approx(expected_n)
+    assert force[1] == pytest.approx(ground.truth.force_down_n - expected_n)
