@@ -50,13 +50,6 @@ DEFAULT_SUBSTEP_S = 5e-5  # set by the contact; see the module docstring
 MAX_EXPLICIT_DAMPING = 0.1  # largest allowed h·c/M of an explicitly integrated damper
 
 
-def _lift_n(ground: Any) -> float:
-    """What objects' bottoms push down on the tines with (a tine under an object rising
-    into it, ``GroundTruth.lift_n``): the mount gives only when compressed, so pushed
-    down the tines sit on its stop and the arm takes it whole."""
-    truth = getattr(ground, "truth", None)
-    return truth.lift_n if truth is not None else 0.0
-
 
 class ContactModel(Protocol):
     """The ground as the tip feels it (implemented by the soil model).
@@ -308,6 +301,7 @@ class ArmPlant:
         laws = getattr(contact, "vertical_laws", None)
         transmitted = getattr(contact, "transmitted", None)
         ground = getattr(contact, "ground", contact)
+        lifted = getattr(ground, "lifted", None)
         tines = self._tines
         if tines.sideways and transmitted is not None and hasattr(ground, "normal_laws"):
             return self._mounted_loads(contact, transmitted, ground, reach_m, height_m,
@@ -319,20 +313,27 @@ class ArmPlant:
             compression_m = tines._vertical(
                 laws(reach_m, height_m, height_m + tines.compression_m, reach_vel), height_m,
                 height_vel)
+            if hasattr(ground, "bottom_laws"):  # under an object: its bottom extends it
+                compression_m = tines.hooked(ground, reach_m, height_m, height_vel,
+                                             compression_m)
             rate_m_per_s = (compression_m - tines.compression_m) / self.substep_s
-            mount_n = max(0.0, tines.k_v * compression_m + tines.c_v * rate_m_per_s)
+            mount_n = tines.k_v * compression_m + tines.c_v * rate_m_per_s
+            mount_n = min(0.0, mount_n) if compression_m < 0.0 else max(0.0, mount_n)
             height_vel += rate_m_per_s
             height_m += compression_m
             tines.compression_m = compression_m
         force = contact.step(reach_m, height_m, reach_vel, height_vel, self.substep_s)
         if not math.isfinite(force[0] + force[1]):
             raise NonFiniteError(f"contact force must be finite, got {force}")
-        if transmitted is not None and mount_n >= 0.0:
+        if transmitted is not None and tines.vertical and laws is not None:
             # massless tines: the arm feels what the mount carries, and the ground gets it
-            # too (where the tines rest on a surface the soil's own law reads 0 there); an
-            # object's bottom pushes them down onto the mount's stop: the arm feels it whole
-            transmitted(mount_n)
-            force = (force[0], mount_n - _lift_n(ground))
+            # too (where the tines rest on a surface the soil's own law reads 0 there; an
+            # object's bottom pulling the mount down, likewise)
+            if mount_n >= 0.0:
+                transmitted(mount_n)
+            elif tines.hooked_on >= 0 and lifted is not None:  # hooked: bottom_laws, a Ground
+                lifted(tines.hooked_on, -mount_n)
+            force = (force[0], mount_n)
         self._last_tip_force_n = force
         self._last_contact_loads = kinematics.joint_loads(r_m, theta_rad, force[0], force[1])
         return self._last_contact_loads
@@ -354,6 +355,7 @@ class ArmPlant:
                 height_m + k * tines.step_s * height_vel
             if parts > 1:
                 e, d = tines.solve(ground, at_reach, at_height, reach_vel, height_vel)
+            d = tines.hooked(ground, at_reach + e, at_height, height_vel, d)
             tine_vel = (reach_vel + (e - tines.offset_m) / tines.step_s,
                         height_vel + (d - tines.compression_m) / tines.step_s)
             side_n, down_n = tines.commit(e, d, reach_vel)
@@ -361,9 +363,10 @@ class ArmPlant:
                                  tines.step_s)
             if not math.isfinite(force[0] + force[1] + side_n + down_n):
                 raise NonFiniteError(f"contact force must be finite, got {force}")
-            if tines.vertical:
+            if down_n < 0.0 and tines.hooked_on >= 0:
+                ground.lifted(tines.hooked_on, -down_n)  # an object's bottom pulls it
+            elif tines.vertical:
                 transmitted(down_n)
-                down_n -= _lift_n(ground)  # an object's bottom: through the mount's stop
             side_sum += side_n
             down_sum += down_n if tines.vertical else force[1]
         tines.step_s = h

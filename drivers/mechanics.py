@@ -69,8 +69,9 @@ class ArmParams:
         0.5, "Viscous damping of the θ pivot bearings.", unit="N·m·s/rad", ge=0, le=1e5
     )
     tine_mount_stiffness_n_per_m: float = setting(
-        5.0e3, "Vertical stiffness of the tines' compliant mount (0: rigid). In series with "
-        "whatever the tines press on, it bounds the contact stiffness (rakectl.core.clamp).",
+        5.0e3, "Vertical stiffness of the tines' compliant mount, pushed up or pulled down "
+        "(0: rigid). In series with whatever the tines press on, it bounds the contact "
+        "stiffness (rakectl.core.clamp).",
         unit="N/m", ge=0, le=1e9,
     )
     tine_mount_damping_ns_per_m: float = setting(

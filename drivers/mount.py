@@ -1,6 +1,8 @@
 """The tines' compliant mount: massless tines on springs, solved implicitly each substep.
 
-The tines hang below the arm's tip on a spring-damper vertically (k_v, c_v) and,
+The tines hang below the arm's tip on a spring-damper vertically (k_v, c_v: pushed up
+or pulled down alike, a hardware requirement since a lift into an object's bottom
+must meet it through the mount too, ``TineMount.hooked``) and,
 as a hardware requirement like the vertical one, sideways (k_h, c_h): whatever
 they press, they press through the mount, so no contact is stiffer than the
 mount along its normal (rakectl.core.clamp relies on it). The tines are
@@ -118,9 +120,10 @@ class TineMount:
                  ) -> None:
         self.k_v, self.c_v, self.k_h, self.c_h = k_v, c_v, k_h, c_h
         self.step_s = step_s  # the solves' time step: the arm's substep, or a part of it
-        self.compression_m = 0.0  # d > 0: tines pushed up
+        self.compression_m = 0.0  # d > 0: tines pushed up; d < 0: pulled down (extended)
         self.offset_m = 0.0  # e > 0: tines pushed away from the robot
         self.tine_reach_vel_m_per_s = 0.0  # the tines' last speed along the reach
+        self.hooked_on = -1  # the object whose bottom the last solve pressed (-1: none)
 
     @property
     def vertical(self) -> bool:
@@ -132,6 +135,7 @@ class TineMount:
 
     def reset(self) -> None:
         self.compression_m = self.offset_m = self.tine_reach_vel_m_per_s = 0.0
+        self.hooked_on = -1
 
     def solve(self, ground: Any, reach_m: float, height_m: float, reach_vel: float,
               height_vel: float) -> tuple[float, float]:
@@ -197,6 +201,28 @@ class TineMount:
                 d = max(d, solved[1] + excess_m / law.n_up)
         return d
 
+    def hooked(self, ground: Any, tine_reach_m: float, height_m: float, height_vel: float,
+               d: float) -> float:
+        """d with the bottoms of the objects the tines are under, if any at the solved d:
+        they push the tines down and the mount extends, a balance solved as the others
+        (backward Euler, massless tines): −(k·d + c·ḋ) = K·(z − z_b) + B·ż, z the tines'
+        height. Solved on its own: tines pressed from above are not also pressed from below
+        (the soil under a rising tine is left behind)."""
+        laws = ground.bottom_laws(tine_reach_m, height_m + d) if self.vertical else []
+        self.hooked_on = laws[0][0] if laws else -1
+        if not laws:
+            return d
+        h, k, c, d0 = self.step_s, self.k_v, self.c_v, self.compression_m
+        stiff = k + (c / h)
+        rhs = c * d0 / h
+        for _, bottom_m, k_b, b_b in laws:
+            stiff += k_b + b_b / h
+            rhs += b_b * d0 / h - k_b * (height_m - bottom_m) - b_b * height_vel
+        hooked = rhs / stiff
+        # pushed out below the bottom by its damping alone: the tines rest on it
+        lowest_m = min(bottom_m for _, bottom_m, _, _ in laws) - height_m
+        return hooked if hooked > lowest_m else lowest_m
+
     def commit(self, e: float, d: float, reach_vel: float) -> tuple[float, float]:
         """Take (e, d) as the new state; the mount's forces (sideways, vertical) on the arm."""
         h = self.step_s
@@ -205,6 +231,8 @@ class TineMount:
         self.tine_reach_vel_m_per_s = reach_vel + rate_e
         side_n = self.k_h * e + self.c_h * rate_e
         down_n = self.k_v * d + self.c_v * rate_d
+        if d < 0.0:  # extended: an object's bottom pulls the arm down through the mount
+            return side_n, (down_n if down_n < 0.0 else 0.0)
         return side_n, (down_n if down_n > 0.0 else 0.0)
 
     def _elimination(self, coupled: list[_Coupled], a_e: float, b_e: float

@@ -17,8 +17,8 @@ campaign; a mine's rim, 106 N, fired it). Without a bottom, a tine that
 slid down a mine's side and under it read it, rising back, through the
 nearest side: 4.8 mm deep at once, 180 N (20261125/2993). The law the tine
 mount solves folds in the reach speed only toward an edge (see
-``vertical_law``); a bottom pushes the tines down onto the mount's stop, and
-the arm takes it whole (``GroundTruth.lift_n``). Above its bottom and
+``vertical_law``); a bottom pushes the tines down and the mount extends
+(``Ground.bottom_laws``). Above its bottom and
 within its extent an object shields the soil below its top: the soil model
 never sees the tip lower than the object's top.
 
@@ -224,6 +224,14 @@ class Body:
             self._record_side(abs(self.force_reach_n))
         return True
 
+    def bottom_law(self, reach_m: float, height_m: float) -> tuple[float, float, float] | None:
+        """(its bottom's height, K, B) if a tine here presses its bottom from under it (the
+        tine mount solves it: it extends), else None."""
+        contact = self._contact(reach_m, height_m)
+        if contact is None or contact[2] >= 0.0:
+            return None
+        return self.bottom_m, self.stiffness_n_per_m, self.stiffness_n_per_m * self.damping_s
+
     def normal_law(self, reach_m: float, height_m: float) -> NormalLaw | None:
         """The law along the normal at this point, if it is inside and the normal leans
         sideways (a side or a rounded edge): what the tine mount's coupled solve needs."""
@@ -395,6 +403,25 @@ class Ground:
             if law is not None:
                 laws.append((i, law))
         return laws
+
+    def bottom_laws(self, reach_m: float, height_m: float
+                    ) -> list[tuple[int, float, float, float]]:
+        """(body index, bottom height, K, B) of every object whose bottom a tine at this
+        point presses."""
+        laws = []
+        for i, body in enumerate(self.bodies):
+            law = body.bottom_law(reach_m, height_m)
+            if law is not None:
+                laws.append((i, *law))
+        return laws
+
+    def lifted(self, index: int, force_n: float) -> None:
+        """What a tine mount pulled down by body ``index``'s bottom carried this substep:
+        the body's record is at least that (tines resting on its bottom face, where its own
+        law reads 0, as :meth:`transmitted` does for the ground)."""
+        self.bodies[index]._record_side(force_n)
+        if force_n > self.truth.lift_n:
+            self.truth.lift_n = force_n
 
     def drag_law(self, reach_m: float, height_m: float, reach_vel_m_per_s: float
                  ) -> tuple[float, float]:

@@ -244,8 +244,9 @@ class ClampSettings:
     contact_stiffness_n_per_m: float = setting(
         5.0e3, "Stiffest vertical contact the tines can meet: their compliant mount's stiffness, "
         "in series with anything they press (a stone, a mine's plate). A hardware requirement "
-        "(90 N at 18 mm): a rigid tine on a rigid plate would make any descent speed an impact "
-        "above 90 N.", unit="N/m", gt=0, le=1e9)
+        "(90 N at 18 mm), pushed up and pulled down alike: a rigid tine on a rigid plate would "
+        "make any descent speed an impact above 90 N, and a lift into an object's bottom the "
+        "same.", unit="N/m", gt=0, le=1e9)
     contact_damping_ns_per_m: float = setting(
         7.5, "Damping in parallel with that stiffness (the mount's).", unit="N·s/m", ge=0,
         le=1e6)

@@ -1,7 +1,8 @@
 """The voltage clamp: no voltage reaches the bus without passing here (pure).
 
 It bounds the two motor voltages so that the force of the rake tip on anything
-it meets — the ground from above, a buried object's top, side or rounded edge —
+it meets — the ground from above, a buried object's top, side, rounded edge or,
+lifted from under it, its bottom —
 cannot exceed F_L (``force_limit_n`` less the model margin: 0.8 × 90 = 72 N),
 in any direction, whatever the controller asked for and whatever the force
 estimator believes: when a contact is met suddenly, at the speed the tip is
@@ -10,8 +11,8 @@ positions and velocities and the configured models (motors, transmissions,
 arm masses, the tines' mount); nothing estimated.
 
 The bound. :mod:`rakectl.core.envelope` derives it and computes it each tick: in
-N = 37 sampled contact directions u (the lower half-plane the ground can push back
-along), the budget B_u of the worst-case push F_u of the motors along u, from the
+N = 72 sampled contact directions u (every direction, 5° apart), the budget B_u of
+the worst-case push F_u of the motors along u, from the
 impact at the tip's speed through the tine mount, the energy envelope a rounded edge
 imposes and the margin for the directions between the samples.
 
@@ -26,8 +27,9 @@ the push the controller asked for and shortens it, so a lift stays a lift. The a
 the voltage pair that holds the rake's weight with no other push (its friction
 band centred on the weight, or nominal, whichever is further from every bound); when the tip
 moves too fast toward some direction for that to be safe, the same plus a brake
-against the motion (of ½ to 8 × F_L/2: braking a descent pushes up, which no
-contact resists, while braking a sideways motion pushes toward the other side);
+against the motion (of ½ to 8 × F_L/2, judged by the budgets like any push:
+braking a descent pushes up, where only the bottom of an object the tines are
+under could be met, and braking a sideways motion toward the other side);
 when none is safe, the one over budget by least, or a point toward the request
 over by less still (a lift that relieves a bound the weight is at), counted in
 ``saturated``, and, if the tip is not moving toward anything (the rake's own
@@ -68,8 +70,8 @@ class VoltageClamp:
         bounded): a test-only switch that shows what the other directions hold."""
         if clamp.force_limit_n > FORCE_LIMIT_N:
             raise ValueError(f"clamp.force_limit_n may not exceed {FORCE_LIMIT_N:g} N")
-        if directions != 1 and (directions < 3 or directions % 2 == 0):
-            raise ValueError("directions must be 1 or an odd number >= 3")
+        if directions != 1 and (directions < 4 or directions % 4):
+            raise ValueError("directions must be 1 or a multiple of 4")
         self._envelope = envelope = ContactEnvelope(clamp, motor_r, motor_theta, dt_s,
                                                     directions)
         self.limit_n = envelope.limit_n

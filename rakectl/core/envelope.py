@@ -5,10 +5,12 @@ along it and the worst-case push of a pair of voltages.
 Kept apart from :mod:`rakectl.core.clamp`, which decides what to send (the anchor and the
 cut), so that the bound and its derivation below read on their own.
 
-Contact directions. The ground pushes the tine along an outward normal n with
-n_z ≥ 0 (a top, a side, an edge between them); the tine pushes it along u = −n,
-anywhere in the lower half-plane. u(φ) = (−sin φ, −cos φ) in (reach, height),
-φ from straight down, −90° (away from the robot) … 90° (toward it).
+Contact directions. The ground pushes the tine along an outward normal n: up
+from a top, sideways from a side, between them from a rounded edge, and down
+from the bottom of an object the tines are under; the tine pushes it along
+u = −n, in any direction. u(φ) = (−sin φ, −cos φ) in (reach, height), φ from
+straight down, −90° away from the robot, 90° toward it, ±180° straight up (a
+lift into an object's bottom).
 
 What the tip can push with. The joint loads Q = (F_r, τ_θ) of the motors plus
 the generalized gravity forces G act on the tip through J (rakectl.core.kinematics).
@@ -23,7 +25,8 @@ function of s_j·V_j per joint (s_j = sign a_j, ``JointModel.load_n``), inverted
 closed form (``JointModel.voltage_for``).
 
 Impact along u. The tines hang on a compliant mount, vertically k_v (and c_v),
-horizontally k_h (and c_h), in series with whatever they press, so along u no
+in compression and in extension alike, horizontally k_h (and c_h), in series
+with whatever they press, so along u no
 contact is stiffer than k_u = 1/(u_x²/k_h + u_z²/k_v); with proportional damping
 (c/k equal on both axes, τ) the mount along u is a spring-damper (k_u, τ k_u);
 with unequal ratios the clamp takes the larger τ in every direction. A force f along u on the
@@ -43,7 +46,7 @@ gives the budget along u, with D = F_L − τ k_u v_u:
 
 F_L/2 at rest, shrinking with speed, negative (the motors must brake) once
 √(k_u m_u)·v_u + τ k_u v_u ≥ F_L: with the defaults at r = 1.2 m, from 0.56 m/s
-straight down (m_u ≈ 1.9 kg) and 0.23 m/s toward the robot (m_u ≈ 14 kg).
+straight down or up (m_u ≈ 1.9 kg) and 0.23 m/s toward the robot (m_u ≈ 14 kg).
 
 Energy envelope. A rounded edge can turn the tine's motion along u into motion
 along another direction u′ (a side met while the edge lifts the tine): what the
@@ -63,10 +66,11 @@ P, the budget also bounds a press held afterwards: F_L/2 in every direction at r
 Every direction, sampled. Since F_u = (uᵀ w)/(uᵀ A u), with A = J M⁻¹ Jᵀ and
 w = J M⁻¹ (Q + G) the tip's acceleration under the push, the condition F_u ≤ B_u
 reads uᵀ w ≤ B_u·uᵀAu: linear in the joint loads, so its worst case over the
-loads' uncertainty is at a corner of their box. The clamp checks it at N = 37
-directions, 5° apart. Between two samples the left-hand side of f_peak ≤ F_L can
-exceed its larger sampled value by at most 1.5 % over the workspace and every
-push and speed (tests/core/test_clamp.py measures it against 7201 directions);
+loads' uncertainty is at a corner of their box. The clamp checks it at N = 72
+directions, 5° apart around the circle. Between two samples the left-hand side
+of f_peak ≤ F_L can exceed its larger sampled value by at most 1.5 % over the
+workspace and every push and speed (tests/core/test_clamp.py measures it
+against 1440 directions);
 the budgets are taken at F_L/(1 + ``SAMPLING_MARGIN``), 3 %, so the bound holds
 in every direction, not only the sampled ones.
 """
@@ -86,7 +90,7 @@ from rakectl.core.motor_model import (
     reflected_inertia,
 )
 
-DIRECTIONS = 37  # contact directions sampled from −90° to 90° (every 5°)
+DIRECTIONS = 72  # contact directions sampled around the circle (every 5°)
 SAMPLING_MARGIN = 0.03  # kept back for directions between the samples (1.5 % measured)
 
 
@@ -160,7 +164,8 @@ class ContactEnvelope:
 
     def __init__(self, clamp: ClampSettings, motor_r: MotorParams, motor_theta: MotorParams,
                  dt_s: float, directions: int) -> None:
-        """``directions`` is 1 (straight down only) or odd, checked by the clamp."""
+        """``directions`` is 1 (straight down only) or a multiple of 4, checked by the
+        clamp (straight down and up and both sideways among the samples)."""
         self.limit_n = clamp.force_limit_n * (1.0 - clamp.model_margin)
         self._sampled_limit_n = self.limit_n / (1.0 + SAMPLING_MARGIN) if directions > 1 \
             else self.limit_n
@@ -180,8 +185,8 @@ class ContactEnvelope:
         k_v, k_h = clamp.contact_stiffness_n_per_m, clamp.side_contact_stiffness_n_per_m
         tau_v_s, tau_h_s = clamp.contact_damping_ns_per_m / k_v, \
             clamp.side_contact_damping_ns_per_m / k_h
-        angles = np.linspace(-0.5 * math.pi, 0.5 * math.pi, directions) if directions > 1 \
-            else np.zeros(1)
+        angles = np.linspace(-math.pi, math.pi, directions, endpoint=False) \
+            if directions > 1 else np.zeros(1)
         self.angles_rad = angles
         # rows (cos φ, −sin φ) and (cos φ, sin φ): Jᵀu = (sin(θ − φ), r cos(θ − φ))
         self._rotations = np.stack([np.stack([np.cos(angles), -np.sin(angles)], axis=1),

@@ -14,7 +14,9 @@ that load holds the arm against gravity, G(r, θ) = W·(−sin θ, −(r − L/2
 W the unbalanced weight. The least-squares W over both joints and every such tick is
 compared with the configured one: outside ±``selftest.tolerance`` the check fails,
 naming both weights. A pose where gravity has no lever on either joint cannot tell
-the weight: the check fails and says so.
+the weight: the check fails and says so. An arm that does not follow the lift at
+all fails too: the clamp bounds the upward push by the configured weight, so a rake
+much heavier than configured (no counterweight) cannot be lifted within it.
 
 The check trusts the motor model as the clamp does; it cannot see the tine mount's
 stiffness (that needs a press on a known surface: not built).
@@ -74,6 +76,7 @@ class WeightCheck:
         self._tick = 0
         self._sum_aq = self._sum_aa = 0.0
         self.samples = 0
+        self._moved = False  # a joint left its ramp's start by a few counts at least once
         self.result: WeightResult | None = None
 
     @property
@@ -119,6 +122,7 @@ class WeightCheck:
             moved = position - self._ramp_start[j]
             if abs(moved) < self._min_travel[j]:
                 continue  # too little motion to tell which side of the band applies
+            self._moved = True
             ahead, behind = joint_load_band(self._motors[j], current, vel)
             load = ahead if moved > 0.0 else behind
             self._sum_aq += lever[j] * load
@@ -127,6 +131,13 @@ class WeightCheck:
 
     def _judge(self) -> WeightResult:
         expected, tolerance = self.expected_n, self._settings.tolerance
+        if not self._moved:
+            return WeightResult(False, math.nan, expected, self.samples,
+                                f"weight check: the arm did not follow the "
+                                f"{self._settings.lift_m * 1e3:.0f} mm lift within the clamp's "
+                                f"bound: the rake may be heavier than the {expected:.1f} N "
+                                "configured (clamp.rake_mass_kg, counterweight_kg, "
+                                "counterbalance_share): check the counterweight before arming")
         if self.samples == 0 or self._sum_aa < MIN_LEVER * self.samples:
             return WeightResult(False, math.nan, expected, self.samples,
                                 "weight check: gravity has no lever on the joints at this pose "

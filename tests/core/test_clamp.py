@@ -3,7 +3,8 @@
 The checks use other code than the clamp: the emulator's own friction band
 (rakectl.core.motor_model.joint_load_band), the Jacobian of rakectl.core.kinematics,
 the emulator's joint masses and gravity loads (drivers.mechanics), numpy's linear algebra,
-a dense set of 721 contact directions (the clamp samples 37), and an RK4 simulation
+a dense set of 1440 contact directions around the circle (the clamp samples 72), and an RK4
+simulation
 of the two joints meeting a spring-damper (not the clamp's formula).
 """
 
@@ -35,7 +36,7 @@ from rakectl.core.motor_model import (
 DT_S = 1e-3
 GEOMETRY = GeometrySettings()
 CLAMP = ClampSettings()
-DENSE = np.linspace(-0.5 * math.pi, 0.5 * math.pi, 721)  # φ from straight down
+DENSE = np.linspace(-math.pi, math.pi, 1440, endpoint=False)  # φ from straight down, 0.25°
 
 
 def _arm(clamp: ClampSettings) -> ArmParams:
@@ -130,7 +131,7 @@ def test_clamped_voltages_keep_every_direction_under_the_limit(
     motor_r: MotorParams, motor_theta: MotorParams, limit_n: float, side_stiffness: float,
     counterweight_kg: float, share: float
 ) -> None:
-    """Whatever is asked, the voltages returned cannot make a contact met in any of 721
+    """Whatever is asked, the voltages returned cannot make a contact met in any of 1440
     directions peak above the limit (unless even the safest voltages cannot: saturated)."""
     settings_ = dataclasses.replace(CLAMP, force_limit_n=limit_n,
                                     side_contact_stiffness_n_per_m=side_stiffness,
@@ -199,16 +200,16 @@ def test_the_vertical_only_switch_lets_a_side_push_through() -> None:
     """``directions=1`` (tests only) bounds straight down alone: the 97 N side push passes."""
     clamp = VoltageClamp(CLAMP, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, DT_S, directions=1)
     assert clamp.apply(1.0, 0.0, 0.0, 0.0, -24.0, 0.0)[0] == -24.0
-    with pytest.raises(ValueError, match="odd"):
-        VoltageClamp(CLAMP, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, DT_S, directions=4)
+    with pytest.raises(ValueError, match="multiple of 4"):
+        VoltageClamp(CLAMP, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, DT_S, directions=6)
 
 
 def test_sampling_every_five_degrees_misses_at_most_the_margin() -> None:
-    """Between the clamp's 37 sampled directions the peak bound's left side exceeds its
+    """Between the clamp's 72 sampled directions the peak bound's left side exceeds its
     largest sampled value by less than SAMPLING_MARGIN, over poses, pushes and speeds."""
     rng = np.random.default_rng(20261125)
     arm = _arm(CLAMP)
-    sampled = np.linspace(-0.5 * math.pi, 0.5 * math.pi, 37)
+    sampled = np.linspace(-math.pi, math.pi, 72, endpoint=False)
     worst_ratio = 1.0
     for _ in range(3000):
         r_m = rng.uniform(GEOMETRY.r_min_m, GEOMETRY.r_max_m)
@@ -270,7 +271,7 @@ def _impact_peak_n(r_m: float, theta_rad: float, phi: float, joint_vel: tuple[fl
 
 
 @settings(max_examples=20, deadline=None)
-@given(pose, st.floats(0.0, 0.3), st.floats(0.0, 2 * math.pi), st.integers(0, 36))
+@given(pose, st.floats(0.0, 0.3), st.floats(0.0, 2 * math.pi), st.integers(0, 71))
 def test_an_allowed_push_meeting_a_contact_peaks_under_the_limit(
         q: tuple[float, float], speed: float, heading: float, sample: int) -> None:
     """Simulated, not from the formula: the joints pushed by the worst-case loads of the
@@ -318,12 +319,17 @@ def test_the_tip_mass_is_the_emulators() -> None:
                 1.0 / (u @ mobility @ u), rel=1e-12)
 
 
+def _along(clamp: VoltageClamp, phi: float) -> int:
+    """The index of the sampled direction φ (0 straight down, 90° toward the robot)."""
+    return int(np.argmin(np.abs(clamp.angles_rad - phi)))
+
+
 def test_a_fast_descent_brakes_without_calling_it_infeasible() -> None:
     clamp = VoltageClamp(CLAMP, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, DT_S)
     at_rest = clamp.budgets_n(1.2, 0.2, 0.0, 0.0)
     assert 0.4 * clamp.limit_n < at_rest.min() and at_rest.max() < 0.5 * clamp.limit_n
     falling = 0.7 / (1.2 * math.cos(0.2))  # θ̇ of a 0.7 m/s descent (brakes from ~0.55)
-    assert clamp.budgets_n(1.2, 0.2, 0.0, falling)[18] < 0.0  # straight down: brake
+    assert clamp.budgets_n(1.2, 0.2, 0.0, falling)[_along(clamp, 0.0)] < 0.0  # brake
     out = clamp.apply(1.2, 0.2, 0.0, falling, 0.0, 24.0)
     m = THETA_MOTOR_DEFAULT  # the θ motor's back-EMF at that speed
     emf_v = m.torque_constant_nm_per_a * falling / joint_per_motor_rad(m)
@@ -335,5 +341,6 @@ def test_a_fast_side_motion_gets_a_smaller_side_budget() -> None:
     clamp = VoltageClamp(CLAMP, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, DT_S)
     still = clamp.budgets_n(1.0, 0.0, 0.0, 0.0)
     toward_robot = clamp.budgets_n(1.0, 0.0, -0.3, 0.0)  # r retracting at θ = 0
-    assert toward_robot[-1] < still[-1] - 5.0  # φ = 90°: into whatever is on the robot's side
-    assert toward_robot[0] == pytest.approx(still[0], abs=0.5)  # the far side: unchanged
+    near, far = _along(clamp, 0.5 * math.pi), _along(clamp, -0.5 * math.pi)
+    assert toward_robot[near] < still[near] - 5.0  # into whatever is on the robot's side
+    assert toward_robot[far] == pytest.approx(still[far], abs=0.5)  # the far side: unchanged

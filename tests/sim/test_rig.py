@@ -88,16 +88,17 @@ def test_arm_jog_excavate_stop_against_the_ground_truth(tmp_path: Path) -> None:
 def test_an_arm_without_its_counterweight_is_refused_by_the_weight_check(tmp_path: Path
                                                                          ) -> None:
     """The emulated arm without the 8 kg counterweight the clamp is configured for: the
-    first arming lifts the tip, measures twice the weight and faults, naming both; the
-    second arming checks again (the rake never becomes ARMED)."""
+    first arming tries to lift the tip, which the clamp's upward budget (set by the
+    configured weight) barely allows with twice the weight: the check faults, that the
+    arm did not follow or that it weighs more than configured, naming the counterweight;
+    the second arming checks again (the rake never becomes ARMED)."""
     emulator_args = ["--set", "physics.arm.counterweight_kg=0"]
     with emulated_bench(tmp_path, EMULATOR, DAEMON, emulator_args=emulator_args) as bench:
         bench.wait_for_state(["disarmed"], 60.0)
         bench.request("arm")
         final = bench.wait_for_state(["fault", "armed"], 15.0)
-        assert final["state"] == "fault"
-        assert "does not match 19.6 N configured" in final["fault"]
-        assert final["weight_check"]["weight_n"] == pytest.approx(39.2, rel=0.1)
+        assert final["state"] == "fault"  # not lifted, or lifted and weighed too heavy
+        assert "19.6 N configured" in final["fault"] and "counterweight" in final["fault"]
         bench.request("reset")
         bench.wait_for_state(["disarmed"], 5.0)
         bench.request("arm")
