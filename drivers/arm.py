@@ -50,7 +50,6 @@ DEFAULT_SUBSTEP_S = 5e-5  # set by the contact; see the module docstring
 MAX_EXPLICIT_DAMPING = 0.1  # largest allowed h·c/M of an explicitly integrated damper
 
 
-
 class ContactModel(Protocol):
     """The ground as the tip feels it (implemented by the soil model).
 
