@@ -65,10 +65,10 @@ TRUTH_COLUMNS: Final = (
     "t_s", "sync_counter", "r_m", "theta_rad", "voltage_r_v", "voltage_theta_v", "current_r_a",
     "current_theta_a", "tip_reach_m", "tip_height_m", "force_down_n", "force_drag_n",
     "contact", "mine_activated", "r_state", "r_nmt", "theta_state", "theta_nmt",
-    "mine_plate_max_n", "mine_side_max_n",
+    "mine_plate_max_n", "mine_side_max_n", "wall_time_s",
 )
 _TRUTH_ROW: Final = ("%.6f,%d,%.7f,%.7f,%.4f,%.4f,%.5f,%.5f,%.6f,%.6f,%.4f,%.4f,%s,%d,%s,%s,%s,%s,"
-                     "%.4f,%.4f\n")
+                     "%.4f,%.4f,%.6f\n")
 
 
 class EmulatorStats:
@@ -361,7 +361,8 @@ class Emulator:
             self.time_s, self.sync_counter, plant.r_m, plant.theta_rad, r.output_voltage_v,
             theta.output_voltage_v, plant.current_r_a, plant.current_theta_a, reach_m, height_m,
             truth.force_down_n, truth.force_drag_n, truth.contact.value, truth.mine_activated,
-            r.state.name, r.nmt.name, theta.state.name, theta.nmt.name, plate_n, side_n))
+            r.state.name, r.nmt.name, theta.state.name, theta.nmt.name, plate_n, side_n,
+            time.time()))  # the wall clock: recordings line it up with the daemon's status
 
     # ------------------------------------------------------------------- bus edge
 

@@ -1,16 +1,21 @@
 """``rakectl bench --loop``: the daemon's 1 kHz loop on the emulated bench, with figures.
 
 In one run: cyclictest (the machine's own wake-up latency, the reference),
-then the daemon armed and holding for ``seconds`` idle and ``seconds`` with a
-client calling ``status`` at 100 Hz, both real-time (daemon SCHED_FIFO 80,
-emulator 70) over udp_multicast in a private network namespace. Printed, never
-asserted: these machines are shared and noisy.
+then the daemon armed and holding for ``seconds`` idle, ``seconds`` with a
+client calling ``status`` at 100 Hz and, with the [view] extra, ``seconds`` with
+``rakectl view`` polling at 50 Hz and a Foxglove client subscribed to it, all
+real-time (daemon SCHED_FIFO 80, emulator 70) over udp_multicast in a private
+network namespace. Printed, never asserted: these machines are shared and noisy.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import re
+import subprocess
+import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,6 +53,67 @@ def _phase(bench_socket: Path, seconds: float, status_hz: float) -> dict[str, An
     return {"status": final, "status_calls": calls, "gc_gen2": gen2}
 
 
+def _viewer_phase(bench_socket: Path, seconds: float, out: Path) -> dict[str, Any]:
+    """The idle phase with ``rakectl view`` running (its own process, status at 50 Hz)
+    and a Foxglove client subscribed to every topic (when websockets is installed)."""
+    log = out / "view.log"
+    viewer = subprocess.Popen([sys.executable, "-m", "rakectl", "view", "--socket",
+                               str(bench_socket), "--port", "0", "--rate-hz", "50"],
+                              stderr=log.open("wb"))
+    received = [0]
+    stop = threading.Event()
+    try:
+        port = _viewer_port(viewer, log)
+        subscriber = threading.Thread(target=_subscribe, args=(port, stop, received),
+                                      daemon=True)
+        subscriber.start()
+        phase = _phase(bench_socket, seconds, 0.0)
+    finally:
+        stop.set()
+        viewer.terminate()
+        viewer.wait(10.0)
+    return phase | {"viewer_messages": received[0], "viewer_log": log.read_text().strip()}
+
+
+def _viewer_port(viewer: subprocess.Popen[bytes], log: Path) -> int:
+    deadline = time.monotonic() + 30.0
+    while time.monotonic() < deadline:
+        found = re.search(r"ws://[^:]+:(\d+)", log.read_text())
+        if found:
+            return int(found.group(1))
+        if viewer.poll() is not None:
+            break
+        time.sleep(0.1)
+    raise RakeError(f"rakectl view did not start: {log.read_text().strip()}")
+
+
+def _subscribe(port: int, stop: threading.Event, received: list[int]) -> None:
+    """A Foxglove client subscribed to every channel, counting the messages."""
+    try:
+        from websockets.exceptions import ConnectionClosed
+        from websockets.sync.client import connect
+    except ImportError:
+        received[0] = -1  # no client: the viewer polled, nobody watched
+        return
+    protocols: Any = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+    with connect(f"ws://127.0.0.1:{port}", subprotocols=protocols) as ws:
+        subscribed = False
+        while not stop.is_set():
+            try:
+                frame = ws.recv(timeout=0.5)
+            except TimeoutError:
+                continue
+            except ConnectionClosed:  # the viewer stopped first
+                return
+            if isinstance(frame, bytes):
+                received[0] += 1
+            elif not subscribed and json.loads(frame).get("op") == "advertise":
+                channels = json.loads(frame)["channels"]
+                ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                    {"id": c["id"], "channelId": c["id"]} for c in channels]}))
+                subscribed = True
+
+
 @dataclass(frozen=True)
 class LoopFigures:
     """What one loop benchmark measured (``status`` replies' timing, in ns)."""
@@ -58,6 +124,14 @@ class LoopFigures:
     idle: dict[str, Any]
     loaded: dict[str, Any]
     bus: dict[str, Any]
+    viewed: dict[str, Any] | None = None  # idle, with the live view polling and watched
+
+    def phases(self) -> list[tuple[str, dict[str, Any]]]:
+        """(name, phase) of every phase measured, in order."""
+        phases = [("idle", self.idle), ("status at 100 Hz", self.loaded)]
+        if self.viewed is not None:
+            phases.append(("rakectl view at 50 Hz, watched", self.viewed))
+        return phases
 
     def wakeup_ratio(self, phase: dict[str, Any]) -> float:
         """The daemon's p99 OS wake-up over cyclictest's p99 (nan without cyclictest)."""
@@ -110,8 +184,17 @@ def measure_loop(seconds: float, out: Path) -> LoopFigures:
         time.sleep(1.0)
         idle = _phase(bench.socket, seconds, 0.0)
         loaded = _phase(bench.socket, seconds, 100.0)
+        viewed = _viewer_phase(bench.socket, seconds, out) if _viewer_installed() else None
     return LoopFigures(seconds, cyclictest, tuple(reasons), idle, loaded,
-                       _bus_latency(out / "daemon.log"))
+                       _bus_latency(out / "daemon.log"), viewed)
+
+
+def _viewer_installed() -> bool:
+    try:
+        import rakectl.view.topics  # noqa: F401
+    except RakeError:
+        return False
+    return True
 
 
 def _bus_latency(log: Path) -> dict[str, Any]:
@@ -130,7 +213,7 @@ def _row(label: str, p: dict[str, Any], extra: str = "") -> str:
 
 
 def format_loop(f: LoopFigures) -> str:
-    cyclictest, idle, loaded, bus = f.cyclictest, f.idle, f.loaded, f.bus
+    cyclictest, bus = f.cyclictest, f.bus
     lines = [f"loop benchmark: {f.seconds:g} s per phase, daemon SCHED_FIFO 80, emulator 70",
              f"{'wake-up latency, µs':<46}{'p50':>8}{'p99':>8}{'p99.9':>8}{'max':>8}"]
     if cyclictest is not None:
@@ -139,7 +222,9 @@ def format_loop(f: LoopFigures) -> str:
     else:
         reasons = "; ".join(f.cyclictest_reasons) or "unavailable"
         lines.append(f"cyclictest: not measured ({reasons})")
-    for name, phase in (("idle", idle), ("status at 100 Hz", loaded)):
+    if f.viewed is None:
+        lines.append("rakectl view: not measured (the [view] extra is not installed)")
+    for name, phase in f.phases():
         t = phase["status"]["timing"]
         lines.append(_row(f"daemon, {name}: OS wake-up (before the spin)", t["oversleep_ns"],
                           f"{t['overruns']} late ticks, gen-2 GC {phase['gc_gen2']}"))
@@ -149,6 +234,10 @@ def format_loop(f: LoopFigures) -> str:
         ratio = f.wakeup_ratio(phase)
         if math.isfinite(ratio):
             lines.append(f"  p99 OS wake-up / cyclictest p99: {ratio:.2f}× (goal ≤ 2×)")
+        if "viewer_messages" in phase:
+            watched = phase["viewer_messages"]
+            lines.append("  the viewer's client received " + (
+                f"{watched} messages" if watched >= 0 else "nothing (websockets not installed)"))
     missed, expected = f.tpdo_missed()
     lines += [
         "cross-process bus (udp_multicast, the whole run):",

@@ -251,7 +251,7 @@ def _loop_section(loop: LoopFigures | None, text: str) -> list[str]:
         p = loop.cyclictest["latency_ns"]
         rows.append((loop.cyclictest["label"], _us(p["p50"]), _us(p["p99"]), _us(p["p99.9"]),
                      _us(p["max"]), "—", "1×"))
-    for name, phase in (("idle", loop.idle), ("status at 100 Hz", loop.loaded)):
+    for name, phase in loop.phases():
         t = phase["status"]["timing"]
         p = t["oversleep_ns"]
         ratio = loop.wakeup_ratio(phase)

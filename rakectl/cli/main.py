@@ -69,6 +69,9 @@ def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], i
     files.add_argument("--copy", type=Path, metavar="DIR", help="copy config/ and systemd/ "
                        "into DIR (refused if DIR already holds them)")
     _add_bench(sub)
+    from rakectl.cli import view as cli_view
+
+    cli_view.add_parsers(sub)
     return parser, ops
 
 
@@ -243,6 +246,18 @@ def _cmd_files(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_view(args: argparse.Namespace) -> int:
+    from rakectl.cli.view import cmd_view
+
+    return cmd_view(args)
+
+
+def _cmd_mcap(args: argparse.Namespace) -> int:
+    from rakectl.cli.view import cmd_mcap
+
+    return cmd_mcap(args)
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from rakectl.daemon.service import run
 
@@ -260,7 +275,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "simulate": _cmd_simulate, "config-docs": _cmd_config_docs, "bench": _cmd_bench,
         "api-docs": _cmd_api_docs,
         "run": _cmd_run, "emulator": _cmd_emulator, "demo": _cmd_demo, "files": _cmd_files,
-        "fuzz": _cmd_fuzz}
+        "fuzz": _cmd_fuzz, "view": _cmd_view, "mcap": _cmd_mcap}
     try:
         parser, ops = _build_parser()
         args, extra = parser.parse_known_args(argv)

@@ -94,6 +94,7 @@ class Daemon(SlackWork):
         self.weight_result: WeightResult | None = None  # the last check's
         self._plausible = plausible_ranges(settings.geometry)
         self.f_hat_max_n = 0.0
+        self.voltages = (0.0, 0.0)  # sent on the last tick (after the clamp)
         self._enabled = False
         self._enable_deadline = 0
         self._reset_deadline = -1
@@ -168,6 +169,7 @@ class Daemon(SlackWork):
         client.send(*voltages)
         client.sync()
         self._send_failures = self._send_failures + 1 if client.send_failed() else 0
+        self.voltages = voltages
         self._record(voltages)
 
     def _check_ready(self) -> None:

@@ -3,15 +3,19 @@
 Starts the emulated drives (with a buried mine) and the daemon as separate
 processes on one bus (rakectl.sim.rig), arms, rakes a demo lane deeper
 each cycle until the rake finds the mine, stops, and reports what the
-controller saw next to the emulator's ground truth.
+controller saw next to the emulator's ground truth; the run is recorded as
+demo.mcap (the daemon's status at 50 Hz and the truth at 100 Hz, for Foxglove).
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
 import sys
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -20,12 +24,16 @@ from rakectl.config.files import config_dir
 from rakectl.errors import RakeError
 from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim.rig import emulated_bench, namespaces_unavailable
+from rakectl.view.record import recording, truth_rows_to
+from rakectl.view.stream import StatusStream
+from rakectl.view.topics import Box, Publisher
 
 # The demo lane: strokes from 1.25 m to 0.92 m reach, 15 mm deeper each cycle,
 # down to 60 mm at most; the mine's top is at 25 mm, centred at 1.08 m.
 LANE = {"reach_far_m": 1.25, "reach_near_m": 0.92, "target_depth_m": 0.06,
         "depth_step_m": 0.015, "stroke_speed_m_per_s": 0.06}
 MINE = (1.08, 0.025, 0.08, 0.05)  # reach, top depth, width, thickness (config/emulator-demo.yaml)
+STREAM_HZ = 50.0  # the daemon's status into demo.mcap
 
 
 def _config(name: str) -> Path:
@@ -56,24 +64,43 @@ def run_demo(out: Path, as_json: bool) -> int:
     if reason:
         raise RakeError(f"the demo needs a private network namespace for its bus: {reason}")
     status_out = sys.stderr
-    with emulated_bench(out, _config("emulator-demo.yaml"),
-                        _config("rakectl-emulated.yaml")) as bench:
-        print(f"demo: starting the emulated drives and the daemon (logs in {out})",
-              file=status_out)
-        bench.wait_for_state(["disarmed"], 60.0)
-        bench.request("arm")
-        armed: dict[str, Any] = bench.wait_for_state(["armed", "fault"], 30.0)
-        print(f"demo: {armed['weight_check']['message']}", file=status_out)
-        if armed["state"] != "armed":
-            raise RakeError(f"the demo could not arm: {armed['fault']}")
-        print("demo: armed; raking the demo lane", file=status_out)
-        bench.request("excavate", **LANE)
-        final = follow_excavation(bench.socket, status_out, timeout_s=600.0)
-        bench.request("disarm")
+    with recording(out / "demo.mcap") as pub:
+        with emulated_bench(out, _config("emulator-demo.yaml"),
+                            _config("rakectl-emulated.yaml")) as bench:
+            print(f"demo: starting the emulated drives and the daemon (logs in {out})",
+                  file=status_out)
+            bench.wait_for_state(["disarmed"], 60.0)
+            with _streaming(bench.socket, pub):
+                bench.request("arm")
+                armed: dict[str, Any] = bench.wait_for_state(["armed", "fault"], 30.0)
+                print(f"demo: {armed['weight_check']['message']}", file=status_out)
+                if armed["state"] != "armed":
+                    raise RakeError(f"the demo could not arm: {armed['fault']}")
+                print("demo: armed; raking the demo lane", file=status_out)
+                bench.request("excavate", **LANE)
+                final = follow_excavation(bench.socket, status_out, timeout_s=600.0)
+                bench.request("disarm")
+        truth_rows_to(pub, out / "truth.csv", every=10, objects=[Box(*MINE)])
     summary = _summary(final, truth_figures(out / "truth.csv"))
     _plot(out)
     _report(summary, out, as_json)
     return 0 if summary["object_found"] and not summary["mine_activated"] else 1
+
+
+@contextlib.contextmanager
+def _streaming(socket: Path, pub: Publisher) -> Iterator[StatusStream]:
+    """The daemon's status recorded at 50 Hz while the block runs (a thread)."""
+    stream = StatusStream(socket, pub, STREAM_HZ, [Box(*MINE)],
+                          (LANE["reach_near_m"], LANE["reach_far_m"]))
+    stop = threading.Event()
+    thread = threading.Thread(target=stream.run, args=(lambda: not stop.is_set(),),
+                              name="demo-recording", daemon=True)
+    thread.start()
+    try:
+        yield stream
+    finally:
+        stop.set()
+        thread.join(timeout=5.0)
 
 
 def _summary(final: dict[str, Any], truth: dict[str, Any]) -> dict[str, Any]:
@@ -116,6 +143,7 @@ def _report(summary: dict[str, Any], out: Path, as_json: bool) -> None:
         f"{summary['f_mine_side_max_n']:.1f} N (limit {FORCE_LIMIT_N:g} N)",
         f"mine activated     {'YES' if summary['mine_activated'] else 'no'}",
         f"plot               {out / 'demo.png'}",
+        f"recording          {out / 'demo.mcap'} (Foxglove; layout docs/foxglove-layout.json)",
     ]
     print("\n".join(lines))
     if as_json:

@@ -193,8 +193,11 @@ def test_bring_up_by_sdo_nmt_and_rpdo_then_hold_the_arm(rig: Any) -> None:
     lines = truth.getvalue().splitlines()
     assert lines[0].split(",") == list(TRUTH_COLUMNS)
     assert len(lines) == 1 + emulator.stats.physics_steps
-    assert lines[-1].endswith("OPERATION_ENABLED,OPERATIONAL,OPERATION_ENABLED,OPERATIONAL,"
-                              "0.0000,0.0000")  # no mine pressed
+    last = dict(zip(TRUTH_COLUMNS, lines[-1].split(","), strict=True))
+    assert [last[k] for k in ("r_state", "r_nmt", "theta_state", "theta_nmt")] == [
+        "OPERATION_ENABLED", "OPERATIONAL", "OPERATION_ENABLED", "OPERATIONAL"]
+    assert (last["mine_plate_max_n"], last["mine_side_max_n"]) == ("0.0000", "0.0000")
+    assert abs(float(last["wall_time_s"]) - time.time()) < 60.0  # the wall clock
 
 
 def test_silence_faults_both_drives_within_the_watchdog_and_the_arm_brakes(rig: Any) -> None:

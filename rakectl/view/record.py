@@ -1,0 +1,115 @@
+"""Recordings as MCAP, with the live view's topics (:mod:`rakectl.view.topics`): the
+flight recorder's dumps and the emulator's ground truth (``rakectl mcap``), and the
+demo's run (:func:`recording`, fed by a :class:`~rakectl.view.stream.StatusStream`).
+CSV stays: these are written next to it, from it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import math
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+from rakectl.core.supervision import ForceLevel
+from rakectl.daemon.states import DaemonState
+from rakectl.errors import ConfigError, RakeError
+from rakectl.view.stream import NS, log_truth_row, truth_time_ns
+from rakectl.view.topics import Box, Publisher, require_foxglove
+
+DUMP_KEYS = ("t_s", "state", "reach_m", "depth_m", "f_hat_n", "voltage_r_req_v",
+             "voltage_theta_req_v", "voltage_r_v", "voltage_theta_v", "clamp_worst_case_n",
+             "r_m", "theta_rad", "f_current_n", "force_level")
+TRUTH_KEYS = ("t_s", "force_down_n", "tip_reach_m", "tip_height_m", "r_m", "theta_rad",
+              "voltage_r_v", "voltage_theta_v")
+
+
+@contextlib.contextmanager
+def recording(path: Path) -> Iterator[Publisher]:
+    """A publisher whose messages go to the MCAP file ``path`` only (its own context:
+    never to a live server); the file is complete when the block ends."""
+    foxglove = require_foxglove()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    context = foxglove.Context()
+    try:
+        writer = foxglove.open_mcap(path, allow_overwrite=True, context=context)
+    except Exception as exc:  # the SDK raises its own error types for I/O
+        raise RakeError(f"mcap: cannot write {path}: {exc}") from exc
+    try:
+        yield Publisher(context)
+    finally:
+        writer.close()
+
+
+def _rows(path: Path, needed: Iterable[str]) -> Iterator[dict[str, str]]:
+    with path.open(newline="") as f:
+        reader = csv.DictReader(f)
+        missing = [k for k in needed if k not in (reader.fieldnames or ())]
+        if missing:
+            raise ConfigError(f"mcap: {path} is not a flight-recorder dump or an emulator "
+                              f"truth file: no column {', '.join(missing)}")
+        yield from reader
+
+
+def _name(enum_type: type[DaemonState] | type[ForceLevel], code: str) -> str:
+    try:
+        return enum_type(int(float(code))).name.lower()
+    except ValueError:
+        return f"code {code}"
+
+
+def dump_to_mcap(dump: Path, out: Path, every: int = 1, objects: Iterable[Box] = ()) -> int:
+    """A flight-recorder dump (rakectl.daemon.loop.RECORDER_COLUMNS) as MCAP, one row in
+    ``every``; its clock is the daemon's (seconds since start). Returns the rows written."""
+    written = 0
+    with recording(out) as pub:
+        for k, row in enumerate(_rows(dump, DUMP_KEYS)):
+            if k % every:
+                continue
+            t_ns = round(float(row["t_s"]) * NS)
+            r_m, theta_rad = float(row["r_m"]), float(row["theta_rad"])
+            reach_m, depth_m = float(row["reach_m"]), float(row["depth_m"])
+            pub.rake(t_ns, -depth_m + r_m * math.sin(theta_rad), reach_m, -depth_m)
+            if written == 0:
+                pub.ground(t_ns, None, None, objects, None)
+            pub.json("/force", t_ns, {"f_hat_n": float(row["f_hat_n"]),
+                                      "f_current_n": float(row["f_current_n"]),
+                                      "clamp_worst_case_n": float(row["clamp_worst_case_n"])})
+            pub.json("/voltage", t_ns, {
+                "requested_r_v": float(row["voltage_r_req_v"]),
+                "requested_theta_v": float(row["voltage_theta_req_v"]),
+                "applied_r_v": float(row["voltage_r_v"]),
+                "applied_theta_v": float(row["voltage_theta_v"])})
+            pub.json("/state", t_ns, {"state": _name(DaemonState, row["state"]),
+                                      "level": _name(ForceLevel, row["force_level"])})
+            written += 1
+    return written
+
+
+def truth_rows_to(pub: Publisher, truth: Path, every: int = 10,
+                  objects: Iterable[Box] = (), pivot_height_m: float | None = None) -> int:
+    """The emulator's ground truth onto ``pub``, one row in ``every``: /truth, and /rake
+    from the true pose when ``pivot_height_m`` is given. Returns the rows written."""
+    written = 0
+    for k, row in enumerate(_rows(truth, TRUTH_KEYS)):
+        if k % every:
+            continue
+        t_ns = truth_time_ns(row)
+        if written == 0:
+            pub.ground(t_ns, None, None, objects, None)
+        log_truth_row(pub, row, t_ns)
+        if pivot_height_m is not None:
+            pub.rake(t_ns, pivot_height_m, float(row["tip_reach_m"]), float(row["tip_height_m"]))
+        written += 1
+    return written
+
+
+def truth_to_mcap(truth: Path, out: Path, every: int = 10, objects: Iterable[Box] = ()
+                  ) -> int:
+    """The emulator's ground truth (drivers.emulator.TRUTH_COLUMNS) alone as MCAP."""
+    with recording(out) as pub:
+        first = next(_rows(truth, TRUTH_KEYS), None)
+        pivot = (float(first["tip_height_m"]) + float(first["r_m"])
+                 * math.sin(float(first["theta_rad"]))) if first else None
+        return truth_rows_to(pub, truth, every, objects, pivot)
