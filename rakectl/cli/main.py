@@ -39,6 +39,8 @@ def _add_simulate(sub: argparse._SubParsersAction[_Parser]) -> None:
     p.add_argument("--out", type=Path, required=True, help="directory for telemetry and summary")
     p.add_argument("--plot", action="store_true", help="also write DIR/plot.png")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON line")
+    p.add_argument("--mcap", action="store_true", help="also write DIR/telemetry.mcap (plant "
+                   "rake; the [view] extra)")
 
 
 def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], int]]]:
@@ -112,10 +114,21 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         from rakectl.sim.plot import pyplot
 
         pyplot()  # fail before the work, not after it
+    if args.mcap:
+        from rakectl.sim.scenario import PlantKind
+        from rakectl.view.record import telemetry_to_mcap  # fail before the work
+
+        if settings.plant.kind is not PlantKind.RAKE:
+            raise ConfigError("simulate: --mcap needs plant kind rake (the rake's pose)")
     result = run(settings, progress=Progress(f"simulating {args.scenario.name}"))
     write_results(result, args.out)
     if args.plot:
         _plot(settings, result, args.out / "plot.png", args.scenario.name)
+    if args.mcap:
+        from rakectl.cli.view import boxes
+
+        telemetry_to_mcap(args.out / "telemetry.csv", args.out / "telemetry.mcap",
+                          objects=boxes(settings.emulator.ground.objects))
     summary = result.summary()
     if args.json:
         print(json.dumps(summary))

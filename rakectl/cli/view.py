@@ -37,9 +37,10 @@ def add_parsers(sub: argparse._SubParsersAction[Any]) -> None:
                       "interrupted)")
     view.add_argument("--write-layout", type=Path, metavar="FILE", help="write the Foxglove "
                       "layout (docs/foxglove-layout.json) to FILE and exit")
-    mcap = sub.add_parser("mcap", help="a flight-recorder dump or an emulator truth CSV as "
-                          "MCAP (the [view] extra)")
-    mcap.add_argument("csv", type=Path, help="the CSV: a flight-recorder dump or truth.csv")
+    mcap = sub.add_parser("mcap", help="a flight-recorder dump, an emulator truth CSV or a "
+                          "simulation's telemetry as MCAP (the [view] extra)")
+    mcap.add_argument("csv", type=Path, help="the CSV: a flight-recorder dump, truth.csv or "
+                      "telemetry.csv (rakectl simulate, plant rake)")
     mcap.add_argument("-o", "--out", type=Path, help="the MCAP (default: next to the CSV)")
     mcap.add_argument("--every", type=int, default=1, help="one row in EVERY (default 1)")
     mcap.add_argument("--emulator-config", type=Path, help="an emulator's YAML: its buried "
@@ -51,9 +52,14 @@ def objects_of(emulator_config: Path | None) -> list[Any]:
     if emulator_config is None:
         return []
     from drivers.cli import load_config
+
+    return boxes(load_config(emulator_config).physics.ground.objects)
+
+
+def boxes(objects: Any) -> list[Any]:
+    """drivers.objects.BuriedObjects as the viewer draws them."""
     from rakectl.view.topics import Box
 
-    objects = load_config(emulator_config).physics.ground.objects
     return ([Box(m.reach_m, m.depth_m, m.width_m, m.thickness_m, "mine")
              for m in objects.mines]
             + [Box(s.reach_m, s.depth_m, s.width_m, s.thickness_m, "stone")
@@ -122,7 +128,13 @@ def cmd_view(args: argparse.Namespace) -> int:
 def cmd_mcap(args: argparse.Namespace) -> int:
     import csv
 
-    from rakectl.view.record import DUMP_KEYS, dump_to_mcap, truth_to_mcap
+    from rakectl.view.record import (
+        DUMP_KEYS,
+        TELEMETRY_KEYS,
+        dump_to_mcap,
+        telemetry_to_mcap,
+        truth_to_mcap,
+    )
 
     if args.every < 1:
         raise ConfigError(f"mcap: --every must be >= 1, got {args.every}")
@@ -135,6 +147,8 @@ def cmd_mcap(args: argparse.Namespace) -> int:
     objects = objects_of(args.emulator_config)
     if all(k in header for k in DUMP_KEYS):
         rows = dump_to_mcap(args.csv, out, args.every, objects)
+    elif all(k in header for k in TELEMETRY_KEYS):
+        rows = telemetry_to_mcap(args.csv, out, args.every, objects)
     else:
         rows = truth_to_mcap(args.csv, out, args.every, objects)
     print(f"mcap: {rows} rows of {args.csv} → {out}")

@@ -1,6 +1,7 @@
 """Recordings as MCAP, with the live view's topics (:mod:`rakectl.view.topics`): the
-flight recorder's dumps and the emulator's ground truth (``rakectl mcap``), and the
-demo's run (:func:`recording`, fed by a :class:`~rakectl.view.stream.StatusStream`).
+flight recorder's dumps, the emulator's ground truth and ``rakectl simulate``'s
+telemetry (``rakectl mcap``, ``rakectl simulate --mcap``), and the demo's run
+(:func:`recording`, fed by a :class:`~rakectl.view.stream.StatusStream`).
 CSV stays: these are written next to it, from it.
 """
 
@@ -21,6 +22,9 @@ from rakectl.view.topics import Box, Publisher, require_foxglove
 DUMP_KEYS = ("t_s", "state", "reach_m", "depth_m", "f_hat_n", "voltage_r_req_v",
              "voltage_theta_req_v", "voltage_r_v", "voltage_theta_v", "clamp_worst_case_n",
              "r_m", "theta_rad", "f_current_n", "force_level")
+TELEMETRY_KEYS = ("t_s", "f_hat_n", "r_m", "theta_rad", "tip_reach_m", "tip_depth_m",
+                  "voltage_r_req_v", "voltage_theta_req_v", "voltage_r_v", "voltage_theta_v",
+                  "f_true_z_n", "f_current_n", "force_level", "mine_activated")
 TRUTH_KEYS = ("t_s", "force_down_n", "tip_reach_m", "tip_height_m", "r_m", "theta_rad",
               "voltage_r_v", "voltage_theta_v")
 
@@ -47,8 +51,9 @@ def _rows(path: Path, needed: Iterable[str]) -> Iterator[dict[str, str]]:
         reader = csv.DictReader(f)
         missing = [k for k in needed if k not in (reader.fieldnames or ())]
         if missing:
-            raise ConfigError(f"mcap: {path} is not a flight-recorder dump or an emulator "
-                              f"truth file: no column {', '.join(missing)}")
+            raise ConfigError(f"mcap: {path} is not a flight-recorder dump, an emulator "
+                              f"truth file or a simulated rake's telemetry: no column "
+                              f"{', '.join(missing)}")
         yield from reader
 
 
@@ -113,3 +118,34 @@ def truth_to_mcap(truth: Path, out: Path, every: int = 10, objects: Iterable[Box
         pivot = (float(first["tip_height_m"]) + float(first["r_m"])
                  * math.sin(float(first["theta_rad"]))) if first else None
         return truth_rows_to(pub, truth, every, objects, pivot)
+
+
+def telemetry_to_mcap(telemetry: Path, out: Path, every: int = 1,
+                      objects: Iterable[Box] = ()) -> int:
+    """``rakectl simulate``'s telemetry of the simulated rake (rakectl.sim.rake_plant) as
+    MCAP, one row in ``every``; simulated time from 0. Returns the rows written."""
+    written = 0
+    with recording(out) as pub:
+        for k, row in enumerate(_rows(telemetry, TELEMETRY_KEYS)):
+            if k % every:
+                continue
+            t_ns = round(float(row["t_s"]) * NS)
+            r_m, theta_rad = float(row["r_m"]), float(row["theta_rad"])
+            reach_m, depth_m = float(row["tip_reach_m"]), float(row["tip_depth_m"])
+            pub.rake(t_ns, -depth_m + r_m * math.sin(theta_rad), reach_m, -depth_m)
+            if written == 0:
+                pub.ground(t_ns, None, None, objects, None)
+            pub.json("/force", t_ns, {"f_hat_n": float(row["f_hat_n"]),
+                                      "f_current_n": float(row["f_current_n"])})
+            pub.json("/voltage", t_ns, {
+                "requested_r_v": float(row["voltage_r_req_v"]),
+                "requested_theta_v": float(row["voltage_theta_req_v"]),
+                "applied_r_v": float(row["voltage_r_v"]),
+                "applied_theta_v": float(row["voltage_theta_v"])})
+            pub.json("/state", t_ns, {"state": "simulated",
+                                      "level": _name(ForceLevel, row["force_level"])})
+            pub.json("/truth", t_ns, {"force_down_n": float(row["f_true_z_n"]),
+                                      "tip_reach_m": reach_m, "tip_height_m": -depth_m,
+                                      "mine_activated": row["mine_activated"] not in ("0", "0.0")})
+            written += 1
+    return written

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import math
 import struct
@@ -76,7 +77,7 @@ def test_a_file_that_is_neither_a_dump_nor_a_truth_is_refused(tmp_path: Path,
     bad.write_text("a,b\n1,2\n")
     assert main(["mcap", str(bad)]) == 2
     err = capsys.readouterr().err
-    assert "not a flight-recorder dump or an emulator truth file" in err and "t_s" in err
+    assert "not a flight-recorder dump, an emulator truth file" in err and "t_s" in err
     assert not (tmp_path / "other.mcap").exists() or (tmp_path / "other.mcap").stat().st_size
     assert main(["mcap", str(tmp_path / "missing.csv")]) == 1
     assert "cannot read" in capsys.readouterr().err
@@ -166,3 +167,23 @@ def test_a_viewer_without_a_daemon_keeps_trying_and_says_so(tmp_path: Path,
     failed = int(err.split("status replies, ")[1].split(" failed")[0])
     assert failed >= 3 and "none.sock" in err
     assert (tmp_path / "r.mcap").stat().st_size > 0  # a valid, empty recording
+
+
+def test_a_simulated_lane_is_recorded_with_its_mine(tmp_path: Path) -> None:
+    """rakectl simulate --mcap on the lane over a mine, shortened: every tick on every
+    topic, the true force from the telemetry, the mine drawn; the paper's first-order
+    plant has no pose and is refused before the work."""
+    assert main(["simulate", str(CONFIG / "scenarios" / "rake-lane-mine.yaml"), "--out",
+                 str(tmp_path), "--set", "duration_s=0.3", "--mcap"]) == 0
+    topics = _read(tmp_path / "telemetry.mcap")
+    assert [len(topics[t]) for t in ("/rake", "/force", "/voltage", "/state", "/truth")] == [
+        300] * 5
+    with (tmp_path / "telemetry.csv").open() as f:
+        last = list(csv.DictReader(f))[-1]
+    assert topics["/truth"][-1][1] == round(float(last["t_s"]) * 1e9)
+    assert json.loads(topics["/truth"][-1][2])["force_down_n"] == pytest.approx(
+        float(last["f_true_z_n"]))
+    assert struct.pack("<d", 0.08) in topics["/ground"][0][2]  # the scenario's mine width
+    assert main(["simulate", str(CONFIG / "scenarios" / "paper-fig5.yaml"), "--out",
+                 str(tmp_path / "p"), "--mcap"]) == 2
+    assert not (tmp_path / "p" / "telemetry.csv").exists()
