@@ -22,7 +22,7 @@ from rakectl.api.schema import SERVICE_RUNTIME_DIR
 from rakectl.config.service import BusSettings
 
 SYSTEMD = Path(__file__).resolve().parents[1] / "systemd"
-UNITS = ("rakectl.service", "rakectl-emulator.service")
+UNITS = ("rakectl.service", "rakectl-emulator.service", "rakectl-view.service")
 NETWORKD = ("80-can0.network", "80-vcan0.netdev", "80-vcan0.network")
 SYSTEM_UNITS = Path("/usr/lib/systemd/system")
 NETWORKD_BINARY = Path("/usr/lib/systemd/systemd-networkd")
@@ -232,3 +232,25 @@ def test_cpython_runs_under_memory_deny_write_execute() -> None:
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "refused"  # the filter was on: W+X memory is refused
+
+
+def test_view_service_only_reads_and_serves_loopback() -> None:
+    """The live view's unit: the viewer, no capabilities, loopback only, never real-time,
+    started and stopped with the controller; systemd's sandbox rating printed."""
+    view = parse(SYSTEMD / "rakectl-view.service")
+    exec_start = value(view, "Service", "ExecStart")
+    assert exec_start.split()[1:3] == ["view", "--socket"] and "--host" not in exec_start
+    assert value(view, "Service", "CapabilityBoundingSet") == ""
+    assert value(view, "Service", "IPAddressAllow") == "localhost"
+    assert value(view, "Service", "RestrictRealtime") == "yes"
+    assert value(view, "Unit", "PartOf") == "rakectl.service"
+    assert value(view, "Service", "SupplementaryGroups") == "rakectl"
+    analyze = shutil.which("systemd-analyze")
+    if analyze is not None:
+        done = subprocess.run([analyze, "security", "--offline=yes", "--no-pager",
+                               str(SYSTEMD / "rakectl-view.service")],
+                              capture_output=True, text=True, timeout=120)
+        found = re.search(r"Overall exposure level for rakectl-view.service: ([0-9.]+)",
+                          done.stdout)
+        assert found, done.stdout + done.stderr
+        print(f"\nsystemd-analyze security rakectl-view.service: exposure {found.group(1)}")
