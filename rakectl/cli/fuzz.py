@@ -3,13 +3,23 @@
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
 from rakectl.limits import FORCE_LIMIT_N
-from rakectl.sim.campaign import RESULTS_FILE, WORST_CASE_FILE, Report, campaign, replay
+from rakectl.sim.campaign import (
+    RESULTS_FILE,
+    WORST_CASE_FILE,
+    Report,
+    campaign,
+    case_of,
+    replay,
+)
+from rakectl.sim.injection import FaultyRakeLoop
+from rakectl.sim.plants import BASE_COLUMNS
 from rakectl.sim.progress import Progress
 
 
@@ -35,6 +45,9 @@ def _parser() -> argparse.ArgumentParser:
                    "campaign resumes, or is run in parts into one directory)")
     p.add_argument("--replay", type=Path, default=None,
                    help="re-run a case file (a worst case, or tests/data/fuzz/*.json)")
+    p.add_argument("--mcap", type=Path, default=None, metavar="OUT.mcap",
+                   help="with --replay: record the replay as MCAP (and its telemetry as "
+                   "OUT.csv next to it; the [view] extra; docs/viewer.md)")
     return p
 
 
@@ -62,12 +75,33 @@ def human(report: Report) -> str:
     return "\n".join(lines)
 
 
-def _replay_main(path: Path, as_json: bool) -> int:
+def _replay_main(path: Path, as_json: bool, mcap: Path | None = None) -> int:
+    rows: list[tuple[float, ...]] = []
+    columns: list[tuple[str, ...]] = []
+
+    def record(loop: FaultyRakeLoop) -> None:
+        if not columns:
+            columns.append(("t_s", *BASE_COLUMNS, *loop.columns))
+        rows.append((len(rows) * loop.dt_s, *loop.row()))
+
     try:
-        now, recorded = replay(path)
+        if mcap is not None:
+            from rakectl.view.record import telemetry_to_mcap  # fail before the work
+        now, recorded = replay(path, record if mcap is not None else None)
     except (OSError, ValueError, KeyError, TypeError) as e:
         print(f"rakectl fuzz: --replay {path}: not a case file ({e})", file=sys.stderr)
         return 2
+    if mcap is not None:
+        from rakectl.cli.view import boxes
+
+        telemetry = mcap.with_suffix(".csv")
+        mcap.parent.mkdir(parents=True, exist_ok=True)
+        with telemetry.open("w", newline="") as f:
+            writer = csv.writer(f)
+            writer.writerow(columns[0])
+            writer.writerows(rows)
+        telemetry_to_mcap(telemetry, mcap, objects=boxes(case_of(path).ground.objects))
+        print(f"replay {path}: recorded as {mcap} (telemetry {telemetry})", file=sys.stderr)
     same = recorded is None or now == recorded
     out = {"replayed": str(path), "same": same, "safe": now.safe, **now.to_dict()}
     print(json.dumps(out) if as_json else
@@ -80,8 +114,11 @@ def _replay_main(path: Path, as_json: bool) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if args.mcap is not None and args.replay is None:
+        print("rakectl fuzz: --mcap records a --replay: give the case file", file=sys.stderr)
+        return 2
     if args.replay is not None:
-        return _replay_main(args.replay, args.json)
+        return _replay_main(args.replay, args.json, args.mcap)
     if args.scenarios < 1 or args.workers < 1 or args.first < 0:
         print("rakectl fuzz: --scenarios and --workers must be >= 1, --first >= 0",
               file=sys.stderr)

@@ -135,8 +135,10 @@ def _reference(case: FuzzCase, settings: Scenario, loop: RakeLoop) -> Reference:
     return LanePlanner(lane, dt_s, lane.reach_far_m, depth_m)
 
 
-def run_case(case: FuzzCase, clamp: VoltageClamp | None = None) -> CaseResult:
-    """Run one case through the full chain; ``clamp`` replaces the real one (tests)."""
+def run_case(case: FuzzCase, clamp: VoltageClamp | None = None,
+             on_tick: Callable[[FaultyRakeLoop], None] | None = None) -> CaseResult:
+    """Run one case through the full chain; ``clamp`` replaces the real one (tests);
+    ``on_tick`` sees the loop after every tick (a replay's telemetry)."""
     settings = scenario_of(case)
     loop = FaultyRakeLoop(settings, *_start(case, settings), case.faults, clamp)
     loop.reset()
@@ -150,6 +152,8 @@ def run_case(case: FuzzCase, clamp: VoltageClamp | None = None) -> CaseResult:
     k = 0
     while k < ticks:
         loop.step(reference.reach_m, reference.depth_m, reference.contact)
+        if on_tick is not None:
+            on_tick(loop)
         f_n = loop.contact.peak_down_n
         over += f_n > FORCE_LIMIT_N
         if f_n > peak_n:
@@ -365,9 +369,15 @@ def write_case(path: Path, case: FuzzCase, result: CaseResult) -> Path:
     return path
 
 
-def replay(path: Path) -> tuple[CaseResult, CaseResult | None]:
+def replay(path: Path, on_tick: Callable[[FaultyRakeLoop], None] | None = None
+           ) -> tuple[CaseResult, CaseResult | None]:
     """Re-run a case file (a campaign's worst case, or a regression case): (result now,
     result recorded in the file, if any)."""
     data = json.loads(Path(path).read_text())
     recorded = result_from_dict(data["result"]) if "result" in data else None
-    return run_case(case_from_dict(data["case"])), recorded
+    return run_case(case_from_dict(data["case"]), on_tick=on_tick), recorded
+
+
+def case_of(path: Path) -> FuzzCase:
+    """The case a case file holds."""
+    return case_from_dict(json.loads(Path(path).read_text())["case"])

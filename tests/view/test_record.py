@@ -187,3 +187,21 @@ def test_a_simulated_lane_is_recorded_with_its_mine(tmp_path: Path) -> None:
     assert main(["simulate", str(CONFIG / "scenarios" / "paper-fig5.yaml"), "--out",
                  str(tmp_path / "p"), "--mcap"]) == 2
     assert not (tmp_path / "p" / "telemetry.csv").exists()
+
+
+def test_a_campaign_case_replayed_is_recorded(tmp_path: Path) -> None:
+    """rakectl fuzz --replay CASE --mcap: every tick of the replay on every topic, its
+    telemetry next to it, the case's mine drawn; --mcap alone is refused."""
+    from rakectl.cli.fuzz import main as fuzz_main
+
+    case = Path(__file__).resolve().parents[1] / "data" / "fuzz" / "20261125-2993.json"
+    assert fuzz_main(["--replay", str(case), "--mcap", str(tmp_path / "case.mcap")]) == 0
+    with (tmp_path / "case.csv").open() as f:
+        telemetry = list(csv.DictReader(f))
+    topics = _read(tmp_path / "case.mcap")
+    assert len(topics["/rake"]) == len(topics["/truth"]) == len(telemetry) > 1000
+    peak = max(json.loads(d)["force_down_n"] for _, _, d in topics["/truth"])
+    assert peak == pytest.approx(max(float(r["f_true_z_n"]) for r in telemetry))
+    mine = json.loads(case.read_text())["case"]["ground"]["objects"]["mines"][0]
+    assert struct.pack("<d", mine["width_m"]) in topics["/ground"][0][2]
+    assert fuzz_main(["--mcap", str(tmp_path / "x.mcap")]) == 2
