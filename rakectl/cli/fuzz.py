@@ -19,6 +19,7 @@ from rakectl.sim.campaign import (
     replay,
 )
 from rakectl.sim.injection import FaultyRakeLoop
+from rakectl.sim.parallel import executor_for
 from rakectl.sim.plants import BASE_COLUMNS
 from rakectl.sim.progress import Progress
 
@@ -43,6 +44,10 @@ def _parser() -> argparse.ArgumentParser:
                    help=f"directory for {WORST_CASE_FILE} and {RESULTS_FILE} (each case's "
                    "result as it finishes; cases already there are not run again: a "
                    "campaign resumes, or is run in parts into one directory)")
+    p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT|local:N",
+                   help="run the cases on a Dask cluster (the [cluster] extra): an existing "
+                   "scheduler, or local:N to start N worker processes here; default: "
+                   "--workers local processes")
     p.add_argument("--replay", type=Path, default=None,
                    help="re-run a case file (a worst case, or tests/data/fuzz/*.json)")
     p.add_argument("--mcap", type=Path, default=None, metavar="OUT.mcap",
@@ -123,8 +128,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("rakectl fuzz: --scenarios and --workers must be >= 1, --first >= 0",
               file=sys.stderr)
         return 2
-    report = campaign(args.scenarios, args.seed, args.workers, args.out, Progress("fuzz"),
-                      first=args.first)
+    executor = executor_for(args.scheduler, args.workers)
+    try:
+        print(f"fuzz: cases {args.first}..{args.first + args.scenarios - 1} of seed "
+              f"{args.seed} on {executor.describe()}", file=sys.stderr)
+        report = campaign(args.scenarios, args.seed, args.workers, args.out, Progress("fuzz"),
+                          first=args.first, executor=executor)
+    finally:
+        executor.close()
     print(human(report))
     if args.json:
         print(json.dumps(report.summary()))

@@ -30,7 +30,7 @@ from rakectl.core.supervision import ForceLevel
 from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim.cases import CommandKind, FuzzCase, case_from_dict, from_plain, generate
 from rakectl.sim.injection import FaultyRakeLoop, HoldReference, JogReference, PlungeReference
-from rakectl.sim.parallel import fork_map
+from rakectl.sim.parallel import Executor, LocalExecutor
 from rakectl.sim.rake_plant import RakeLoop
 from rakectl.sim.scenario import PlantKind, PlantSettings, Scenario, TrajectoryKind
 from rakectl.sim.simulate import HOLD_AFTER_DONE_S, Reference
@@ -293,7 +293,8 @@ def _severity(r: CaseResult) -> float:
 
 
 def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None = None,
-             progress: Callable[[int, int], None] | None = None, first: int = 0) -> Report:
+             progress: Callable[[int, int], None] | None = None, first: int = 0,
+             executor: Executor | None = None) -> Report:
     """Run cases ``first`` … ``first + scenarios − 1`` of ``seed``; write the worst one
     (the largest force on the ground or on a mine) to ``out_dir``.
 
@@ -301,7 +302,8 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
     finishes, and a case already in that file (same seed and index) is not run again: an
     interrupted campaign resumes where it stopped, and a long one can be run in parts into
     one directory. Cases are deterministic from (seed, index), so the report is the same
-    whichever run computed each case."""
+    whichever run computed each case, and whatever ran it: ``executor`` (a Dask cluster,
+    rakectl.sim.parallel) instead of ``workers`` local processes."""
     if scenarios < 1:
         raise ValueError("scenarios must be >= 1")
     started = time.perf_counter()
@@ -313,7 +315,8 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
     try:
         if progress is not None and results:
             progress(len(results), scenarios)
-        for result in fork_map(_run_index, jobs, workers, ordered=False):
+        pool = executor if executor is not None else LocalExecutor(workers)
+        for result in pool.map_unordered(_run_index, jobs):
             results.append(result)
             if sink is not None:
                 sink.write(json.dumps(result.to_dict()) + "\n")

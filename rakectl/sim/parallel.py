@@ -1,10 +1,16 @@
-"""Running independent simulated jobs on worker processes (fork), or in this one."""
+"""Running independent simulated jobs: on forked worker processes or in this one
+(:class:`LocalExecutor`), or on a Dask cluster (:class:`DaskExecutor`, the ``[cluster]``
+extra). Jobs must be deterministic in their inputs (the campaign's cases are, from
+(seed, index)): whoever runs them, the results are the same.
+"""
 
 from __future__ import annotations
 
 import multiprocessing
 from collections.abc import Callable, Iterator, Sequence
-from typing import TypeVar
+from typing import Any, Protocol, TypeVar
+
+from rakectl.errors import ConfigError, RakeError
 
 J = TypeVar("J")
 R = TypeVar("R")
@@ -25,3 +31,90 @@ def fork_map(run: Callable[[J], R], jobs: Sequence[J], workers: int,
     finally:
         pool.terminate()
         pool.join()
+
+
+class Executor(Protocol):
+    """Runs ``run`` over ``jobs`` and yields the results as they finish (any order)."""
+
+    def map_unordered(self, run: Callable[[J], R], jobs: Sequence[J]) -> Iterator[R]: ...
+
+    def close(self) -> None: ...
+
+
+class LocalExecutor:
+    """Forked processes on this machine (:func:`fork_map`)."""
+
+    def __init__(self, workers: int) -> None:
+        self.workers = workers
+
+    def map_unordered(self, run: Callable[[J], R], jobs: Sequence[J]) -> Iterator[R]:
+        return fork_map(run, jobs, self.workers, ordered=False)
+
+    def close(self) -> None:
+        pass
+
+    def describe(self) -> str:
+        return f"{self.workers} local process(es)"
+
+
+class DaskExecutor:
+    """A Dask cluster: an existing scheduler (``tcp://HOST:PORT``) or a LocalCluster of
+    ``N`` single-threaded worker processes started here (``local:N``). A job whose worker
+    dies is run again elsewhere by the scheduler (up to ``distributed``'s
+    allowed-failures, 3 by default); a job that raises is retried ``retries`` times."""
+
+    def __init__(self, scheduler: str, retries: int = 2) -> None:
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError as exc:
+            raise RakeError("--scheduler needs the [cluster] extra: pip install "
+                            f"'rakectl[cluster]' ({exc})") from exc
+        self.scheduler, self.retries = scheduler, retries
+        self._cluster: Any = None
+        self._before: set[Any] = set()
+        if scheduler.startswith("local:"):
+            try:
+                workers = int(scheduler.removeprefix("local:"))
+            except ValueError:
+                workers = 0
+            if workers < 1:
+                raise ConfigError(f"--scheduler {scheduler}: local:N needs N >= 1 workers")
+            before = set(multiprocessing.active_children())
+            self._cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
+                                         processes=True, dashboard_address=None)
+            self._before = before
+            self._client = Client(self._cluster)
+        elif scheduler.startswith("tcp://"):
+            try:
+                self._client = Client(scheduler, timeout=30)
+            except OSError as exc:
+                raise RakeError(f"--scheduler {scheduler}: no scheduler there ({exc})") from exc
+        else:
+            raise ConfigError(f"--scheduler {scheduler!r}: give tcp://HOST:PORT or local:N")
+
+    def map_unordered(self, run: Callable[[J], R], jobs: Sequence[J]) -> Iterator[R]:
+        from distributed import as_completed
+
+        futures = self._client.map(run, list(jobs), pure=False, retries=self.retries)
+        try:
+            for future in as_completed(futures):
+                yield future.result()
+        finally:
+            self._client.cancel(futures)
+
+    def close(self) -> None:
+        self._client.close()
+        if self._cluster is not None:
+            self._cluster.close()
+            # the workers' processes (a restarted one too) are gone when this returns
+            for child in set(multiprocessing.active_children()) - self._before:
+                child.join(timeout=10.0)
+
+    def describe(self) -> str:
+        workers = len(self._client.scheduler_info().get("workers", {}))
+        return f"Dask {self.scheduler} ({workers} worker(s))"
+
+
+def executor_for(scheduler: str | None, workers: int) -> LocalExecutor | DaskExecutor:
+    """The executor a command line asks for: Dask with a scheduler, else local processes."""
+    return DaskExecutor(scheduler) if scheduler else LocalExecutor(workers)

@@ -1,0 +1,91 @@
+"""The campaign on a Dask LocalCluster (real worker processes, a real scheduler): the same
+results case for case as the local pool, a killed worker's job run again, a resumed
+campaign skipping what is done. Slow-ish: each test starts a cluster."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from rakectl.errors import ConfigError
+from rakectl.sim.campaign import RESULTS_FILE, campaign
+from rakectl.sim.parallel import DaskExecutor, executor_for
+
+pytestmark = pytest.mark.slow
+SEED, FIRST, CASES = 20261125, 40, 4
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _dask_offload_thread() -> None:
+    """distributed keeps one offload thread for the life of the process, started on
+    first use: started here, before the tests' own leak check sees it appear."""
+    from distributed.utils import _offload_executor
+
+    _offload_executor.submit(lambda: None).result()
+
+
+def _die_once(job: tuple[str, int]) -> int:
+    """Kills its worker process the first time it meets a job (a marker file remembers)."""
+    marker = Path(job[0]) / f"ran-{job[1]}"
+    if not marker.exists():
+        marker.write_text(str(os.getpid()))
+        os._exit(1)  # the worker process dies, as a node that goes away
+    return 10 * job[1]
+
+
+def test_a_local_cluster_gives_the_local_pools_results_case_for_case() -> None:
+    local = campaign(CASES, SEED, workers=1, first=FIRST)
+    executor = DaskExecutor("local:2")
+    try:
+        assert "2 worker(s)" in executor.describe()
+        dask = campaign(CASES, SEED, first=FIRST, executor=executor)
+    finally:
+        executor.close()
+    assert [r.index for r in dask.results] == list(range(FIRST, FIRST + CASES))
+    assert dask.results == local.results  # every field of every case
+    assert dask.summary()["by_kind"] == local.summary()["by_kind"]
+
+
+def test_a_job_whose_worker_dies_is_run_again_elsewhere(tmp_path: Path) -> None:
+    executor = DaskExecutor("local:2")
+    try:
+        results = sorted(executor.map_unordered(_die_once, [(str(tmp_path), k)
+                                                            for k in range(3)]))
+    finally:
+        executor.close()
+    assert results == [0, 10, 20]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["ran-0", "ran-1", "ran-2"]
+
+
+def test_a_resumed_campaign_on_the_cluster_runs_only_what_is_missing(tmp_path: Path) -> None:
+    first = campaign(2, SEED, workers=1, out_dir=tmp_path, first=FIRST)
+    executor = executor_for("local:2", 1)
+    try:
+        resumed = campaign(CASES, SEED, out_dir=tmp_path, first=FIRST, executor=executor)
+    finally:
+        executor.close()
+    assert resumed.resumed == 2
+    assert resumed.results[:2] == first.results
+    lines = (tmp_path / RESULTS_FILE).read_text().splitlines()
+    assert len(lines) == CASES  # the two done were not run again
+
+
+@pytest.mark.parametrize("scheduler", ["local:0", "local:x", "udp://h:1", "h:8786"])
+def test_a_bad_scheduler_is_refused_naming_it(scheduler: str) -> None:
+    with pytest.raises(ConfigError, match="--scheduler"):
+        executor_for(scheduler, 1)
+
+
+def test_the_command_line_runs_on_a_local_cluster_and_refuses_a_bad_scheduler(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from rakectl.cli.main import main
+
+    assert main(["fuzz", "--scenarios", "2", "--seed", str(SEED), "--first", str(FIRST),
+                 "--scheduler", "local:2", "--out", str(tmp_path)]) == 0
+    captured = capsys.readouterr()
+    assert "on Dask local:2 (2 worker(s))" in captured.err
+    assert "2 scenarios" in captured.out
+    assert main(["fuzz", "--scenarios", "2", "--scheduler", "nowhere"]) == 2
+    assert "--scheduler 'nowhere'" in capsys.readouterr().err
