@@ -312,12 +312,12 @@ class ArmPlant:
             compression_m = tines._vertical(
                 laws(reach_m, height_m, height_m + tines.compression_m, reach_vel), height_m,
                 height_vel)
+            tines.hooked_on = -1
             if hasattr(ground, "bottom_laws"):  # under an object: its bottom extends it
                 compression_m = tines.hooked(ground, reach_m, height_m, height_vel,
                                              compression_m)
             rate_m_per_s = (compression_m - tines.compression_m) / self.substep_s
-            mount_n = tines.k_v * compression_m + tines.c_v * rate_m_per_s
-            mount_n = min(0.0, mount_n) if compression_m < 0.0 else max(0.0, mount_n)
+            mount_n = tines.vertical_n(tines.k_v * compression_m + tines.c_v * rate_m_per_s)
             height_vel += rate_m_per_s
             height_m += compression_m
             tines.compression_m = compression_m
@@ -328,9 +328,9 @@ class ArmPlant:
             # massless tines: the arm feels what the mount carries, and the ground gets it
             # too (where the tines rest on a surface the soil's own law reads 0 there; an
             # object's bottom pulling the mount down, likewise)
-            if mount_n >= 0.0:
+            if tines.hooked_on < 0:
                 transmitted(mount_n)
-            elif tines.hooked_on >= 0 and lifted is not None:  # hooked: bottom_laws, a Ground
+            elif lifted is not None:  # hooked: bottom_laws, so a Ground
                 lifted(tines.hooked_on, -mount_n)
             force = (force[0], mount_n)
         self._last_tip_force_n = force
@@ -362,7 +362,7 @@ class ArmPlant:
                                  tines.step_s)
             if not math.isfinite(force[0] + force[1] + side_n + down_n):
                 raise NonFiniteError(f"contact force must be finite, got {force}")
-            if down_n < 0.0 and tines.hooked_on >= 0:
+            if tines.hooked_on >= 0:
                 ground.lifted(tines.hooked_on, -down_n)  # an object's bottom pulls it
             elif tines.vertical:
                 transmitted(down_n)

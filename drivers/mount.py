@@ -209,19 +209,27 @@ class TineMount:
         height. Solved on its own: tines pressed from above are not also pressed from below
         (the soil under a rising tine is left behind)."""
         laws = ground.bottom_laws(tine_reach_m, height_m + d) if self.vertical else []
-        self.hooked_on = laws[0][0] if laws else -1
-        if not laws:
-            return d
         h, k, c, d0 = self.step_s, self.k_v, self.c_v, self.compression_m
-        stiff = k + (c / h)
-        rhs = c * d0 / h
-        for _, bottom_m, k_b, b_b in laws:
-            stiff += k_b + b_b / h
-            rhs += b_b * d0 / h - k_b * (height_m - bottom_m) - b_b * height_vel
-        hooked = rhs / stiff
-        # pushed out below the bottom by its damping alone: the tines rest on it
-        lowest_m = min(bottom_m for _, bottom_m, _, _ in laws) - height_m
-        return hooked if hooked > lowest_m else lowest_m
+        while laws:
+            stiff = k + (c / h)
+            rhs = c * d0 / h
+            for _, bottom_m, k_b, b_b in laws:
+                stiff += k_b + b_b / h
+                rhs += b_b * d0 / h - k_b * (height_m - bottom_m) - b_b * height_vel
+            hooked = rhs / stiff
+            rate_m_per_s = height_vel + (hooked - d0) / h
+            # a contact only pushes: a bottom the tines leave faster than it presses (a
+            # compressed mount relaxing downward) carries nothing this substep
+            pulling = [law for law in laws
+                       if law[2] * (height_m + hooked - law[1]) + law[3] * rate_m_per_s <= 0.0]
+            if not pulling:
+                self.hooked_on = laws[0][0]
+                # pushed out below the bottom by its damping alone: the tines rest on it
+                lowest_m = min(bottom_m for _, bottom_m, _, _ in laws) - height_m
+                return hooked if hooked > lowest_m else lowest_m
+            laws = [law for law in laws if law not in pulling]
+        self.hooked_on = -1
+        return d
 
     def commit(self, e: float, d: float, reach_vel: float) -> tuple[float, float]:
         """Take (e, d) as the new state; the mount's forces (sideways, vertical) on the arm."""
@@ -230,10 +238,14 @@ class TineMount:
         self.offset_m, self.compression_m = e, d
         self.tine_reach_vel_m_per_s = reach_vel + rate_e
         side_n = self.k_h * e + self.c_h * rate_e
-        down_n = self.k_v * d + self.c_v * rate_d
-        if d < 0.0:  # extended: an object's bottom pulls the arm down through the mount
-            return side_n, (down_n if down_n < 0.0 else 0.0)
-        return side_n, (down_n if down_n > 0.0 else 0.0)
+        return side_n, self.vertical_n(self.k_v * d + self.c_v * rate_d)
+
+    def vertical_n(self, mount_n: float) -> float:
+        """The mount's vertical force as the contacts allow it: an object's bottom the
+        tines are under only pulls the arm down (≤ 0), anything else only pushes it up."""
+        if self.hooked_on >= 0:
+            return mount_n if mount_n < 0.0 else 0.0
+        return mount_n if mount_n > 0.0 else 0.0
 
     def _elimination(self, coupled: list[_Coupled], a_e: float, b_e: float
                      ) -> tuple[float, float]:
