@@ -57,11 +57,13 @@ def _viewer_phase(bench_socket: Path, seconds: float, out: Path) -> dict[str, An
     """The idle phase with ``rakectl view`` running (its own process, status at 50 Hz)
     and a Foxglove client subscribed to every topic (when websockets is installed)."""
     log = out / "view.log"
-    viewer = subprocess.Popen([sys.executable, "-m", "rakectl", "view", "--socket",
-                               str(bench_socket), "--port", "0", "--rate-hz", "50"],
-                              stderr=log.open("wb"))
+    with log.open("wb") as stderr:
+        viewer = subprocess.Popen([sys.executable, "-m", "rakectl", "view", "--socket",
+                                   str(bench_socket), "--port", "0", "--rate-hz", "50"],
+                                  stderr=stderr)
     received = [0]
     stop = threading.Event()
+    subscriber = None
     try:
         port = _viewer_port(viewer, log)
         subscriber = threading.Thread(target=_subscribe, args=(port, stop, received),
@@ -70,8 +72,14 @@ def _viewer_phase(bench_socket: Path, seconds: float, out: Path) -> dict[str, An
         phase = _phase(bench_socket, seconds, 0.0)
     finally:
         stop.set()
+        if subscriber is not None:
+            subscriber.join(timeout=5.0)
         viewer.terminate()
-        viewer.wait(10.0)
+        try:
+            viewer.wait(10.0)
+        except subprocess.TimeoutExpired:
+            viewer.kill()
+            viewer.wait()
     return phase | {"viewer_messages": received[0], "viewer_log": log.read_text().strip()}
 
 
@@ -96,7 +104,12 @@ def _subscribe(port: int, stop: threading.Event, received: list[int]) -> None:
         received[0] = -1  # no client: the viewer polled, nobody watched
         return
     protocols: Any = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
-    with connect(f"ws://127.0.0.1:{port}", subprotocols=protocols) as ws:
+    try:
+        ws_context = connect(f"ws://127.0.0.1:{port}", subprotocols=protocols)
+    except (OSError, ConnectionClosed, ValueError):
+        received[0] = -2  # the client could not connect: said so in the report
+        return
+    with ws_context as ws:
         subscribed = False
         while not stop.is_set():
             try:
@@ -237,7 +250,9 @@ def format_loop(f: LoopFigures) -> str:
         if "viewer_messages" in phase:
             watched = phase["viewer_messages"]
             lines.append("  the viewer's client received " + (
-                f"{watched} messages" if watched >= 0 else "nothing (websockets not installed)"))
+                f"{watched} messages" if watched >= 0 else
+                "nothing (websockets not installed)" if watched == -1 else
+                "nothing (it could not connect)"))
     missed, expected = f.tpdo_missed()
     lines += [
         "cross-process bus (udp_multicast, the whole run):",

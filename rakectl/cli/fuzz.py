@@ -15,7 +15,7 @@ from rakectl.sim.campaign import (
     WORST_CASE_FILE,
     Report,
     campaign,
-    case_of,
+    read_case_file,
     replay,
 )
 from rakectl.sim.injection import FaultyRakeLoop
@@ -89,13 +89,19 @@ def _replay_main(path: Path, as_json: bool, mcap: Path | None = None) -> int:
             columns.append(("t_s", *BASE_COLUMNS, *loop.columns))
         rows.append((len(rows) * loop.dt_s, *loop.row()))
 
+    if mcap is not None:
+        from rakectl.view.record import telemetry_to_mcap  # fail before the work
+
+        if mcap.suffix != ".mcap":
+            print(f"rakectl fuzz: --mcap {mcap}: give a file ending in .mcap (its telemetry "
+                  "goes next to it as .csv)", file=sys.stderr)
+            return 2
     try:
-        if mcap is not None:
-            from rakectl.view.record import telemetry_to_mcap  # fail before the work
-        now, recorded = replay(path, record if mcap is not None else None)
+        case, _ = read_case_file(path)  # a file that is not a case: refused before running
     except (OSError, ValueError, KeyError, TypeError) as e:
         print(f"rakectl fuzz: --replay {path}: not a case file ({e})", file=sys.stderr)
         return 2
+    now, recorded = replay(path, record if mcap is not None else None)
     if mcap is not None:
         from rakectl.cli.view import boxes
 
@@ -105,7 +111,7 @@ def _replay_main(path: Path, as_json: bool, mcap: Path | None = None) -> int:
             writer = csv.writer(f)
             writer.writerow(columns[0])
             writer.writerows(rows)
-        telemetry_to_mcap(telemetry, mcap, objects=boxes(case_of(path).ground.objects))
+        telemetry_to_mcap(telemetry, mcap, objects=boxes(case.ground.objects))
         print(f"replay {path}: recorded as {mcap} (telemetry {telemetry})", file=sys.stderr)
     same = recorded is None or now == recorded
     out = {"replayed": str(path), "same": same, "safe": now.safe, **now.to_dict()}

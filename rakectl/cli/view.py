@@ -120,8 +120,10 @@ def cmd_view(args: argparse.Namespace) -> int:
               f"WebSocket; layout docs/foxglove-layout.json), status of {stream.socket} at "
               f"{args.rate_hz:g} Hz", file=sys.stderr, flush=True)
         stream.run(lambda: not stop.is_set())
-    print(f"view: {stream.replies} status replies, {stream.errors} failed"
-          + (f" (last: {stream.last_error})" if stream.errors else ""), file=sys.stderr)
+    truth = (f"; truth: {stream.truth_rows} rows served, {stream.truth_bad_rows} skipped"
+             if args.truth else "")
+    print(f"view: {stream.replies} status replies, {stream.errors} failed{truth}"
+          + (f" (last: {stream.last_error})" if stream.last_error else ""), file=sys.stderr)
     return 0
 
 

@@ -68,7 +68,7 @@ w = J M⁻¹ (Q + G) the tip's acceleration under the push, the condition F_u �
 reads uᵀ w ≤ B_u·uᵀAu: linear in the joint loads, so its worst case over the
 loads' uncertainty is at a corner of their box. The clamp checks it at N = 72
 directions, 5° apart around the circle. Between two samples the left-hand side
-of f_peak ≤ F_L can exceed its larger sampled value by at most 1.5 % over the
+of f_peak ≤ F_L can exceed its larger sampled value by at most 1.33 % over the
 workspace and every push and speed (tests/core/test_clamp.py measures it
 against 1440 directions);
 the budgets are taken at F_L/(1 + ``SAMPLING_MARGIN``), 3 %, so the bound holds
@@ -91,7 +91,7 @@ from rakectl.core.motor_model import (
 )
 
 DIRECTIONS = 72  # contact directions sampled around the circle (every 5°)
-SAMPLING_MARGIN = 0.03  # kept back for directions between the samples (1.5 % measured)
+SAMPLING_MARGIN = 0.03  # kept back for directions between the samples (1.33 % measured)
 
 
 def unbalanced_weight_n(clamp: ClampSettings) -> float:

@@ -376,11 +376,12 @@ def replay(path: Path, on_tick: Callable[[FaultyRakeLoop], None] | None = None
            ) -> tuple[CaseResult, CaseResult | None]:
     """Re-run a case file (a campaign's worst case, or a regression case): (result now,
     result recorded in the file, if any)."""
+    case, recorded = read_case_file(path)
+    return run_case(case, on_tick=on_tick), recorded
+
+
+def read_case_file(path: Path) -> tuple[FuzzCase, CaseResult | None]:
+    """The case a case file holds, and the result recorded with it, if any."""
     data = json.loads(Path(path).read_text())
     recorded = result_from_dict(data["result"]) if "result" in data else None
-    return run_case(case_from_dict(data["case"]), on_tick=on_tick), recorded
-
-
-def case_of(path: Path) -> FuzzCase:
-    """The case a case file holds."""
-    return case_from_dict(json.loads(Path(path).read_text())["case"])
+    return case_from_dict(data["case"]), recorded

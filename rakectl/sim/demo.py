@@ -93,14 +93,25 @@ def _streaming(socket: Path, pub: Publisher) -> Iterator[StatusStream]:
     stream = StatusStream(socket, pub, STREAM_HZ, [Box(*MINE)],
                           (LANE["reach_near_m"], LANE["reach_far_m"]))
     stop = threading.Event()
-    thread = threading.Thread(target=stream.run, args=(lambda: not stop.is_set(),),
-                              name="demo-recording", daemon=True)
+    failed: list[BaseException] = []
+
+    def record() -> None:
+        try:
+            stream.run(lambda: not stop.is_set())
+        except BaseException as exc:  # handed to the demo's own thread below
+            failed.append(exc)
+
+    thread = threading.Thread(target=record, name="demo-recording", daemon=True)
     thread.start()
     try:
         yield stream
     finally:
         stop.set()
-        thread.join(timeout=5.0)
+        thread.join(timeout=10.0)
+    if thread.is_alive():
+        raise RakeError("demo: the recording thread did not stop within 10 s")
+    if failed:
+        raise RakeError(f"demo: recording demo.mcap failed: {failed[0]}") from failed[0]
 
 
 def _summary(final: dict[str, Any], truth: dict[str, Any]) -> dict[str, Any]:

@@ -61,9 +61,10 @@ class DaskExecutor:
     """A Dask cluster: an existing scheduler (``tcp://HOST:PORT``) or a LocalCluster of
     ``N`` single-threaded worker processes started here (``local:N``). A job whose worker
     dies is run again elsewhere by the scheduler (up to ``distributed``'s
-    allowed-failures, 3 by default); a job that raises is retried ``retries`` times."""
+    allowed-failures, 3 by default); a job that raises is not retried (it is
+    deterministic: it would raise again), its error ends the run."""
 
-    def __init__(self, scheduler: str, retries: int = 2) -> None:
+    def __init__(self, scheduler: str, retries: int = 0) -> None:
         try:
             from distributed import Client, LocalCluster
         except ImportError as exc:
@@ -83,12 +84,22 @@ class DaskExecutor:
             self._cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
                                          processes=True, dashboard_address=None)
             self._before = before
-            self._client = Client(self._cluster)
+            try:
+                self._client = Client(self._cluster)
+            except BaseException:
+                self._cluster.close()
+                raise
         elif scheduler.startswith("tcp://"):
             try:
                 self._client = Client(scheduler, timeout=30)
             except OSError as exc:
                 raise RakeError(f"--scheduler {scheduler}: no scheduler there ({exc})") from exc
+            try:  # workers with other versions could compute other results: refuse them
+                self._client.get_versions(check=True)
+            except Exception as exc:  # distributed raises its own error for a mismatch
+                self._client.close()
+                raise RakeError(f"--scheduler {scheduler}: the workers' packages differ "
+                                f"from this machine's ({exc})") from exc
         else:
             raise ConfigError(f"--scheduler {scheduler!r}: give tcp://HOST:PORT or local:N")
 

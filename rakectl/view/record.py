@@ -25,8 +25,9 @@ DUMP_KEYS = ("t_s", "state", "reach_m", "depth_m", "f_hat_n", "voltage_r_req_v",
 TELEMETRY_KEYS = ("t_s", "f_hat_n", "r_m", "theta_rad", "tip_reach_m", "tip_depth_m",
                   "voltage_r_req_v", "voltage_theta_req_v", "voltage_r_v", "voltage_theta_v",
                   "f_true_z_n", "f_current_n", "force_level", "mine_activated")
-TRUTH_KEYS = ("t_s", "force_down_n", "tip_reach_m", "tip_height_m", "r_m", "theta_rad",
-              "voltage_r_v", "voltage_theta_v")
+TRUTH_KEYS = ("t_s", "force_down_n", "force_drag_n", "tip_reach_m", "tip_height_m", "r_m",
+              "theta_rad", "voltage_r_v", "voltage_theta_v", "contact", "mine_activated",
+              "mine_plate_max_n", "mine_side_max_n")
 
 
 @contextlib.contextmanager
@@ -34,27 +35,53 @@ def recording(path: Path) -> Iterator[Publisher]:
     """A publisher whose messages go to the MCAP file ``path`` only (its own context:
     never to a live server); the file is complete when the block ends."""
     foxglove = require_foxglove()
-    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(path.name + ".partial")
     context = foxglove.Context()
     try:
-        writer = foxglove.open_mcap(path, allow_overwrite=True, context=context)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        writer = foxglove.open_mcap(partial, allow_overwrite=True, context=context)
     except Exception as exc:  # the SDK raises its own error types for I/O
         raise RakeError(f"mcap: cannot write {path}: {exc}") from exc
     try:
         yield Publisher(context)
-    finally:
+    except BaseException:
         writer.close()
+        partial.unlink(missing_ok=True)  # a failed recording replaces nothing
+        raise
+    writer.close()
+    partial.replace(path)  # whole, or not there: an earlier file stays until then
+
+
+def check_columns(path: Path, needed: Iterable[str]) -> None:
+    """Refuse a CSV without these columns, naming the first missing ones."""
+    try:
+        with path.open(newline="") as f:
+            header = next(csv.reader(f), [])
+    except OSError as exc:
+        raise RakeError(f"mcap: cannot read {path}: {exc.strerror or exc}") from exc
+    missing = [k for k in needed if k not in header]
+    if missing:
+        raise ConfigError(f"mcap: {path} is not a flight-recorder dump, an emulator truth "
+                          f"file or a simulated rake's telemetry: no column "
+                          f"{', '.join(missing)}")
 
 
 def _rows(path: Path, needed: Iterable[str]) -> Iterator[dict[str, str]]:
+    """The rows of a CSV with these columns; a row cut short (a file still being
+    written) ends it, any other bad row is refused naming its line."""
+    check_columns(path, needed)
     with path.open(newline="") as f:
         reader = csv.DictReader(f)
-        missing = [k for k in needed if k not in (reader.fieldnames or ())]
-        if missing:
-            raise ConfigError(f"mcap: {path} is not a flight-recorder dump, an emulator "
-                              f"truth file or a simulated rake's telemetry: no column "
-                              f"{', '.join(missing)}")
-        yield from reader
+        for row in reader:
+            if None in row.values():  # fewer fields than the header: cut short
+                return
+            try:
+                for key in needed:
+                    if key not in ("contact", "state", "force_level"):
+                        float(row[key])
+            except ValueError as exc:
+                raise ConfigError(f"mcap: {path}, line {reader.line_num}: {exc}") from exc
+            yield row
 
 
 def _name(enum_type: type[DaemonState] | type[ForceLevel], code: str) -> str:
@@ -68,6 +95,7 @@ def dump_to_mcap(dump: Path, out: Path, every: int = 1, objects: Iterable[Box] =
     """A flight-recorder dump (rakectl.daemon.loop.RECORDER_COLUMNS) as MCAP, one row in
     ``every``; its clock is the daemon's (seconds since start). Returns the rows written."""
     written = 0
+    check_columns(dump, DUMP_KEYS)
     with recording(out) as pub:
         for k, row in enumerate(_rows(dump, DUMP_KEYS)):
             if k % every:
@@ -113,6 +141,7 @@ def truth_rows_to(pub: Publisher, truth: Path, every: int = 10,
 def truth_to_mcap(truth: Path, out: Path, every: int = 10, objects: Iterable[Box] = ()
                   ) -> int:
     """The emulator's ground truth (drivers.emulator.TRUTH_COLUMNS) alone as MCAP."""
+    check_columns(truth, TRUTH_KEYS)
     with recording(out) as pub:
         first = next(_rows(truth, TRUTH_KEYS), None)
         pivot = (float(first["tip_height_m"]) + float(first["r_m"])
@@ -125,6 +154,7 @@ def telemetry_to_mcap(telemetry: Path, out: Path, every: int = 1,
     """``rakectl simulate``'s telemetry of the simulated rake (rakectl.sim.rake_plant) as
     MCAP, one row in ``every``; simulated time from 0. Returns the rows written."""
     written = 0
+    check_columns(telemetry, TELEMETRY_KEYS)
     with recording(out) as pub:
         for k, row in enumerate(_rows(telemetry, TELEMETRY_KEYS)):
             if k % every:

@@ -74,27 +74,38 @@ def truth_time_ns(row: Mapping[str, str]) -> int:
 
 
 class TruthTail:
-    """Reads the rows an emulator appends to its truth CSV, as they come."""
+    """Reads the rows an emulator appends to its truth CSV from now on (a file of a long
+    run is not read from its start), as they come."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
         self._file: TextIO | None = None
         self._header: list[str] | None = None
         self._partial = ""
+        self.bad_rows = 0
 
     def rows(self) -> Iterator[dict[str, str]]:
-        """The whole rows written since the last call (none before the file exists)."""
+        """The whole rows written since the last call (none before the file exists);
+        a row that is not the header's shape is skipped and counted."""
         if self._file is None:
             if not self.path.is_file():
                 return
-            self._file = self.path.open(newline="")
+            f = self.path.open(newline="")
+            header = f.readline()
+            if not header.endswith("\n"):  # created, its header not written yet
+                f.close()
+                return
+            self._file, self._header = f, header.rstrip("\n").split(",")
+            self._file.seek(0, 2)  # the end: what comes from now on
+            return
         self._partial += self._file.read()
         *lines, self._partial = self._partial.split("\n")
         for line in lines:
-            if self._header is None:
-                self._header = line.split(",")
+            fields = next(csv.reader([line]), [])
+            if self._header is None or len(fields) != len(self._header):
+                self.bad_rows += 1
                 continue
-            yield dict(zip(self._header, next(csv.reader([line])), strict=False))
+            yield dict(zip(self._header, fields, strict=True))
 
     def close(self) -> None:
         if self._file is not None:
@@ -114,7 +125,7 @@ class StatusStream:
         self.objects, self.lane_m = tuple(objects), lane_m
         self._truth = TruthTail(truth) if truth is not None else None
         self._truth_every, self._truth_seen = max(1, truth_every), 0
-        self.replies = self.errors = 0
+        self.replies = self.errors = self.truth_rows = 0
         self.last_error = ""
 
     def run(self, keep_going: Callable[[], bool], clock: Callable[[], float] = time.monotonic
@@ -154,4 +165,13 @@ class StatusStream:
         for row in self._truth.rows():
             self._truth_seen += 1
             if self._truth_seen % self._truth_every == 0:
-                log_truth_row(self.pub, row, truth_time_ns(row))
+                try:
+                    log_truth_row(self.pub, row, truth_time_ns(row))
+                    self.truth_rows += 1
+                except (KeyError, ValueError) as exc:  # not a truth file's row: skipped
+                    self._truth.bad_rows += 1
+                    self.last_error = f"{self._truth.path}: {exc!r}"
+
+    @property
+    def truth_bad_rows(self) -> int:
+        return self._truth.bad_rows if self._truth is not None else 0

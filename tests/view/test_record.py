@@ -205,3 +205,30 @@ def test_a_campaign_case_replayed_is_recorded(tmp_path: Path) -> None:
     mine = json.loads(case.read_text())["case"]["ground"]["objects"]["mines"][0]
     assert struct.pack("<d", mine["width_m"]) in topics["/ground"][0][2]
     assert fuzz_main(["--mcap", str(tmp_path / "x.mcap")]) == 2
+
+
+def test_a_bad_csv_replaces_no_recording_and_a_row_cut_short_ends_it(tmp_path: Path,
+                                                                       capsys: Any) -> None:
+    dump = tmp_path / "dump.csv"
+    _dump(dump, 5)
+    assert main(["mcap", str(dump), "-o", str(tmp_path / "keep.mcap")]) == 0
+    kept = (tmp_path / "keep.mcap").read_bytes()
+    bad = tmp_path / "bad.csv"
+    bad.write_text("a,b\n1,2\n")
+    assert main(["mcap", str(bad), "-o", str(tmp_path / "keep.mcap")]) == 2
+    assert (tmp_path / "keep.mcap").read_bytes() == kept  # untouched
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.csv", "dump.csv", "keep.mcap"]
+    # a dump still being written: its last row cut short is left out
+    with dump.open("a") as f:
+        f.write("10.9,4.0,1.1")
+    capsys.readouterr()
+    assert main(["mcap", str(dump)]) == 0
+    assert "5 rows" in capsys.readouterr().out
+    # a row with a value that is not a number: refused, naming the line
+    lines = dump.read_text().splitlines()[:3]
+    fields = lines[2].split(",")
+    fields[RECORDER_COLUMNS.index("f_hat_n")] = "x"
+    lines[2] = ",".join(fields)
+    dump.write_text("\n".join(lines) + "\n")
+    assert main(["mcap", str(dump)]) == 2
+    assert "line 3" in capsys.readouterr().err
