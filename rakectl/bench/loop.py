@@ -22,8 +22,8 @@ from pathlib import Path
 from typing import Any
 
 from rakectl.api.client import Client
-from rakectl.bench.cyclictest import run_cyclictest
 from rakectl.config.files import config_dir
+from rakectl.daemon.cyclictest import run_cyclictest
 from rakectl.errors import RakeError
 from rakectl.sim.rig import emulated_bench, namespaces_unavailable
 

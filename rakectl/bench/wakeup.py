@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from rakectl.bench.cyclictest import NS_PER_US, merge_cyclictest, run_cyclictest
 from rakectl.bench.recording import bench_dump, bench_hot_paths
+from rakectl.daemon.cyclictest import NS_PER_US, merge_cyclictest, run_cyclictest
 from rakectl.daemon.rt import GcMonitor, RtMode, RtRequest, apply_rt, no_gc, revert_rt
 from rakectl.daemon.timing import (
     DEFAULT_SPIN_THRESHOLD_S,

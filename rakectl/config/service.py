@@ -129,3 +129,12 @@ class DaemonSettings:
         0.001, "With rt_mode enforce, arming is refused while the share of late ticks "
         "(overruns per tick, since start-up) is above this; otherwise it is logged.",
         ge=0, le=1)
+    startup_cyclictest_s: float = setting(
+        3.0, "At start-up, before bring-up, cyclictest (rt-tests) measures the machine's own "
+        "wake-up latency this long, the reference the loop's is compared with (status, "
+        "journal); 0: not measured. Without cyclictest the reason is reported instead.",
+        unit="s", ge=0, le=60)
+    arm_max_latency_ratio: float = setting(
+        3.0, "With rt_mode enforce and a start-up cyclictest, arming is refused while the "
+        "loop's p99 wake-up latency is more than this many times cyclictest's p99; otherwise "
+        "it is logged. 0: not compared.", ge=0, le=1000)

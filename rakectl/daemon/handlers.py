@@ -70,6 +70,7 @@ def status(daemon: Daemon) -> dict[str, Any]:
         "bus": client.stats.as_dict(),
         "timing": timing,
         "timing_check": _timing_verdict(daemon, timing) or "ok",
+        "timing_reference": daemon.timing_reference,
         "dumps": {"pending": daemon.pending_dumps(), "failed": list(daemon.dump_failures)},
     }
     check = daemon.weight_result
@@ -147,7 +148,9 @@ def _dump(daemon: Daemon, request: Request) -> Reply:
 def _timing_verdict(daemon: Daemon, summary: dict[str, Any] | None = None) -> str:
     s = daemon.settings
     summary = daemon.timing.summary() if summary is None else summary
-    return timing_verdict(summary, daemon.ticks, s.rate_hz, s.daemon)
+    reference = daemon.timing_reference.get("p99_us")
+    return timing_verdict(summary, daemon.ticks, s.rate_hz, s.daemon,
+                          reference if isinstance(reference, float) else None)
 
 
 def _check_timing(daemon: Daemon) -> None:

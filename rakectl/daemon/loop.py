@@ -25,6 +25,7 @@ import math
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import structlog
 
@@ -95,6 +96,8 @@ class Daemon(SlackWork):
         self._plausible = plausible_ranges(settings.geometry)
         self.f_hat_max_n = 0.0
         self.voltages = (0.0, 0.0)  # sent on the last tick (after the clamp)
+        # cyclictest's wake-up latency at start-up ({"p99_us", …}), or why it is absent
+        self.timing_reference: dict[str, Any] = {"reason": "not measured"}
         self._enabled = False
         self._enable_deadline = 0
         self._reset_deadline = -1

@@ -16,13 +16,16 @@ import signal
 import sys
 from pathlib import Path
 from types import FrameType
+from typing import Any
 
 import structlog
 
 from rakectl.api.client import socket_path
 from rakectl.api.server import CommandServer
 from rakectl.config.loader import load_settings
+from rakectl.config.service import DaemonSettings
 from rakectl.config.settings import Settings
+from rakectl.daemon.cyclictest import run_cyclictest
 from rakectl.daemon.handlers import make_handler
 from rakectl.daemon.loop import Daemon
 from rakectl.daemon.rt import RtMode, RtRequest, apply_rt, freeze_gc
@@ -58,6 +61,23 @@ def _rt_request(settings: Settings) -> RtRequest:
     return RtRequest(priority=d.rt_priority, cpus=frozenset({d.cpu}) if d.cpu >= 0 else None)
 
 
+def measure_reference(daemon: DaemonSettings, notifier: Notifier) -> dict[str, Any]:
+    """cyclictest's wake-up latency for ``daemon.startup_cyclictest_s`` (before bring-up:
+    nothing else of the daemon runs yet), or why it is absent."""
+    seconds = daemon.startup_cyclictest_s
+    if seconds <= 0.0:
+        return {"reason": "not measured (daemon.startup_cyclictest_s: 0)"}
+    notifier.status(f"measuring the machine's wake-up latency (cyclictest, {seconds:g} s)")
+    reasons: list[str] = []
+    result = run_cyclictest(seconds, priority=daemon.rt_priority, why_not=reasons.append)
+    if result is None:
+        return {"reason": "; ".join(reasons) or "cyclictest failed"}
+    latency = result["latency_ns"]
+    return {"label": result["label"], "samples": result["samples"],
+            "p50_us": latency["p50"] * 1e-3, "p99_us": latency["p99"] * 1e-3,
+            "max_us": latency["max"] * 1e-3}
+
+
 def run(config: Path | None, overrides: list[str]) -> int:
     """Run the daemon until SIGTERM/SIGINT or the shutdown command; 0 on a clean stop."""
     settings = load_settings(config, overrides, root=Settings)
@@ -77,6 +97,8 @@ def run(config: Path | None, overrides: list[str]) -> int:
     signal.signal(signal.SIGINT, on_signal)
     server: CommandServer | None = None
     try:
+        daemon.timing_reference = measure_reference(settings.daemon, notifier)
+        log.info("timing_reference", **daemon.timing_reference)
         notifier.status("bringing up the drives")
         daemon.bring_up()
         report = apply_rt(RtMode(settings.daemon.rt_mode.value), _rt_request(settings))

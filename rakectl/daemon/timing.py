@@ -287,12 +287,13 @@ class LoopTiming:
 
 
 def timing_verdict(summary: dict[str, Any], ticks: int, rate_hz: float,
-                   daemon: DaemonSettings) -> str:
+                   daemon: DaemonSettings, reference_p99_us: float | None = None) -> str:
     """Why the loop's timing since start-up should not be armed on, or "" (pure).
 
-    ``summary`` is :meth:`LoopTiming.summary`; ``ticks`` the ticks run so far. The
-    wake-up latency is the OS's (how late the sleep woke, before the spin: what
-    cyclictest measures); late ticks are the overruns.
+    ``summary`` is :meth:`LoopTiming.summary`; ``ticks`` the ticks run so far;
+    ``reference_p99_us`` cyclictest's p99 measured at start-up, if any. The wake-up
+    latency is the OS's (how late the sleep woke, before the spin: what cyclictest
+    measures); late ticks are the overruns.
     """
     measured_s = ticks / rate_hz
     if measured_s < daemon.arm_timing_s:
@@ -307,4 +308,11 @@ def timing_verdict(summary: dict[str, Any], ticks: int, rate_hz: float,
     if late_share > daemon.arm_max_late_share:
         return (f"{summary['overruns']} of {ticks} ticks were late ({late_share:.2%}), above "
                 f"daemon.arm_max_late_share ({daemon.arm_max_late_share:.2%})")
+    limit = daemon.arm_max_latency_ratio
+    if limit > 0.0 and reference_p99_us is not None and reference_p99_us > 0.0:
+        ratio = p99_us / reference_p99_us
+        if ratio > limit:
+            return (f"the loop's p99 wake-up latency, {p99_us:.0f} µs, is {ratio:.1f}× "
+                    f"cyclictest's at start-up ({reference_p99_us:.0f} µs), above "
+                    f"daemon.arm_max_latency_ratio ({limit:g}×)")
     return ""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import random
 from collections.abc import Callable
@@ -209,3 +210,15 @@ def test_the_timing_verdict_before_arming_names_what_and_by_how_much() -> None:
                     "daemon.arm_max_latency_p99_us (500 µs) by 312 µs")
     assert "12 of 5000 ticks were late (0.24%), above daemon.arm_max_late_share (0.10%)" in \
         timing_verdict(_summary(80, 12), 5000, 1000.0, daemon)
+
+
+def test_a_loop_much_later_than_cyclictest_is_not_armed_on() -> None:
+    """With a start-up cyclictest, the loop's p99 wake-up is judged against it too."""
+    daemon = dataclasses.replace(DaemonSettings(), arm_timing_s=2.0, arm_max_latency_ratio=3.0)
+    assert timing_verdict(_summary(80, 1), 5000, 1000.0, daemon, reference_p99_us=30.0) == ""
+    worse = timing_verdict(_summary(200, 1), 5000, 1000.0, daemon, reference_p99_us=30.0)
+    assert "is 6.7× cyclictest's at start-up (30 µs)" in worse
+    assert "daemon.arm_max_latency_ratio (3×)" in worse
+    off = dataclasses.replace(daemon, arm_max_latency_ratio=0.0)
+    assert timing_verdict(_summary(200, 1), 5000, 1000.0, off, reference_p99_us=30.0) == ""
+    assert timing_verdict(_summary(200, 1), 5000, 1000.0, daemon, reference_p99_us=None) == ""

@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -280,3 +281,21 @@ def test_systemd_notify_sequence_and_sigterm(tmp_path: Path,
     last = _truth(tmp_path)[-1]
     assert float(last["voltage_r_v"]) == 0.0 and float(last["voltage_theta_v"]) == 0.0
     assert last["r_state"] != "OPERATION_ENABLED" and last["theta_state"] != "OPERATION_ENABLED"
+
+
+def test_the_start_up_cyclictest_is_the_reference_in_status(tmp_path: Path) -> None:
+    """daemon.startup_cyclictest_s: before bring-up the daemon measures the machine's own
+    wake-up latency with cyclictest, reports it in status and the journal; without
+    cyclictest it says why (the install line)."""
+    with emulated_bench(tmp_path, EMULATOR, DAEMON,
+                        daemon_args=["--set", "daemon.startup_cyclictest_s=1"]) as bench:
+        reference = bench.wait_for_state(["disarmed"], 60.0)["timing_reference"]
+    print(f"\nstart-up reference: {reference}")
+    if shutil.which("cyclictest") is None:
+        assert "apt-get install -y rt-tests" in reference["reason"]
+    else:
+        assert reference["label"].startswith("cyclictest -m -p 80")
+        assert 0.0 < reference["p50_us"] <= reference["p99_us"] <= reference["max_us"]
+        assert reference["samples"] >= 500
+    assert any('"event": "timing_reference"' in line
+               for line in (tmp_path / "daemon.log").read_text().splitlines())
