@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from rakectl.daemon.cyclictest import merge_cyclictest, parse_cyclictest_histogram
 from rakectl.bench.wakeup import bench_wakeup, format_comparison, make_garbage
+from rakectl.daemon.cyclictest import merge_cyclictest, parse_cyclictest_histogram
 from rakectl.daemon.rt import RtMode
 from rakectl.daemon.timing import percentiles_ns
 
