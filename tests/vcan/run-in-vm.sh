@@ -30,13 +30,11 @@ PY=$VENV/bin/python
 RESULTS=${VCAN_RESULTS:-$ROOT/.vcan-results}
 TIMEOUT_S=${VCAN_VM_TIMEOUT_S:-900}
 MEMORY=${VCAN_VM_MEMORY:-3G}
-PACKAGES=(qemu-system-x86 linux-image-amd64 busybox-static)
-VIRTME_NG=virtme-ng==1.42
 CHANNEL=vcan0
 
 say() { echo "vcan: $*"; }
-die() { echo "vcan: error: $*" >&2; exit 1; }
-now() { date +%s; }
+# shellcheck source=tests/vm.sh
+. "$ROOT/tests/vm.sh"
 
 pytest_args() {  # one per line; the same selection on the host and in the VM
     local extra=()
@@ -69,53 +67,6 @@ run_here() {
     local args
     mapfile -t args < <(pytest_args)
     PYTHONUNBUFFERED=1 "$PY" -m pytest "${args[@]}"
-}
-
-install_packages() {
-    local missing=() p started
-    for p in "${PACKAGES[@]}"; do
-        dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" \
-            || missing+=("$p")
-    done
-    if [ "${#missing[@]}" -eq 0 ]; then
-        say "Debian packages present: ${PACKAGES[*]}"
-        return 0
-    fi
-    [ "$(id -u)" -eq 0 ] || die "missing Debian packages: ${missing[*]}; install them as root" \
-        "(apt-get install --no-install-recommends ${missing[*]}) or run this script as root"
-    say "installing ${missing[*]} (apt-get)"
-    started=$(now)
-    # INITRD=No: virtme-ng brings its own initramfs, so the kernel package's is not built.
-    export DEBIAN_FRONTEND=noninteractive INITRD=No
-    if ! apt-get install -y -q --no-install-recommends "${missing[@]}" >"$RESULTS/apt.log" 2>&1
-    then
-        apt-get update -q >>"$RESULTS/apt.log" 2>&1
-        apt-get install -y -q --no-install-recommends "${missing[@]}" >>"$RESULTS/apt.log" 2>&1 \
-            || { tail -20 "$RESULTS/apt.log"; die "apt-get install failed; see $RESULTS/apt.log"; }
-    fi
-    say "installed in $(($(now) - started)) s"
-}
-
-install_virtme_ng() {
-    if [ -x "$VENV/bin/vng" ]; then
-        say "virtme-ng present: $("$VENV/bin/vng" --version 2>&1 | head -1)"
-        return 0
-    fi
-    say "installing $VIRTME_NG into $VENV (pip)"
-    "$VENV/bin/pip" install -q "$VIRTME_NG" || die "pip install $VIRTME_NG failed"
-}
-
-guest_kernel() {  # the newest installed kernel whose modules include vcan
-    local image version
-    for image in $(ls -1 /boot/vmlinuz-* 2>/dev/null | sort -rV); do
-        version=${image#/boot/vmlinuz-}
-        if find "/lib/modules/$version/kernel/drivers/net/can" -name 'vcan.ko*' 2>/dev/null \
-                | grep -q .; then
-            echo "$image"
-            return 0
-        fi
-    done
-    return 1
 }
 
 run_in_vm() {
