@@ -50,3 +50,15 @@ def test_every_relative_link_resolves() -> None:
 
 def test_the_readme_is_a_front_door() -> None:
     assert len(README.splitlines()) < 250
+
+
+def test_the_installation_blocks_the_service_test_runs_are_there() -> None:
+    """tests/service runs these blocks of docs/installation.md verbatim in its VM: each
+    heading it names has one, the software block sets SRC, the bench block starts both
+    services on vcan0."""
+    from tests.service.test_service import DOC, TESTED, doc_blocks
+
+    software, bench = doc_blocks(DOC.read_text(), TESTED)
+    assert re.search(r"^SRC=\S+", software, re.M)
+    assert "80-vcan0.netdev" in bench
+    assert "enable --now rakectl-emulator rakectl" in bench
