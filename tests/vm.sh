@@ -57,3 +57,25 @@ guest_kernel() {  # the newest installed kernel whose modules include vcan
     done
     return 1
 }
+
+vm_status() {  # vng's status and start time -> the tests' status left in RESULTS/exit-code
+    local vng_status=$1 started=$2
+    say "the VM ran for $(($(now) - started)) s (vng exit status $vng_status)"
+    if [ ! -s "$RESULTS/exit-code" ]; then
+        [ "$vng_status" -eq 124 ] && say "the VM hit its time limit of ${TIMEOUT_S} s"
+        say "the VM did not report the tests' exit status: failing"
+        return 1
+    fi
+    return "$(cat "$RESULTS/exit-code")"
+}
+
+verdict() {  # pytest's status and what was tested -> the step's status, recorded
+    local status=$1 what=$2
+    if [ "$status" -eq 5 ]; then
+        say "pytest collected no $what tests: failing"
+        status=1
+    fi
+    say "exit status $status; log $RESULTS/run.log, JUnit XML $RESULTS/junit.xml"
+    echo "$status" >"$RESULTS/exit-code"
+    return "$status"
+}

@@ -93,7 +93,7 @@ EOF
 }
 
 run_in_vm() {
-    local kernel started vng_status status
+    local kernel started vng_status
     install_packages
     install_virtme_ng
     kernel=$(guest_kernel) || die "no kernel in /boot with the vcan module (linux-image-amd64)"
@@ -109,16 +109,9 @@ run_in_vm() {
         "--qemu-opts=-fsdev local,id=hilroot,path=$SCRATCH/root,security_model=none,multidevs=remap -device virtio-9p-pci,fsdev=hilroot,mount_tag=hilroot" \
         </dev/null
     vng_status=$?
-    say "the VM ran for $(($(now) - started)) s (vng exit status $vng_status)"
     # what the VM wrote is in the overlay's upper layer, at the same paths
     cp -a "$SCRATCH/upper$RESULTS/." "$RESULTS/" 2>/dev/null
-    if [ ! -s "$RESULTS/exit-code" ]; then
-        [ "$vng_status" -eq 124 ] && say "the VM hit its time limit of ${TIMEOUT_S} s"
-        say "the VM did not report the tests' exit status: failing"
-        return 1
-    fi
-    status=$(cat "$RESULTS/exit-code")
-    return "$status"
+    vm_status "$vng_status" "$started"
 }
 
 main() {
@@ -128,13 +121,7 @@ main() {
     say "results in $RESULTS"
     run_in_vm
     status=$?
-    if [ "$status" -eq 5 ]; then
-        say "pytest collected no service tests: failing"
-        status=1
-    fi
-    say "exit status $status; log $RESULTS/run.log, JUnit XML $RESULTS/junit.xml"
-    echo "$status" >"$RESULTS/exit-code"
-    return "$status"
+    verdict "$status" service
 }
 
 rm -rf "$RESULTS"

@@ -70,7 +70,7 @@ run_here() {
 }
 
 run_in_vm() {
-    local kernel started vng_status status
+    local kernel started vng_status
     install_packages
     install_virtme_ng
     kernel=$(guest_kernel) || die "no kernel in /boot with the vcan module (linux-image-amd64)"
@@ -85,14 +85,7 @@ run_in_vm() {
         "--qemu-opts=-fsdev local,id=rakehost,path=/,security_model=none,readonly=on,multidevs=remap -device virtio-9p-pci,fsdev=rakehost,mount_tag=rakehost" \
         --exec "$(printf '%q %q' "$ROOT/tests/vcan/in-vm.sh" "$RESULTS")" </dev/null
     vng_status=$?
-    say "the VM ran for $(($(now) - started)) s (vng exit status $vng_status)"
-    if [ ! -s "$RESULTS/exit-code" ]; then
-        [ "$vng_status" -eq 124 ] && say "the VM hit its time limit of ${TIMEOUT_S} s"
-        say "the VM did not report the tests' exit status: failing"
-        return 1
-    fi
-    status=$(cat "$RESULTS/exit-code")
-    return "$status"
+    vm_status "$vng_status" "$started"
 }
 
 main() {
@@ -107,13 +100,7 @@ main() {
         run_in_vm
         status=$?
     fi
-    if [ "$status" -eq 5 ]; then
-        say "pytest collected no vcan tests: failing"
-        status=1
-    fi
-    say "exit status $status; log $RESULTS/run.log, JUnit XML $RESULTS/junit.xml"
-    echo "$status" >"$RESULTS/exit-code"
-    return "$status"
+    verdict "$status" vcan
 }
 
 rm -rf "$RESULTS"
