@@ -307,6 +307,42 @@ def test_bad_frames_are_counted_logged_at_most_once_a_second_and_ignored() -> No
         emulator_bus.shutdown()
 
 
+def test_heartbeats_go_on_while_frames_come_faster_than_they_are_handled() -> None:
+    """Every reading of the injected clock costs 15 ms, so 100 queued frames take over a
+    second to handle: the drives' heartbeat (100 ms) still goes out every 100 ms, between
+    frames, instead of waiting until the queue is empty (what stopped them in the
+    service VM)."""
+    channel = f"test-emulator-flood-{os.getpid()}"
+    controller_bus = can.Bus(interface="virtual", channel=channel)
+    emulator_bus = can.Bus(interface="virtual", channel=channel)
+    now_s = [100.0]
+
+    def clock() -> float:
+        now_s[0] += 0.015
+        return now_s[0]
+
+    try:
+        emulator = Emulator(EmulatorConfig(), emulator_bus, clock=clock, log=RecordingLog())
+        emulator.start()
+        ctl = Controller(controller_bus, emulator)
+        for node_id in NODES:  # heartbeat producer 0x1017 = 100 ms
+            assert ctl.sdo(node_id, sdo_download(0x1017, 0, 100, 2))[0] == "ok"
+        ctl.receive()
+        for _ in range(100):
+            ctl.send(0x600 + 1, sdo_upload(0x1017, 0))
+        started_s = now_s[0]
+        while emulator.service(0.0):
+            pass
+        elapsed_s = now_s[0] - started_s
+        beats = [f for f in ctl.receive() if f[0] == 0x700 + 1]
+        assert elapsed_s > 1.0
+        assert len(beats) >= int(elapsed_s / 0.1) - 2, (len(beats), elapsed_s)
+        emulator.close()
+    finally:
+        controller_bus.shutdown()
+        emulator_bus.shutdown()
+
+
 # ----------------------------------------------------------------------------- faults, timing
 
 
