@@ -64,6 +64,11 @@ guest_view() {  # the overlay the VM boots on, and what the VM finds in it
     install -m 0755 "$ROOT/tests/service/hil-init" "$root/sbin/init.hil"
     ln -sf init.hil "$root/sbin/init"
     : >"$root/etc/fstab"  # this machine's own file systems are not the VM's
+    # WatchdogSec 5 s instead of 1 s: emulated ~50x slower, the loop once stalled for
+    # over 1 s as an excavation started and was killed mid-flow (what the drop-in does
+    # not change: a stalled loop is still killed and restarted, test 4)
+    mkdir -p "$root/etc/systemd/system/rakectl.service.d"
+    printf '[Service]\nWatchdogSec=5s\n' >"$root/etc/systemd/system/rakectl.service.d/hil.conf"
     unit=$root/etc/systemd/system/rakectl-hil.service
     cat >"$unit" <<EOF
 [Unit]

@@ -6,8 +6,9 @@ docs/installation.md marked *tested*, verbatim, then checks what the units promi
 READY only after bring-up and the first valid feedback, the command socket for group
 rakectl and no one else, a stalled loop caught by WatchdogSec and restarted with the
 drives stopped by their own watchdog meanwhile, a clean `systemctl stop` (0 V, drives
-disabled, a recorder dump, exit 0), the operator's flow from the CLI after a start, and
-the structured journal. The tests run in order and share the installation.
+disabled, a recorder dump, exit 0), the operator's flow from the CLI after a start, the
+robot's real-time settings under the sandbox, and the structured journal. The tests run
+in order and share the installation.
 """
 
 from __future__ import annotations
@@ -237,6 +238,21 @@ def test_operator_flow_on_the_socket(installed: None) -> None:
     wait_for_state(["estop"])
     as_user(OPERATOR, "reset")
     wait_for_state(["disarmed"])
+
+
+def test_real_time_under_the_sandbox(installed: None) -> None:
+    """The robot's rt_mode (enforce: every real-time step must succeed, or no start) under
+    the unit's limits and sandbox: SCHED_FIFO, locked memory, the pinned CPU, PM QoS."""
+    sh("sed -i 's/^  rt_mode: off/  rt_mode: enforce/' /etc/rakectl/rakectl.yaml")
+    since_us = now_us()
+    restarted = sh("systemctl restart rakectl", timeout_s=STATE_TIMEOUT_S, check=False)
+    entries = journal("rakectl", since_us)
+    lines = [str(e.get("MESSAGE", "")) for e in entries]
+    assert restarted.returncode == 0, "\n".join(lines[-15:])
+    started = events(entries, "started")
+    assert started and started[-1]["rt"] == "enforce", lines[-15:]
+    assert started[-1]["priority"] == 80, started[-1]
+    assert not events(entries, "realtime"), events(entries, "realtime")
 
 
 def test_journal_is_structured(installed: None) -> None:
