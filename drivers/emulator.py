@@ -226,10 +226,11 @@ class Emulator:
     def service(self, timeout_s: float) -> int:
         """Handle every pending frame (waiting ≤ timeout_s for the first), then the timers.
 
-        The drives' timers (heartbeat, heartbeat consumer, command watchdog) are also
-        served between frames once due: an emulator slower than the frames it is sent
-        (software emulation) must not hold them back until its queue is empty, as a real
-        drive's hardware timer is not held back. Returns the number of frames handled.
+        The drives' heartbeats also go out between frames once due: an emulator slower
+        than the frames it is sent (software emulation) must not hold them back until
+        its queue is empty, as a real drive's hardware timer is not held back. What
+        checks the frames received (heartbeat consumer, command watchdog) waits until
+        they are read. Returns the number of frames handled.
         """
         now_s = self._clock()
         wait_s = max(0.0, min(timeout_s, self._next_deadline_s() - now_s))
@@ -239,9 +240,8 @@ class Emulator:
             self.handle(msg, self._clock())
             handled += 1
             now_s = self._clock()
-            if now_s >= min(node.next_deadline_s() for node in self.nodes):
-                for node in self.nodes:
-                    self._transmit(node, node.poll(now_s))
+            for node in self.nodes:
+                self._transmit(node, node.heartbeat(now_s))
             msg = self.bus.recv(0.0)
         now_s = self._now_s = self._clock()
         for node in self.nodes:

@@ -102,13 +102,7 @@ class DriveNode(PowerStage):
         """Timers: heartbeat production, heartbeat consumer, command watchdog."""
         if self.nmt is NmtState.BOOT_UP:
             return NO_FRAMES
-        out: list[Frame] = []
-        if self._heartbeat_ms and now_s >= self._next_heartbeat_s:
-            out.append((self._ids[FunctionCode.HEARTBEAT], bytes((self.nmt,))))
-            period_s = self._heartbeat_ms * 0.001
-            self._next_heartbeat_s += period_s
-            if self._next_heartbeat_s <= now_s:  # polled late: keep the period from now
-                self._next_heartbeat_s = now_s + period_s
+        out = list(self.heartbeat(now_s))
         seen_s, timeout_s = self._heartbeat_seen_s, (self._consumer & 0xFFFF) * 0.001
         if seen_s is not None and timeout_s and now_s - seen_s >= timeout_s:
             self._heartbeat_seen_s, self._heartbeat_lost = None, True
@@ -116,6 +110,17 @@ class DriveNode(PowerStage):
         self._check_watchdog(now_s, out)
         self._emit_status(out)
         return out
+
+    def heartbeat(self, now_s: float) -> Sequence[Frame]:
+        """The heartbeat producer alone, if due (the checks of what was received are
+        :meth:`poll`'s, once the frames that arrived have been read)."""
+        if self.nmt is NmtState.BOOT_UP or not self._heartbeat_ms or now_s < self._next_heartbeat_s:
+            return NO_FRAMES
+        period_s = self._heartbeat_ms * 0.001
+        self._next_heartbeat_s += period_s
+        if self._next_heartbeat_s <= now_s:  # polled late: keep the period from now
+            self._next_heartbeat_s = now_s + period_s
+        return ((self._ids[FunctionCode.HEARTBEAT], bytes((self.nmt,))),)
 
     def next_deadline_s(self) -> float:
         """When :meth:`poll` next has work to do (inf if never)."""
