@@ -195,6 +195,8 @@ def _progress_text(reply: dict[str, Any]) -> str:
     if found:
         text += (f", OBJECT FOUND at reach {found['reach_m']:.3f} m, depth "
                  f"{1e3 * found['depth_m']:.0f} mm")
+    elif ex.get("stopped_by_force"):
+        text += ", STOPPED BY THE FORCE LIMIT (lane not finished)"
     return text
 
 
@@ -245,8 +247,9 @@ def excavate(args: argparse.Namespace) -> int:
         print("excavate: started")
         return 0
     reply = follow_excavation(_path(args), sys.stderr)
-    _print(args, reply, _progress_text(reply) if reply.get("excavation") else reply["state"])
-    return 0 if reply["state"] == "hold" else 1
+    excavation = reply.get("excavation") or {}
+    _print(args, reply, _progress_text(reply) if excavation else reply["state"])
+    return 0 if reply["state"] == "hold" and not excavation.get("stopped_by_force") else 1
 
 
 def add_parsers(sub: Any, parent: argparse.ArgumentParser) -> dict[str, Ops]:
@@ -278,7 +281,9 @@ def add_parsers(sub: Any, parent: argparse.ArgumentParser) -> dict[str, Ops]:
     p.add_argument("--duration", type=float, default=None,
                    help="seconds to keep moving (default: until Ctrl-C)")
     ops["jog"] = jog
-    p = sub.add_parser("excavate", parents=[parent], help="rake a lane deeper and deeper")
+    p = sub.add_parser("excavate", parents=[parent], help=(
+        "rake a lane deeper and deeper (exit status 0 once it holds at the target depth or "
+        "at an object found; 1 on a force-limit stop, fault or e-stop)"))
     p.add_argument("--reach-far", type=float, required=True, help="stroke start, m")
     p.add_argument("--reach-near", type=float, required=True, help="stroke end, m")
     p.add_argument("--depth", type=float, required=True, help="target depth, m")

@@ -126,8 +126,9 @@ class TickFigures:
 class LockstepRig:
     """Daemon and emulator on one fresh virtual channel, in lock-step."""
 
-    def __init__(self, directory: Path) -> None:
-        defaults = Settings()
+    def __init__(self, directory: Path, defaults: Settings | None = None) -> None:
+        """``defaults``: the daemon's settings before the rig's own changes (tests)."""
+        defaults = Settings() if defaults is None else defaults
         # The emulator keeps lock-step time (1 ms per tick), so its drives' watchdogs do not
         # see the machine's stalls; the daemon stamps heartbeats with the wall clock, so
         # the heartbeat timeout is long (a stall of a loaded machine is not a lost drive).

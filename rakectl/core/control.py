@@ -128,14 +128,17 @@ class TipController:
             self.impedance.estimator.set_delay(0.0)
 
     def step(self, reach_ref_m: float, depth_ref_m: float, r_m: float, theta_rad: float,
-             r_vel_m_per_s: float, theta_vel_rad_per_s: float) -> tuple[float, float]:
-        """Clamped voltages (r, θ) for this tick from the measured joints and the reference."""
+             r_vel_m_per_s: float, theta_vel_rad_per_s: float, samples: int = 1
+             ) -> tuple[float, float]:
+        """Clamped voltages (r, θ) for this tick from the measured joints and the reference;
+        ``samples``: the sampling instants (SYNCs) the joints advanced since the last tick
+        (:attr:`rakectl.drive.health.Feedback.samples`), for the force estimate."""
         if not (math.isfinite(r_m) and math.isfinite(theta_rad) and r_m > 0.0):
             self.fault = "non-finite or impossible joint feedback"
             return 0.0, 0.0
         self.reach_m = r_m * math.cos(theta_rad)
         self.depth_m = r_m * math.sin(theta_rad) - self.servo.workspace.pivot_height_m
-        self.x_ref_m = self.impedance.step(depth_ref_m, self.depth_m)
+        self.x_ref_m = self.impedance.step(depth_ref_m, self.depth_m, samples)
         servo = self.servo
         integrals = (servo.loop_r.integral_v, servo.loop_theta.integral_v)
         requested = servo.step(reach_ref_m, self.x_ref_m, r_m, theta_rad, r_vel_m_per_s,

@@ -45,10 +45,15 @@ LANDING_BAND_M = 0.02
 # A plunge starts once the measured tip has arrived above the soil: the delayed-position
 # estimate is re-anchored where contact begins, so a tip still moving down there reads as
 # force (K_e·α = 2000 N per m/s with the paper's values). LOWER ends when the tip moved less
-# than SETTLE_TRAVEL_M over the last SETTLE_TICKS ticks (F̂ ≲ 10 N at the entry; about 3
-# encoder quanta of depth at 1.4 m reach), or after SETTLE_TIMEOUT_S all the same.
+# than SETTLE_TRAVEL_M over the last SETTLE_TICKS sampling instants (F̂ ≲ 10 N at the
+# entry; about 3 encoder quanta of depth at 1.4 m reach) within SETTLE_ERROR_M of its
+# reference, or after SETTLE_TIMEOUT_S all the same. Still alone is not enough: a tip
+# that overshot the landing stands still for those ticks at its turning point, then
+# swings back (3 mm overshoot, 0.5 s period on the emulated bench: 111 N of F̂ at 50
+# mm/s); within 0.5 mm of the reference such a swing reads ≲ 12 N.
 SETTLE_TICKS = 10
 SETTLE_TRAVEL_M = 5e-5
+SETTLE_ERROR_M = 5e-4
 SETTLE_TIMEOUT_S = 1.0
 # An adaptive stroke also keeps the tip's lag under this share of the stall error, so that
 # raking fast through stiff soil is not taken for a rigid object.
@@ -131,9 +136,9 @@ class LanePlanner:
     def done(self) -> bool:
         return self.phase is LanePhase.DONE
 
-    def observe(self, reach_m: float, depth_m: float) -> None:
+    def observe(self, reach_m: float, depth_m: float, samples: int = 1) -> None:
         """The measured tip, once per tick (see :meth:`check_stall` and :meth:`_blocked`)."""
-        if not self.check_stall(reach_m, depth_m):
+        if not self.check_stall(reach_m, depth_m, samples):
             self._blocked(reach_m, depth_m)
 
     def _blocked(self, reach_m: float, depth_m: float) -> None:
@@ -161,14 +166,15 @@ class LanePlanner:
             self.stopped_by_force = True
         self.phase = LanePhase.LIFT if self.phase is not LanePhase.LIFT else LanePhase.DONE
 
-    def check_stall(self, reach_m: float, depth_m: float) -> bool:
+    def check_stall(self, reach_m: float, depth_m: float, samples: int = 1) -> bool:
         """During a contact stroke, a tip lagging its reference by more than the stall error,
         or one the reference has waited for without it advancing, has met something rigid:
         remember where, lift clear from where the tip IS (so the reference stops pushing),
-        and finish after the lift. Returns True on the find. Every tick's measured depth is
-        also kept to see the tip settle before a plunge."""
-        self._tip_index = (self._tip_index + 1) % SETTLE_TICKS
-        self._tip_depths[self._tip_index] = depth_m
+        and finish after the lift. Returns True on the find. The measured depth of every
+        sampling instant is also kept to see the tip settle before a plunge: ``samples``
+        is how many the measurement advanced (rakectl.drive.health.Feedback.samples; 0, a
+        late answer, adds none: a drive answering late is not a tip standing still)."""
+        self._keep_depth(depth_m, samples)
         self._tip_reach_m, self._tip_depth_m, self._observed = reach_m, depth_m, True
         if self.phase is not LanePhase.STROKE or self.found_at is not None:
             self.lag_m = self.rise_m = 0.0
@@ -184,6 +190,16 @@ class LanePlanner:
         self.speed_m_per_s = 0.0
         self.phase = LanePhase.LIFT
         return True
+
+    def _keep_depth(self, depth_m: float, samples: int) -> None:
+        """Into the settle ring: ``samples`` depths on the line from the last to this one."""
+        depths, last = self._tip_depths, self._tip_depths[self._tip_index]
+        gap = samples if samples < SETTLE_TICKS else SETTLE_TICKS
+        if math.isnan(last):
+            gap = 1 if samples > 0 else 0
+        for k in range(1, gap + 1):
+            self._tip_index = (self._tip_index + 1) % SETTLE_TICKS
+            depths[self._tip_index] = last + (depth_m - last) * k / gap if k < gap else depth_m
 
     def _stalled(self, reach_m: float) -> bool:
         """Whether the reference has waited STALL_WAIT_S for a tip that did not advance."""
@@ -275,12 +291,14 @@ class LanePlanner:
         return self.reach_m, above, lane.travel_speed_m_per_s  # LIFT, DONE
 
     def _tip_settled(self) -> bool:
-        """Whether the measured tip has stopped (True when the tip is not observed)."""
+        """Whether the measured tip has stopped at its reference (True when the tip is not
+        observed)."""
         depths = self._tip_depths
         unknown = sum(math.isnan(d) for d in depths)
         if unknown:
             return unknown == SETTLE_TICKS  # never observed: nothing to wait for
-        return max(depths) - min(depths) <= SETTLE_TRAVEL_M
+        return (max(depths) - min(depths) <= SETTLE_TRAVEL_M
+                and abs(depths[self._tip_index] - self.depth_m) <= SETTLE_ERROR_M)
 
     def _next_phase(self) -> LanePhase:
         if self.phase is LanePhase.LIFT:

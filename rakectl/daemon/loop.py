@@ -227,7 +227,7 @@ class Daemon(SlackWork):
         fb, c = self.client.feedback, self.controller
         c.set_contact(contact)
         voltages = c.step(reach, depth, fb.r_m, fb.theta_rad, fb.r_vel_m_per_s,
-                          fb.theta_vel_rad_per_s)
+                          fb.theta_vel_rad_per_s, fb.samples)
         if c.fault or c.clamp.infeasible:
             self.fault(c.fault or "the voltage clamp cannot meet its bound: "
                        f"worst case {c.clamp.worst_case_n:.1f} N")
@@ -241,7 +241,7 @@ class Daemon(SlackWork):
             self._back_off()
         planner = self.planner
         if planner is not None and self.state is DaemonState.EXCAVATE:
-            if planner.check_stall(c.reach_m, c.depth_m):
+            if planner.check_stall(c.reach_m, c.depth_m, self.client.feedback.samples):
                 self.event("object_found", reach_m=c.reach_m, depth_m=c.depth_m)
             sup = self.supervisor  # an adaptive stroke follows the larger estimate
             planner.govern(max(c.f_hat_n, sup.f_current_n), sup.caution_n)
@@ -292,7 +292,8 @@ class Daemon(SlackWork):
             if planner.done:
                 self.hold = (planner.reach_m, planner.depth_m)
                 self._transition(Event.DONE, "object found" if planner.found_at else
-                                 "target depth reached")
+                                 "stopped by the force limit" if planner.stopped_by_force
+                                 else "target depth reached")
             return planner.reach_m, planner.depth_m, planner.contact
         return self.hold[0], self.hold[1], False
 

@@ -26,7 +26,8 @@ the start of tick k+1. There is no round trip inside a tick.
   :class:`~rakectl.drive.health.Stats`, never raised. A drive whose TPDO1 did not
   arrive after a SYNC gets one more stale cycle; TPDO1 carries no SYNC counter, so
   the counter recorded with it is the last SYNC sent before the drain (right while
-  TPDO1 latency < one period).
+  TPDO1 latency < one period). ``Feedback.samples`` counts the SYNCs both drives
+  answered in the drain, for the force estimate's history (rakectl.core.impedance).
 - :meth:`DriveClient.send` converts the voltages with
   :func:`rakectl.protocol.codec.voltage_v_to_mv` (rounds, saturates at ±32.767 V) and
   packs both RPDO1s into preallocated messages with each drive's controlword.
@@ -166,6 +167,7 @@ class DriveClient(DriveSupervision):
         self._latency_index = 0
         self.latency_samples = 0
         self._fresh = [0, 0]  # TPDO1s per drive in this drain
+        self._answered = 0  # SYNCs both drives' TPDO1s answered (Feedback.samples)
         self._send_failed = False
         self._command: list[DriveCommand] = [DriveCommand.DISABLE_VOLTAGE] * 2
         self._controlword = [0, 0]  # goes out with the next send()
@@ -247,6 +249,10 @@ class DriveClient(DriveSupervision):
 
     def _count_stale(self) -> None:
         fresh, stale, stats = self._fresh, self.feedback.stale_cycles, self.stats
+        received = stats.tpdo_received
+        answered = received[0] if received[0] < received[1] else received[1]
+        self.feedback.samples = answered - self._answered
+        self._answered = answered
         for j in (0, 1):
             if fresh[j]:
                 stale[j] = 0

@@ -23,12 +23,15 @@ class Feedback:
 
     Joint values are NaN until the first TPDO1; per-drive lists are indexed by
     :class:`~rakectl.drive.joints.Joint`. ``sync_counter`` is the SYNC the last TPDO1
-    answered (see rakectl.drive.client's docstring), 0 before the first.
+    answered (see rakectl.drive.client's docstring), 0 before the first. ``samples`` is
+    how many sampling instants (SYNCs answered by both drives' TPDO1s) the joint values
+    advanced in the last drain: 1 normally, 0 when a drive's answer is late, n > 1 when
+    late answers arrive together (the values are the newest).
     """
 
     __slots__ = ("current_r_a", "current_theta_a", "error_register", "last_emcy", "nmt_state",
-                 "r_m", "r_vel_m_per_s", "stale_cycles", "state", "statusword", "sync_counter",
-                 "theta_rad", "theta_vel_rad_per_s")
+                 "r_m", "r_vel_m_per_s", "samples", "stale_cycles", "state", "statusword",
+                 "sync_counter", "theta_rad", "theta_vel_rad_per_s")
 
     def __init__(self) -> None:
         self.r_m = math.nan
@@ -42,6 +45,7 @@ class Feedback:
         self.error_register = [0, 0]
         self.stale_cycles = [0, 0]
         self.sync_counter = [0, 0]
+        self.samples = 0
         self.last_emcy: list[Emcy | None] = [None, None]
         self.nmt_state: list[NmtState | None] = [None, None]
 

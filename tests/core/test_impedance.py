@@ -131,6 +131,48 @@ def test_entering_contact_anchors_the_soil_at_the_tip() -> None:
     assert est.step(-0.03 + 1.5e-4 * 29 + 7e-6) == pytest.approx(2.0e5 * 7e-6)
 
 
+def test_late_and_bunched_samples_give_the_force_of_the_sampling_instants() -> None:
+    """Feedback read late (the same sample twice), then two samples in one tick (only the
+    newest kept): F̂ is held while late, and after the burst equals what on-time delivery
+    gives at that instant: x(t) − x(t − α) spans α of sampling time, not of reading."""
+    def x_at(k: int) -> float:  # a descent at 20 mm/s, sampled every 1 ms
+        return 2e-5 * k
+
+    on_time = DelayForceEstimator(2.0e5, 0.01, 0.05, 1e-3)
+    late = DelayForceEstimator(2.0e5, 0.01, 0.05, 1e-3)
+    ticks = DelayForceEstimator(2.0e5, 0.01, 0.05, 1e-3)  # counts ticks, as before
+    for est in (on_time, late, ticks):
+        est.reset(0.0)
+    expected, got, by_ticks, held = [], [], [], []
+    newest = 0  # the newest sample the late reader has
+    for k in range(1, 80):
+        expected.append(on_time.step(x_at(k)))
+        if k % 7 == 0:  # every seventh answer comes a tick late, together with the next
+            samples = 0
+        elif k % 7 == 1 and k > 1:
+            samples = 2
+        else:
+            samples = 1
+        newest += samples
+        held.append(samples == 0)
+        got.append(late.step(x_at(newest), samples))
+        by_ticks.append(ticks.step(x_at(newest)))
+    for i in range(30, len(got)):
+        if held[i]:
+            assert got[i] == got[i - 1]
+        else:
+            assert got[i] == pytest.approx(expected[i], rel=1e-9)
+    assert expected[-1] == pytest.approx(2.0e5 * 10 * 2e-5)  # 40 N: K_e v α
+    assert max(by_ticks[30:]) == pytest.approx(2.0e5 * 11 * 2e-5)  # +10 %: one tick more
+
+
+def test_a_burst_longer_than_the_history_is_recorded_as_a_straight_line() -> None:
+    est = DelayForceEstimator(2.0e5, 0.01, 0.02, 1e-3)
+    est.reset(0.0)
+    assert est.step(1e-3, samples=100) == pytest.approx(2.0e5 * 1e-3 * 10 / 21)
+    assert est.step(1e-3, samples=0) == est.f_hat_n
+
+
 def test_estimator_rejects_delay_beyond_its_history() -> None:
     est = DelayForceEstimator(2.0e5, 0.0, 0.05, 1e-3)
     with pytest.raises(ConfigError, match="delay"):

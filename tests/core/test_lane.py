@@ -16,6 +16,7 @@ from rakectl.core.cut_profile import RISE_PER_M, CutProfile
 from rakectl.core.lane import (
     LANDING_BAND_M,
     PLUNGE_MARGIN_M,
+    SETTLE_ERROR_M,
     SETTLE_TIMEOUT_S,
     LanePhase,
     LanePlanner,
@@ -109,6 +110,54 @@ def test_a_plunge_waits_until_the_tip_has_arrived_above_the_soil() -> None:
     waited = _ticks_to_plunge(LanePlanner(LANE, 1e-3, 1.2, -0.03), first_order)
     assert waited > blind + 50  # the tip needs a few time constants to settle
     assert waited < blind + SETTLE_TIMEOUT_S * 1e3
+
+
+def test_feedback_that_stops_coming_is_not_a_tip_that_has_settled() -> None:
+    """The drives' answers stop for 15 ticks (a loaded bus or emulator) while the tip still
+    descends toward the landing, then arrive together: the plunge waits for the tip as if
+    every answer had come on time, never starts during the silence."""
+    def plunge_tick(stall_from: int | None) -> tuple[int, float]:
+        planner, tip, read = LanePlanner(LANE, 1e-3, 1.2, -0.03), [-0.03], [-0.03]
+        pending = 0
+        for k in range(100_000):
+            if planner.phase is LanePhase.PLUNGE:
+                return k, tip[0] - read[0]
+            tip[0] += (planner.depth_m - tip[0]) * 1e-3 / 0.03  # 30 ms behind
+            pending += 1
+            stalled = stall_from is not None and stall_from <= k < stall_from + 15
+            samples, pending = (0, pending) if stalled else (pending, 0)
+            if samples:
+                read[0] = tip[0]
+            planner.observe(planner.reach_m, read[0], samples)
+            planner.step()
+        raise AssertionError("no plunge")
+
+    on_time, _ = plunge_tick(None)
+    for stall_from in range(on_time - 120, on_time + 1, 5):
+        k, unseen_m = plunge_tick(stall_from)
+        assert k >= on_time - 1, stall_from
+        assert abs(unseen_m) < 1e-9  # a plunge never starts on a stale reading
+
+
+def test_a_tip_at_the_turning_point_of_an_overshoot_has_not_settled() -> None:
+    """An arm that overshoots the landing stands still at its turning point for longer
+    than the settle window, then swings back: the plunge (contact, F̂ re-anchored) waits
+    until it is still near its reference, so it does not enter contact at swing speed."""
+    omega, zeta = 2 * math.pi * 2.0, 0.3  # 2 Hz, underdamped: overshoots by a third
+    planner, tip, vel = LanePlanner(LANE, 1e-3, 1.2, -0.03), [-0.03], [0.0]
+    speeds = []
+    for _ in range(100_000):
+        if planner.phase is LanePhase.PLUNGE:
+            break
+        acc = -omega**2 * (tip[0] - planner.depth_m) - 2 * zeta * omega * vel[0]
+        vel[0] += acc * 1e-3
+        tip[0] += vel[0] * 1e-3
+        speeds.append(abs(vel[0]))
+        planner.observe(planner.reach_m, tip[0])
+        planner.step()
+    assert planner.phase is LanePhase.PLUNGE
+    assert abs(tip[0] - planner.depth_m) <= SETTLE_ERROR_M
+    assert max(speeds[-10:]) < 0.0075  # the swing has died down: F̂ ≲ 15 N at entry
 
 
 def test_a_tip_that_never_settles_delays_the_plunge_by_the_timeout_only() -> None:

@@ -299,6 +299,23 @@ def test_stale_cycles_count_syncs_without_a_tpdo1(bus: FakeBus, client: DriveCli
     assert client.stats.ticks == 4 and client.stats.syncs == 3
 
 
+def test_samples_count_the_syncs_both_drives_answered(bus: FakeBus, client: DriveClient
+                                                      ) -> None:
+    """The force estimate's history advances by the SYNCs answered, not by ticks: 0 while
+    a drive is late, 2 when its two answers come in one drain."""
+    answered = []
+    for r_frames, theta_frames in ((1, 1), (1, 0), (1, 2), (0, 0), (2, 1), (0, 1)):
+        client.sync()
+        for _ in range(r_frames):
+            bus.feed(*tpdo1(R_NODE, 1))
+        for _ in range(theta_frames):
+            bus.feed(*tpdo1(THETA_NODE, 1))
+        client.receive()
+        answered.append(client.feedback.samples)
+    assert answered == [1, 0, 2, 0, 1, 1]
+    assert sum(answered) == min(client.stats.tpdo_received)
+
+
 def test_a_late_tpdo1_is_counted_and_the_newest_wins(bus: FakeBus, client: DriveClient) -> None:
     client.sync()
     bus.feed(*tpdo1(R_NODE, 10))

@@ -70,7 +70,9 @@ def test_arm_jog_excavate_stop_against_the_ground_truth(tmp_path: Path) -> None:
                       depth_step_m=0.01, stroke_speed_m_per_s=0.05)
         final = bench.wait_for_state(["hold", "fault"], 120.0)
         assert final["state"] == "hold", final.get("fault")
-        assert final["excavation"]["done"] and final["excavation"]["object_found"] is None
+        excavation = final["excavation"]
+        assert excavation["done"] and excavation["object_found"] is None
+        assert not excavation["stopped_by_force"]  # a force-limit stop also ends in hold
         bench.request("disarm")
         bench.wait_for_state(["disarmed"], 5.0)
     assert _states(tmp_path) == ["DISARMED", "CHECKING", "ARMED", "JOG", "HOLD", "EXCAVATE",

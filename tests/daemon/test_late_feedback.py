@@ -1,0 +1,65 @@
+"""Drives that answer late: the daemon and the emulated drives in one process, lock-step
+(rakectl.bench.tick's rig), the emulator served only after a pause now and then, so the
+daemon reads the same feedback for several ticks and then several answers at once, as on
+a loaded bench (udp_multicast, an emulator process behind real time)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from rakectl.api.schema import decode_request
+from rakectl.bench.tick import LockstepRig
+from rakectl.config.settings import Settings
+from rakectl.daemon.handlers import make_handler
+from rakectl.daemon.states import DaemonState
+
+LANE = (b'{"cmd": "excavate", "reach_far_m": 1.25, "reach_near_m": 1.15, '
+        b'"target_depth_m": 0.01, "depth_step_m": 0.01}')
+
+
+def _command(rig: LockstepRig, line: bytes) -> dict[str, object]:
+    request = decode_request(line)
+    assert not isinstance(request, str), request
+    return make_handler(rig.daemon)(request)
+
+
+def test_a_lane_with_answers_15_ms_late_every_150_ms_is_raked_to_its_depth(
+        tmp_path: Path) -> None:
+    """Before the force estimate and the plunge's settle check counted sampling instants
+    (Feedback.samples) instead of ticks, this lane read F̂ up to 208 N in free space and
+    once ended at 5.9 mm by a force-limit stop reported as done; on time it reads 48 N."""
+    defaults = Settings()  # the emulated bench's patience with late feedback
+    defaults = dataclasses.replace(
+        defaults, drives=dataclasses.replace(defaults.drives, feedback_timeout_cycles=25))
+    rig = LockstepRig(tmp_path, defaults)
+    try:
+        rig.bring_up()
+        rig.until(DaemonState.DISARMED, 3000)
+        _command(rig, b'{"cmd": "arm"}')
+        rig.until(DaemonState.ARMED, 8000)
+        _command(rig, LANE)
+        daemon, truth = rig.daemon, rig.emulator.ground.truth
+        lowest_m = force_max_n = 0.0
+        for k in range(60_000):
+            if daemon.state is not DaemonState.EXCAVATE:
+                break
+            daemon.tick()
+            rig.now_s += daemon.dt_s
+            if k % 150 >= 15:  # silent for 15 ticks, then every answer at once
+                rig.emulator.service(0.0)
+            lowest_m = min(lowest_m, rig.emulator.plant.tine_m()[1])
+            force_max_n = max(force_max_n, truth.force_down_n)
+        status = _command(rig, b'{"cmd": "status"}')
+    finally:
+        rig.close()
+    assert daemon.state is DaemonState.HOLD, daemon.fault_reason
+    excavation = status["excavation"]
+    assert isinstance(excavation, dict)
+    assert excavation["done"] and not excavation["stopped_by_force"], excavation
+    assert excavation["depth_m"] == 0.01
+    assert lowest_m < -0.008  # the tines really went down to the lane's depth
+    assert daemon.f_hat_max_n < 120.0
+    assert force_max_n < 90.0
+    print(f"\nlate answers: F̂ max {daemon.f_hat_max_n:.1f} N, true {force_max_n:.1f} N, "
+          f"tines down to {1e3 * lowest_m:.1f} mm")
