@@ -10,7 +10,9 @@ in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.settings.Driv
 1. wait for a heartbeat or boot-up of the node (``boot_timeout_s``;
    :class:`~rakectl.errors.CommsTimeout` naming the node);
 2. NMT reset communication, and wait for its boot-up (the node is then
-   PRE-OPERATIONAL with the EDS defaults of its communication objects);
+   PRE-OPERATIONAL with the EDS defaults of its communication objects); sent
+   again, up to ``RESET_ATTEMPTS`` times, while no boot-up comes (either frame
+   may be lost);
 3. SDO read the identity 0x1018: vendor-ID and product code must be those of
    the drive type's EDS (``rakectl/protocol/eds/*.eds``, read with ``importlib.resources``),
    revision and serial number are recorded;
@@ -81,6 +83,7 @@ NOTIFIER_POLL_S = 0.02  # bring-up Notifier's recv timeout: how fast it stops
 NOTIFIER_JOIN_S = 2.0
 _T = TypeVar("_T")
 SDO_RETRIES = 3  # canopen repeats an unanswered SDO request this often at bring-up
+RESET_ATTEMPTS = 3  # NMT reset communication sent this often before a drive is silent
 
 
 class BringUp:
@@ -168,9 +171,15 @@ class BringUp:
 
     def _configure(self, joint: Joint) -> tuple[Identity, DriveLimits]:
         self._wait(self._heard[joint], joint, "no heartbeat or boot-up")
-        self._booted[joint].clear()
-        self._nmt(joint, NmtCommand.RESET_COMMUNICATION)
-        self._wait(self._booted[joint], joint, "no boot-up after NMT reset communication")
+        for attempt in range(1, RESET_ATTEMPTS + 1):  # a lossy bus may lose either frame
+            self._booted[joint].clear()
+            self._nmt(joint, NmtCommand.RESET_COMMUNICATION)
+            if self._booted[joint].wait(self._boot_timeout_s):
+                break
+            if attempt == RESET_ATTEMPTS:
+                raise CommsTimeout(f"{self._label(joint)}: no boot-up after NMT reset "
+                                   f"communication within {self._boot_timeout_s:g} s, "
+                                   f"{RESET_ATTEMPTS} times")
         identity = self._check_identity(joint)
         parameters = drive_parameters(joint, self._drives, self._motors)
         for p in parameters:
