@@ -126,8 +126,10 @@ class TickFigures:
 class LockstepRig:
     """Daemon and emulator on one fresh virtual channel, in lock-step."""
 
-    def __init__(self, directory: Path, defaults: Settings | None = None) -> None:
-        """``defaults``: the daemon's settings before the rig's own changes (tests)."""
+    def __init__(self, directory: Path, defaults: Settings | None = None,
+                 emulator: EmulatorConfig | None = None) -> None:
+        """``defaults``: the daemon's settings before the rig's own changes; ``emulator``:
+        the emulated robot (tests)."""
         defaults = Settings() if defaults is None else defaults
         # The emulator keeps lock-step time (1 ms per tick), so its drives' watchdogs do not
         # see the machine's stalls; the daemon stamps heartbeats with the wall clock, so
@@ -139,7 +141,8 @@ class LockstepRig:
         bus = BusSettings(interface=BusInterface.VIRTUAL, channel=f"tick-{uuid.uuid4().hex}")
         self.controller_bus = open_bus(bus, receive_ids(settings.drives))
         self.emulator_bus = open_bus(bus, ())
-        self.emulator = Emulator(EmulatorConfig(), self.emulator_bus, clock=self.clock,
+        self.emulator = Emulator(EmulatorConfig() if emulator is None else emulator,
+                                 self.emulator_bus, clock=self.clock,
                                  log=_SilentLog())
         client = DriveClient(self.controller_bus, settings.drives, settings.motors,
                              settings.rate_hz)

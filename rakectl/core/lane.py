@@ -136,10 +136,14 @@ class LanePlanner:
     def done(self) -> bool:
         return self.phase is LanePhase.DONE
 
-    def observe(self, reach_m: float, depth_m: float, samples: int = 1) -> None:
-        """The measured tip, once per tick (see :meth:`check_stall` and :meth:`_blocked`)."""
-        if not self.check_stall(reach_m, depth_m, samples):
-            self._blocked(reach_m, depth_m)
+    def observe(self, reach_m: float, depth_m: float, samples: int = 1) -> bool:
+        """The measured tip, once per tick (see :meth:`check_stall` and :meth:`_blocked`);
+        True at the tick a rigid object is found."""
+        if self.check_stall(reach_m, depth_m, samples):
+            return True
+        unknown = self.found_at is None
+        self._blocked(reach_m, depth_m)
+        return unknown and self.found_at is not None
 
     def _blocked(self, reach_m: float, depth_m: float) -> None:
         """Outside a stroke, a reference that has waited for a tip that does not come (see

@@ -45,8 +45,9 @@ class Reference(Protocol):
     @property
     def done(self) -> bool: ...
 
-    def observe(self, reach_m: float, depth_m: float) -> None:
-        """The measured tip after the tick (a lane planner detects stalls with it)."""
+    def observe(self, reach_m: float, depth_m: float) -> object:
+        """The measured tip after the tick (a lane planner detects stalls with it; what it
+        returns is not used here)."""
         ...
 
     def step(self) -> None: ...

@@ -1,13 +1,16 @@
-"""Drives that answer late: the daemon and the emulated drives in one process, lock-step
-(rakectl.bench.tick's rig), the emulator served only after a pause now and then, so the
-daemon reads the same feedback for several ticks and then several answers at once, as on
-a loaded bench (udp_multicast, an emulator process behind real time)."""
+"""The daemon raking a lane with the emulated drives in one process, lock-step
+(rakectl.bench.tick's rig): drives that answer late (the emulator served only after a
+pause now and then, so the daemon reads the same feedback for several ticks and then
+several answers at once, as on a loaded bench), and a stone under the plunge."""
 
 from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
 
+import pytest
+
+from drivers.cli import load_config
 from rakectl.api.schema import decode_request
 from rakectl.bench.tick import LockstepRig
 from rakectl.config.settings import Settings
@@ -63,3 +66,37 @@ def test_a_lane_with_answers_15_ms_late_every_150_ms_is_raked_to_its_depth(
     assert force_max_n < 90.0
     print(f"\nlate answers: F̂ max {daemon.f_hat_max_n:.1f} N, true {force_max_n:.1f} N, "
           f"tines down to {1e3 * lowest_m:.1f} mm")
+
+
+def test_a_plunge_onto_a_stone_ends_the_lane_with_the_object_found(tmp_path: Path) -> None:
+    """The plunge's reference waits for a tine that can go no deeper (lane._blocked): the
+    daemon, like the simulations, ends the lane there with the object found (before, it
+    watched only strokes, and the lane waited above the stone for ever)."""
+    stone = ["physics.ground.objects.stones=[{reach_m: 1.25, depth_m: 0.002, "
+             "width_m: 0.2, thickness_m: 0.1}]"]  # 28 mm of the mount's travel: 140 N
+    rig = LockstepRig(tmp_path, emulator=load_config(None, stone))
+    try:
+        rig.bring_up()
+        rig.until(DaemonState.DISARMED, 3000)
+        _command(rig, b'{"cmd": "arm"}')
+        rig.until(DaemonState.ARMED, 8000)
+        _command(rig, b'{"cmd": "excavate", "reach_far_m": 1.25, "reach_near_m": 1.15, '
+                      b'"target_depth_m": 0.03, "depth_step_m": 0.03}')
+        daemon, truth = rig.daemon, rig.emulator.ground.truth
+        force_max_n = 0.0
+        for _ in range(30_000):
+            if daemon.state is not DaemonState.EXCAVATE:
+                break
+            rig.tick()
+            force_max_n = max(force_max_n, truth.force_down_n)
+        status = _command(rig, b'{"cmd": "status"}')
+    finally:
+        rig.close()
+    assert daemon.state is DaemonState.HOLD, daemon.state
+    excavation = status["excavation"]
+    assert isinstance(excavation, dict)
+    found = excavation["object_found"]
+    assert isinstance(found, dict), excavation
+    assert found["reach_m"] == pytest.approx(1.25, abs=0.01)
+    assert 0.0 <= found["depth_m"] < 0.03  # the arm's depth: the stone's top and the mount's
+    assert force_max_n < 90.0
