@@ -5,12 +5,15 @@ several answers at once, as on a loaded bench), and a stone under the plunge."""
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from drivers.cli import load_config
+from drivers.settings import EmulatorConfig
 from rakectl.api.schema import decode_request
 from rakectl.bench.tick import LockstepRig
 from rakectl.config.settings import Settings
@@ -27,6 +30,22 @@ def _command(rig: LockstepRig, line: bytes) -> dict[str, object]:
     return make_handler(rig.daemon)(request)
 
 
+@contextlib.contextmanager
+def _raking(tmp_path: Path, lane: bytes, defaults: Settings | None = None,
+            emulator: EmulatorConfig | None = None) -> Iterator[LockstepRig]:
+    """A lock-step rig brought up, armed through the weight check, the lane started."""
+    rig = LockstepRig(tmp_path, defaults, emulator)
+    try:
+        rig.bring_up()
+        rig.until(DaemonState.DISARMED, 3000)
+        _command(rig, b'{"cmd": "arm"}')
+        rig.until(DaemonState.ARMED, 8000)
+        _command(rig, lane)
+        yield rig
+    finally:
+        rig.close()
+
+
 def test_a_lane_with_answers_15_ms_late_every_150_ms_is_raked_to_its_depth(
         tmp_path: Path) -> None:
     """Before the force estimate and the plunge's settle check counted sampling instants
@@ -35,13 +54,7 @@ def test_a_lane_with_answers_15_ms_late_every_150_ms_is_raked_to_its_depth(
     defaults = Settings()  # the emulated bench's patience with late feedback
     defaults = dataclasses.replace(
         defaults, drives=dataclasses.replace(defaults.drives, feedback_timeout_cycles=25))
-    rig = LockstepRig(tmp_path, defaults)
-    try:
-        rig.bring_up()
-        rig.until(DaemonState.DISARMED, 3000)
-        _command(rig, b'{"cmd": "arm"}')
-        rig.until(DaemonState.ARMED, 8000)
-        _command(rig, LANE)
+    with _raking(tmp_path, LANE, defaults) as rig:
         daemon, truth = rig.daemon, rig.emulator.ground.truth
         lowest_m = force_max_n = 0.0
         for k in range(60_000):
@@ -54,8 +67,6 @@ def test_a_lane_with_answers_15_ms_late_every_150_ms_is_raked_to_its_depth(
             lowest_m = min(lowest_m, rig.emulator.plant.tine_m()[1])
             force_max_n = max(force_max_n, truth.force_down_n)
         status = _command(rig, b'{"cmd": "status"}')
-    finally:
-        rig.close()
     assert daemon.state is DaemonState.HOLD, daemon.fault_reason
     excavation = status["excavation"]
     assert isinstance(excavation, dict)
@@ -74,14 +85,9 @@ def test_a_plunge_onto_a_stone_ends_the_lane_with_the_object_found(tmp_path: Pat
     watched only strokes, and the lane waited above the stone for ever)."""
     stone = ["physics.ground.objects.stones=[{reach_m: 1.25, depth_m: 0.002, "
              "width_m: 0.2, thickness_m: 0.1}]"]  # 28 mm of the mount's travel: 140 N
-    rig = LockstepRig(tmp_path, emulator=load_config(None, stone))
-    try:
-        rig.bring_up()
-        rig.until(DaemonState.DISARMED, 3000)
-        _command(rig, b'{"cmd": "arm"}')
-        rig.until(DaemonState.ARMED, 8000)
-        _command(rig, b'{"cmd": "excavate", "reach_far_m": 1.25, "reach_near_m": 1.15, '
-                      b'"target_depth_m": 0.03, "depth_step_m": 0.03}')
+    lane = (b'{"cmd": "excavate", "reach_far_m": 1.25, "reach_near_m": 1.15, '
+            b'"target_depth_m": 0.03, "depth_step_m": 0.03}')
+    with _raking(tmp_path, lane, emulator=load_config(None, stone)) as rig:
         daemon, truth = rig.daemon, rig.emulator.ground.truth
         force_max_n = 0.0
         for _ in range(30_000):
@@ -90,8 +96,6 @@ def test_a_plunge_onto_a_stone_ends_the_lane_with_the_object_found(tmp_path: Pat
             rig.tick()
             force_max_n = max(force_max_n, truth.force_down_n)
         status = _command(rig, b'{"cmd": "status"}')
-    finally:
-        rig.close()
     assert daemon.state is DaemonState.HOLD, daemon.state
     excavation = status["excavation"]
     assert isinstance(excavation, dict)
