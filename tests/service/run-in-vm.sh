@@ -43,8 +43,11 @@ say() { echo "service: $*"; }
 SCRATCH=""
 cleanup() {
     [ -n "$SCRATCH" ] || return 0
-    mountpoint -q "$SCRATCH/root" && umount "$SCRATCH/root"
-    rm -rf "$SCRATCH"
+    if mountpoint -q "$SCRATCH/root"; then  # busy for a moment after a killed qemu
+        umount "$SCRATCH/root" 2>/dev/null || { sleep 2; umount "$SCRATCH/root"; } \
+            || umount -l "$SCRATCH/root"
+    fi
+    rm -rf --one-file-system "$SCRATCH"  # never through the overlay of /
 }
 
 build_wheels() {  # rakectl's wheel and its dependencies', for the VM's offline pip
@@ -64,6 +67,10 @@ guest_view() {  # the overlay the VM boots on, and what the VM finds in it
     install -m 0755 "$ROOT/tests/service/hil-init" "$root/sbin/init.hil"
     ln -sf init.hil "$root/sbin/init"
     : >"$root/etc/fstab"  # this machine's own file systems are not the VM's
+    # systemd-tmpfiles empties /tmp at boot (tmp.conf: D /tmp): a checkout under /tmp
+    # vanished from the VM's view (the host's files stay: the overlay takes the removal)
+    mkdir -p "$root/etc/tmpfiles.d"
+    ln -sf /dev/null "$root/etc/tmpfiles.d/tmp.conf"
     # WatchdogSec 5 s instead of 1 s: emulated ~50x slower, the loop once stalled for
     # over 1 s as an excavation started and was killed mid-flow (what the drop-in does
     # not change: a stalled loop is still killed and restarted, test 4)
@@ -79,15 +86,15 @@ After=multi-user.target
 Type=oneshot
 StandardOutput=journal+console
 StandardError=journal+console
-WorkingDirectory=$ROOT
 Environment=RAKECTL_SERVICE_VM=1 SERVICE_RESULTS=$RESULTS SERVICE_WHEELS=$SCRATCH/wheels
 Environment=PYTHONUNBUFFERED=1 PYTHONDONTWRITEBYTECODE=1 LANG=C.UTF-8 HOME=/root
 # TMPDIR on a tmpfs: 9p cannot fstat a file once unlinked (pytest's capture does)
 RuntimeDirectory=hil-tmp
 Environment=TMPDIR=/run/hil-tmp
-ExecStart=/bin/sh -c '$PY -m pytest -m service -v -rA -p no:cacheprovider \\
-    -p no:hypothesispytest --durations=0 --junitxml=$RESULTS/junit.xml tests/service; \\
-    echo \$\$? >$RESULTS/exit-code; sync'
+# cd, not WorkingDirectory: without the checkout the unit must still power off
+ExecStart=/bin/sh -c 'cd $ROOT || exit 1; $PY -m pytest -m service -v -rA \\
+    -p no:cacheprovider -p no:hypothesispytest --durations=0 \\
+    --junitxml=$RESULTS/junit.xml tests/service; echo \$\$? >$RESULTS/exit-code; sync'
 ExecStopPost=/bin/systemctl poweroff --no-block
 TimeoutStartSec=infinity
 EOF
