@@ -124,29 +124,35 @@ class DelayForceEstimator:
     def step(self, x_m: float, samples: int = 1) -> float:
         """Record the measured position ``x_m``, ``samples`` sampling instants after the
         last one recorded, and return F̂ in N (held when ``samples`` is 0)."""
-        if samples == 1:  # the common case: one SYNC answered per tick
-            return self._record(x_m)
         if samples <= 0:
             return self.f_hat_n
-        last = self._ring[self._index]
-        gap = min(samples, self._size)
-        for k in range(1, gap):
-            self._record(last + (x_m - last) * k / gap)
-        return self._record(x_m)
-
-    def _record(self, x_m: float) -> float:
-        i = self._index + 1
-        if i == self._size:
-            i = 0
-        self._index = i
         ring = self._ring
-        ring[i] = x_m
-        j = i - self._delay_ticks
-        x_e = ring[j]  # negative j wraps around the ring
+        if samples == 1:  # the common case: one SYNC answered per tick
+            i = self._index + 1
+            if i == self._size:
+                i = 0
+            ring[i] = x_m
+        else:
+            i = record_samples(ring, self._index, x_m, samples)
+        self._index = i
+        x_e = ring[i - self._delay_ticks]  # a negative index wraps around the ring
         self.x_e_m = x_e
         f_hat = self.stiffness_n_per_m * (x_m - x_e) if x_m > x_e else 0.0
         self.f_hat_n = f_hat
         return f_hat
+
+
+def record_samples(ring: list[float], index: int, x: float, samples: int) -> int:
+    """Write ``samples`` values into ``ring`` after position ``index``: the sampling
+    instants skipped on the straight line from ``ring[index]`` to ``x``, then ``x`` (only
+    ``x`` when ``ring[index]`` is NaN: nothing recorded yet). Returns ``x``'s position.
+    Shared by the force estimate's history and the lane's settle window."""
+    size, last = len(ring), ring[index]
+    gap = min(samples, size) if last == last else 1  # last != last: NaN
+    for k in range(1, gap + 1):
+        index = index + 1 if index + 1 < size else 0
+        ring[index] = last + (x - last) * k / gap if k < gap else x
+    return index
 
 
 class ImpedanceController:

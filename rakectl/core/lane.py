@@ -33,6 +33,7 @@ import math
 from rakectl.config.settings import LaneSettings
 from rakectl.core.cut_profile import FLOOR_TOLERANCE_M, CutProfile
 from rakectl.core.governor import StrokeGovernor
+from rakectl.core.impedance import record_samples
 
 # Free-space descent stops this far above the previous cycle's floor; the rest
 # of the way down is at plunge speed.
@@ -178,7 +179,9 @@ class LanePlanner:
         sampling instant is also kept to see the tip settle before a plunge: ``samples``
         is how many the measurement advanced (rakectl.drive.health.Feedback.samples; 0, a
         late answer, adds none: a drive answering late is not a tip standing still)."""
-        self._keep_depth(depth_m, samples)
+        if samples > 0:
+            self._tip_index = record_samples(self._tip_depths, self._tip_index, depth_m,
+                                             samples)
         self._tip_reach_m, self._tip_depth_m, self._observed = reach_m, depth_m, True
         if self.phase is not LanePhase.STROKE or self.found_at is not None:
             self.lag_m = self.rise_m = 0.0
@@ -194,16 +197,6 @@ class LanePlanner:
         self.speed_m_per_s = 0.0
         self.phase = LanePhase.LIFT
         return True
-
-    def _keep_depth(self, depth_m: float, samples: int) -> None:
-        """Into the settle ring: ``samples`` depths on the line from the last to this one."""
-        depths, last = self._tip_depths, self._tip_depths[self._tip_index]
-        gap = samples if samples < SETTLE_TICKS else SETTLE_TICKS
-        if math.isnan(last):
-            gap = 1 if samples > 0 else 0
-        for k in range(1, gap + 1):
-            self._tip_index = (self._tip_index + 1) % SETTLE_TICKS
-            depths[self._tip_index] = last + (depth_m - last) * k / gap if k < gap else depth_m
 
     def _stalled(self, reach_m: float) -> bool:
         """Whether the reference has waited STALL_WAIT_S for a tip that did not advance."""

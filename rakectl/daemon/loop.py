@@ -241,7 +241,7 @@ class Daemon(SlackWork):
             self._back_off()
         planner = self.planner
         if planner is not None and self.state is DaemonState.EXCAVATE:
-            if planner.observe(c.reach_m, c.depth_m, self.client.feedback.samples):
+            if planner.observe(c.reach_m, c.depth_m, fb.samples):
                 self.event("object_found", reach_m=c.reach_m, depth_m=c.depth_m)
             sup = self.supervisor  # an adaptive stroke follows the larger estimate
             planner.govern(max(c.f_hat_n, sup.f_current_n), sup.caution_n)
