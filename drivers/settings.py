@@ -6,8 +6,8 @@ import enum
 from dataclasses import dataclass
 
 from drivers.arm import DEFAULT_SUBSTEP_S
+from drivers.ground_params import GroundParams
 from drivers.mechanics import ArmParams
-from drivers.objects import GroundParams
 from rakectl.config.declare import section, setting
 from rakectl.config.service import BusSettings
 from rakectl.config.settings import GeometrySettings

@@ -57,7 +57,7 @@ def objects_of(emulator_config: Path | None) -> list[Any]:
 
 
 def boxes(objects: Any) -> list[Any]:
-    """drivers.objects.BuriedObjects as the viewer draws them."""
+    """drivers.ground_params.BuriedObjects as the viewer draws them."""
     from rakectl.view.topics import Box
 
     return ([Box(m.reach_m, m.depth_m, m.width_m, m.thickness_m, "mine")

@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.objects import BuriedObjects, GroundParams, MineParams, RootParams, StoneParams
+from drivers.ground_params import BuriedObjects, GroundParams, MineParams, RootParams, StoneParams
 from drivers.soil import SoilLayer, SoilParams, SurfaceWave, original_surface_height_m
 
 PLUNGE_END_DEPTH_M = 0.15

@@ -9,16 +9,8 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from drivers.objects import (
-    Body,
-    BuriedObjects,
-    Contact,
-    Ground,
-    GroundParams,
-    MineParams,
-    RootParams,
-    StoneParams,
-)
+from drivers.ground_params import BuriedObjects, GroundParams, MineParams, RootParams, StoneParams
+from drivers.objects import Body, Contact, Ground
 from drivers.soil import SoilLayer, SoilParams
 from rakectl.errors import NonFiniteError
 

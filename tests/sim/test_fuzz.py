@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from drivers.objects import BuriedObjects, GroundParams, MineParams, StoneParams
+from drivers.ground_params import BuriedObjects, GroundParams, MineParams, StoneParams
 from drivers.soil import SoilLayer, SoilParams
 from rakectl.cli import fuzz as fuzz_cli
 from rakectl.core.clamp import VoltageClamp

@@ -15,7 +15,8 @@ import dataclasses
 
 import pytest
 
-from drivers.objects import BuriedObjects, Contact, GroundParams, MineParams
+from drivers.ground_params import BuriedObjects, GroundParams, MineParams
+from drivers.objects import Contact
 from drivers.soil import SoilLayer, SoilParams
 from rakectl.core.clamp import VoltageClamp
 from rakectl.limits import FORCE_LIMIT_N
