@@ -58,8 +58,11 @@ class DrivesSettings:
     theta_node_id: int = setting(2, "Node-ID of the θ (geared-motor) drive.", ge=1, le=127)
     controller_node_id: int = setting(10, "Node-ID of the controller's heartbeat.", ge=1, le=127)
     watchdog_timeout_ms: int = setting(
-        20, "Drive command watchdog: no RPDO or SYNC this long → 0 V, quick stop, fault.",
-        unit="ms", ge=2, le=1000)
+        3, "Drive command watchdog: no RPDO or SYNC this long → 0 V, quick stop, fault. The "
+        "last command of a stalled or dead controller (or the one a lost command leaves) "
+        "acts this long: clamp.reaction_latency_s must cover it plus one loop period, or "
+        "the voltage clamp's bound does not hold while it does (with daemon.rt_mode "
+        "enforce, arming is refused; otherwise the daemon warns).", unit="ms", ge=2, le=1000)
     heartbeat_period_ms: int = setting(100, "Heartbeat period of every node.", unit="ms",
                                        ge=10, le=1000)
     heartbeat_timeout_ms: int = setting(250, "Heartbeat silence that counts as a lost node.",

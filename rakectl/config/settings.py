@@ -260,8 +260,12 @@ class ClampSettings:
         7.5, "Damping in parallel with the horizontal stiffness (the mount's).", unit="N·s/m",
         ge=0, le=1e6)
     reaction_latency_s: float = setting(
-        0.002, "Time from a velocity measurement until the voltage chosen from it acts (the "
-        "bus's one-tick delay and a tick of sampling).", unit="s", ge=0, le=0.1)
+        0.004, "Longest time from a velocity measurement until the voltage chosen from it "
+        "stops acting: the drives hold a command until the next one arrives or, when none "
+        "does (a stalled or dead controller, a lost command), until their command watchdog "
+        "(drives.watchdog_timeout_ms) ends it, and the measurement is up to one loop period "
+        "old. So at least drives.watchdog_timeout_ms plus one period (the robot: 3 + 1 ms).",
+        unit="s", ge=0, le=0.1)
 
 
 @dataclass(frozen=True)
@@ -305,6 +309,22 @@ class Settings:
     def cross_checks(self) -> list[tuple[str, str]]:
         """Constraints between options: (dotted key, message) for each violation."""
         return cross_checks(self)
+
+
+def held_command_gap(s: Settings) -> str:
+    """Why the voltage clamp's bound does not cover the command the drives hold when the
+    controller falls silent, or "" (pure). The drives apply a command until the next one
+    or, without one, until their watchdog: up to ``drives.watchdog_timeout_ms`` after it
+    arrived, one loop period after the measurement it was chosen from. The clamp's
+    budget carries ``clamp.reaction_latency_s`` of that (rakectl.core.envelope)."""
+    needed_s = s.drives.watchdog_timeout_ms * 1e-3 + 1.0 / s.rate_hz
+    carried_s = s.clamp.reaction_latency_s
+    if carried_s >= needed_s - 1e-12:
+        return ""
+    return (f"clamp.reaction_latency_s ({carried_s * 1e3:g} ms) does not cover the command "
+            f"the drives hold after the controller falls silent: drives.watchdog_timeout_ms "
+            f"({s.drives.watchdog_timeout_ms} ms) plus one loop period "
+            f"({1e3 / s.rate_hz:g} ms) = {needed_s * 1e3:g} ms")
 
 
 def cross_checks(s: Settings) -> list[tuple[str, str]]:

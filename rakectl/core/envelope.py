@@ -60,7 +60,17 @@ stiffer vertically than sideways would cut the side budgets by √10, to about
 v_u is the measured speed along u, plus its uncertainty (the joints'
 velocity margins through g_u), plus what a push of F_u ≤ F_L/2 adds during the
 reaction latency (F_L/2 /m_u · t); only approach counts (a tip moving away is
-judged again each tick, before it can come back). Since F_u(P̂) = |P| for a push
+judged again each tick, before it can come back). The latency,
+``clamp.reaction_latency_s``, is the longest a voltage can act after the
+motion it was judged on: the drives hold it until the next command or, when
+none comes (a stalled or dead controller, lost commands), until their
+watchdog, so the watchdog plus one period (3 + 1 ms on the robot;
+``rakectl.config.settings.held_command_gap`` names a configuration short of
+it). Left out: a contact met within the latency slows the tip, and a motor
+at a held voltage then pushes harder by its electrical damping times that
+slowing; through the mount the slowing is at most v·(k t²/2 + c t)/m_u,
+≈ 2.3 N of push at 4 ms at the fastest approach straight down, inside the
+model margin (docs/safety.md). Since F_u(P̂) = |P| for a push
 P, the budget also bounds a press held afterwards: F_L/2 in every direction at rest.
 
 Every direction, sampled. Since F_u = (uᵀ w)/(uᵀ A u), with A = J M⁻¹ Jᵀ and

@@ -18,8 +18,8 @@ QUEUE_LENGTH = 256  # events kept while the slack is too short to write them (ol
 LOG_EVERY_S = 1.0  # a rate-limited event is written at most this often
 
 
-WARNINGS = frozenset({"arm_refused", "timing_warning", "recorder_dump_failed", "reset_failed",
-                      "force_limit", "object_found"})
+WARNINGS = frozenset({"arm_refused", "timing_warning", "clamp_warning", "recorder_dump_failed",
+                      "reset_failed", "force_limit", "object_found"})
 ERROR_STATES = frozenset({"FAULT", "ESTOP"})
 
 

@@ -15,6 +15,7 @@ from typing import Any
 
 from rakectl.api.schema import ApiCommand, JogSpace, Request
 from rakectl.config.service import RtModeSetting
+from rakectl.config.settings import held_command_gap
 from rakectl.core import kinematics
 from rakectl.core.jog import Jog, JogFrame
 from rakectl.core.lane import LanePlanner
@@ -167,6 +168,21 @@ def _check_timing(daemon: Daemon) -> None:
     daemon.event("timing_warning", reason=verdict)
 
 
+def _check_held_command(daemon: Daemon) -> None:
+    """The clamp's bound against the drives' watchdog, judged before arming: with rt_mode
+    enforce (the robot) a configuration whose clamp does not carry the command the drives
+    hold after the controller falls silent is not armed; otherwise it is logged."""
+    if next_state(daemon.state, Event.ARM) is None:
+        return  # refused below, naming the state
+    gap = held_command_gap(daemon.settings)
+    if not gap:
+        return
+    if daemon.settings.daemon.rt_mode is RtModeSetting.ENFORCE:
+        daemon.event("arm_refused", reason=gap)
+        raise CommandRejected(f"cannot arm: {gap} (daemon.rt_mode: enforce)")
+    daemon.event("clamp_warning", reason=gap)
+
+
 def _simple(daemon: Daemon, event: Event, what: str, action: Callable[[], None]) -> Reply:
     _require(daemon, event, what)
     action()
@@ -187,6 +203,7 @@ def make_handler(daemon: Daemon) -> Callable[[Request], Reply]:
             if implausible and next_state(daemon.state, Event.ARM) is not None:
                 raise CommandRejected(f"cannot arm: {implausible}")
             _check_timing(daemon)
+            _check_held_command(daemon)
             return _simple(daemon, Event.ARM, "arm", daemon.arm)
         if cmd is ApiCommand.DISARM:
             return _simple(daemon, Event.DISARM, "disarm", daemon.disarm)

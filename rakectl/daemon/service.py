@@ -24,7 +24,7 @@ from rakectl.api.client import socket_path
 from rakectl.api.server import CommandServer
 from rakectl.config.loader import load_settings
 from rakectl.config.service import DaemonSettings
-from rakectl.config.settings import Settings
+from rakectl.config.settings import Settings, held_command_gap
 from rakectl.daemon.cyclictest import run_cyclictest
 from rakectl.daemon.handlers import make_handler
 from rakectl.daemon.loop import Daemon
@@ -109,6 +109,9 @@ def run(config: Path | None, overrides: list[str]) -> int:
         daemon.slack_hook = server.poll
         log.info("started", socket=str(path), rt=str(report.mode.value),
                  bus=f"{settings.bus.interface}:{settings.bus.channel}", priority=report.priority)
+        gap = held_command_gap(settings)
+        if gap:
+            log.warning("clamp_warning", reason=gap)
         freeze_gc()
         gc.disable()  # no collection in the loop: the slack collects young generations
         daemon.run()

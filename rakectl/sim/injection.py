@@ -8,9 +8,10 @@ backs off to; a lane or a stroke is the daemon's own planner
 
 Faults as the robot would meet them: lost feedback (the controller keeps the
 previous measurement), a lost command (the drive applies the previous voltages
-again), a drive fault episode (both motors at 0 V for its length), a controller
-stall and a SIGKILL (no tick runs: the drives apply the last command until their
-command watchdog, ``drives.watchdog_timeout_ms``, expires, then 0 V, latched). A
+again, and its watchdog counts the silence), a drive fault episode (both motors
+at 0 V for its length), a controller stall and a SIGKILL (no tick runs: the
+drives apply the last command until their command watchdog,
+``drives.watchdog_timeout_ms``, expires, then 0 V, latched). A
 latched drive fault or a controller fault (as the daemon's: a non-finite number,
 an infeasible clamp) leaves both motors at 0 V for :data:`~rakectl.sim.campaign.AFTER_FAULT_S` more,
 the rake falling onto whatever is below it; that is judged too.
@@ -164,12 +165,13 @@ class FaultyRakeLoop(RakeLoop):
         if self.latched or self.fault:
             applied = (0.0, 0.0)
         self.arm.step(applied[0], applied[1], self.contact, self.dt_s)
-        if not runs:  # no command this tick: the drive's watchdog counts
+        lost = runs and self._armed and self._rng.uniform() < f.command_loss_probability
+        if lost:
+            self.commands_lost += 1  # the drive keeps applying the previous voltages
+        if not runs or lost:  # no command this tick: the drive's watchdog counts
             self._silent_ticks += 1
             if self._silent_ticks >= self._watchdog_ticks and not self.latched:
                 self.latched = self.watchdog_tripped = True
-        elif self._armed and self._rng.uniform() < f.command_loss_probability:
-            self.commands_lost += 1  # the drive keeps applying the previous voltages
         else:
             self._pending_v, self._silent_ticks = voltages, 0
         if self._armed:

@@ -51,9 +51,10 @@ def test_a_lane_with_answers_15_ms_late_every_150_ms_is_raked_to_its_depth(
     """Before the force estimate and the plunge's settle check counted sampling instants
     (Feedback.samples) instead of ticks, this lane read F̂ up to 208 N in free space and
     once ended at 5.9 mm by a force-limit stop reported as done; on time it reads 48 N."""
-    defaults = Settings()  # the emulated bench's patience with late feedback
+    defaults = Settings()  # the emulated bench's patience with late feedback and commands
     defaults = dataclasses.replace(
-        defaults, drives=dataclasses.replace(defaults.drives, feedback_timeout_cycles=25))
+        defaults, drives=dataclasses.replace(defaults.drives, feedback_timeout_cycles=25,
+                                             watchdog_timeout_ms=100))
     with _raking(tmp_path, LANE, defaults) as rig:
         daemon, truth = rig.daemon, rig.emulator.ground.truth
         lowest_m = force_max_n = 0.0

@@ -713,7 +713,7 @@ def test_a_read_back_mismatch_names_object_written_and_read(
     with pytest.raises(DriveFault) as raised:
         _announce_and_run(make_bring_up(network), fake_drives)
     assert str(raised.value) == ("θ drive (node 2): read-back mismatch: 0x2003 watchdog "
-                                 "timeout: wrote 20 ms, read 15 ms")
+                                 "timeout: wrote 3 ms, read 15 ms")
 
 
 def test_an_sdo_abort_is_one_line_raised_from_the_abort(
@@ -727,7 +727,7 @@ def test_an_sdo_abort_is_one_line_raised_from_the_abort(
     with pytest.raises(DriveFault) as raised:
         _announce_and_run(make_bring_up(network), fake_drives)
     assert str(raised.value) == ("r drive (node 1): SDO abort 0x06090030 writing 0x2003 watchdog "
-                                 "timeout = 20 ms: Value range of parameter exceeded")
+                                 "timeout = 3 ms: Value range of parameter exceeded")
     assert isinstance(raised.value.__cause__, SdoAbortedError)
 
 
