@@ -71,9 +71,11 @@ def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], i
     files.add_argument("--copy", type=Path, metavar="DIR", help="copy config/ and systemd/ "
                        "into DIR (refused if DIR already holds them)")
     _add_bench(sub)
+    from rakectl.cli import drives as cli_drives
     from rakectl.cli import view as cli_view
 
     cli_view.add_parsers(sub)
+    cli_drives.add_parser(sub)
     return parser, ops
 
 
@@ -271,6 +273,12 @@ def _cmd_mcap(args: argparse.Namespace) -> int:
     return cmd_mcap(args)
 
 
+def _cmd_drives(args: argparse.Namespace) -> int:
+    from rakectl.cli.drives import cmd_drives
+
+    return cmd_drives(args)
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from rakectl.daemon.service import run
 
@@ -288,7 +296,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "simulate": _cmd_simulate, "config-docs": _cmd_config_docs, "bench": _cmd_bench,
         "api-docs": _cmd_api_docs,
         "run": _cmd_run, "emulator": _cmd_emulator, "demo": _cmd_demo, "files": _cmd_files,
-        "fuzz": _cmd_fuzz, "view": _cmd_view, "mcap": _cmd_mcap}
+        "fuzz": _cmd_fuzz, "view": _cmd_view, "mcap": _cmd_mcap, "drives": _cmd_drives}
     try:
         parser, ops = _build_parser()
         args, extra = parser.parse_known_args(argv)

@@ -23,7 +23,13 @@ in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.settings.Driv
    consumer heartbeat of the controller (``controller_node_id << 16 | heartbeat_timeout_ms``)
    and 0x1019 SYNC counter overflow (``drives.sync_counter_overflow``);
    a value outside the EDS's data type or limits is a ConfigError before anything is sent;
-5. SDO read every one of them back and compare.
+5. SDO read every one of them back and compare;
+6. SDO read the device name 0x1008 and every PDO's communication and mapping
+   parameters the EDS declares (0x1400 + n and 0x1600 + n, 0x1800 + n and
+   0x1A00 + n): COB-ID, transmission type and each mapped entry must be the
+   EDS's, because the hot path's codecs decode that layout. Reset
+   communication restores a drive's *stored* values, so a drive whose mapping
+   was changed and saved by another tool is refused here, naming the object.
 
 Then a drive still in FAULT from the previous run (it lost that run's
 heartbeat) is fault-reset over SDO (controlword 0x6040: 0, 0x80, 0), now that
@@ -36,9 +42,9 @@ once the controller's heartbeat (first sent with the first SYNC) stops.
 
 Every failure is one line naming the drive, e.g.
 ``DriveFault("r drive (node 1): wrong identity: product code 2, expected 1 (dc_servo_drive.eds)")``,
-``DriveFault("θ drive (node 2): read-back mismatch: 0x2003 watchdog timeout: wrote 20 ms,
+``DriveFault("θ drive (node 2): read-back mismatch: 0x2003 watchdog timeout: wrote 3 ms,
 read 15 ms")``, ``DriveFault("r drive (node 1): SDO abort 0x06090030 writing 0x2003
-watchdog timeout = 20 ms: Value range of parameter exceeded")``
+watchdog timeout = 3 ms: Value range of parameter exceeded")``
 (raised ``from`` the canopen error), ``CommsTimeout`` when a node or an SDO
 answer does not come. The power stage is NOT enabled here: that is the
 controlword sent cyclically in RPDO1 (:meth:`DriveClient.command`), and the
@@ -66,6 +72,7 @@ from rakectl.drive.joints import (
     Identity,
     Joint,
     Parameter,
+    PdoReading,
     allowed_range,
     drive_label,
     drive_parameters,
@@ -84,6 +91,7 @@ NOTIFIER_JOIN_S = 2.0
 _T = TypeVar("_T")
 SDO_RETRIES = 3  # canopen repeats an unanswered SDO request this often at bring-up
 RESET_ATTEMPTS = 3  # NMT reset communication sent this often before a drive is silent
+PDO_SLOTS = 512  # CiA 301: RPDO and TPDO communication parameters 0x1400/0x1800 + 0 … 511
 
 
 class BringUp:
@@ -128,17 +136,19 @@ class BringUp:
             self._network.unsubscribe(cob_id(FunctionCode.HEARTBEAT, node_id), self._on_heartbeat)
             del self._network[node_id]
 
-    def run(self) -> tuple[DriveInfo, DriveInfo]:
-        """Configure and verify both drives, read their statusword, start them (OPERATIONAL)."""
+    def run(self, start: bool = True) -> tuple[DriveInfo, DriveInfo]:
+        """Configure and verify both drives, read their statusword, start them (OPERATIONAL);
+        ``start=False`` (a dry run, ``rakectl drives``) leaves them PRE-OPERATIONAL."""
         configured = [self._configure(joint) for joint in JOINTS]
         cleared = [self._clear_old_fault(joint) for joint in JOINTS]
         statuswords = [self._read(joint, 0x6041, 0, "statusword") for joint in JOINTS]
-        for joint in JOINTS:
-            self._nmt(joint, NmtCommand.START)
+        if start:
+            for joint in JOINTS:
+                self._nmt(joint, NmtCommand.START)
         r_info, theta_info = (
             DriveInfo(joint, self._node_id[joint], identity, limits, statusword,
-                      self._state_of(joint, statusword), code)
-            for joint, (identity, limits), statusword, code in zip(
+                      self._state_of(joint, statusword), code, name, pdos)
+            for joint, (identity, limits, name, pdos), statusword, code in zip(
                 JOINTS, configured, statuswords, cleared, strict=True))
         return r_info, theta_info
 
@@ -169,7 +179,8 @@ class BringUp:
         except FrameError as error:
             raise DriveFault(f"{self._label(joint)}: {error}") from error
 
-    def _configure(self, joint: Joint) -> tuple[Identity, DriveLimits]:
+    def _configure(self, joint: Joint
+                   ) -> tuple[Identity, DriveLimits, str, tuple[PdoReading, ...]]:
         self._wait(self._heard[joint], joint, "no heartbeat or boot-up")
         for attempt in range(1, RESET_ATTEMPTS + 1):  # a lossy bus may lose either frame
             self._booted[joint].clear()
@@ -192,7 +203,44 @@ class BringUp:
                 unit = f" {p.unit}" if p.unit else ""
                 raise DriveFault(f"{self._label(joint)}: read-back mismatch: {p.where()} {p.name}: "
                                  f"wrote {p.value}{unit}, read {value}{unit}")
-        return identity, DriveLimits(*read_back)
+        name = self._read_text(joint, 0x1008, 0, "device name")
+        return identity, DriveLimits(*read_back), name, self._check_pdos(joint)
+
+    def _check_pdos(self, joint: Joint) -> tuple[PdoReading, ...]:
+        """Every PDO the EDS declares, read back; DriveFault naming the first object that
+        differs from the EDS."""
+        od = self._nodes[joint].object_dictionary
+        readings = []
+        for kind, comm_base, map_base in (("RPDO", 0x1400, 0x1600), ("TPDO", 0x1800, 0x1A00)):
+            for n in range(PDO_SLOTS):
+                if comm_base + n not in od:
+                    continue
+                name = f"{kind}{n + 1}"
+                comm, mapping = comm_base + n, map_base + n
+                cob_id = self._expect(joint, comm, 1, f"{name} COB-ID")
+                transmission = self._expect(joint, comm, 2, f"{name} transmission type")
+                count = self._expect(joint, mapping, 0, f"{name} number of mapped objects")
+                mapped = tuple(self._expect(joint, mapping, k, f"{name} mapped object {k}")
+                               for k in range(1, count + 1))
+                readings.append(PdoReading(name, cob_id, transmission, mapped))
+        return tuple(readings)
+
+    def _expect(self, joint: Joint, index: int, subindex: int, name: str) -> int:
+        """An object read back that must hold its EDS default."""
+        value = self._read(joint, index, subindex, name)
+        declared = od_variable(self._nodes[joint].object_dictionary, index, subindex).default
+        if value != declared:
+            raise DriveFault(f"{self._label(joint)}: 0x{index:04X}:{subindex} {name} is "
+                             f"0x{value:X}, {EDS_FILES[joint]} declares 0x{declared:X}: the "
+                             "hot path decodes the EDS's PDO layout (reset the drive's stored "
+                             "communication parameters to the EDS's)")
+        return value
+
+    def _read_text(self, joint: Joint, index: int, subindex: int, name: str) -> str:
+        node = self._nodes[joint]
+        what = f"reading 0x{index:04X}:{subindex} {name}"
+        data = self._sdo(joint, what, lambda: node.sdo.upload(index, subindex))
+        return bytes(data).decode("ascii", errors="replace").rstrip("\0")
 
     def _wait(self, event: threading.Event, joint: Joint, what: str) -> None:
         if not event.wait(self._boot_timeout_s):
@@ -284,8 +332,8 @@ class _TracedNetwork(canopen.Network):
 
 
 def run_bring_up(bus: can.BusABC, drives: DrivesSettings, motors: MotorsSettings,
-                 boot_timeout_s: float, trace: TraceRecorder | None = None
-                 ) -> tuple[DriveInfo, DriveInfo]:
+                 boot_timeout_s: float, trace: TraceRecorder | None = None,
+                 start: bool = True) -> tuple[DriveInfo, DriveInfo]:
     """:class:`BringUp` on a ``canopen.Network`` over ``bus``, fed by a temporary
     ``can.Notifier`` that is stopped and joined before this returns (the module docstring);
     with ``trace``, its frames go to the bus trace too."""
@@ -298,7 +346,7 @@ def run_bring_up(bus: can.BusABC, drives: DrivesSettings, motors: MotorsSettings
     sequence = BringUp(network, drives, motors, boot_timeout_s)
     notifier = can.Notifier(bus, [*network.listeners, *listeners], timeout=NOTIFIER_POLL_S)
     try:
-        infos = sequence.run()
+        infos = sequence.run(start)
     finally:
         notifier.stop(NOTIFIER_JOIN_S)
         sequence.close()

@@ -87,6 +87,21 @@ class DriveLimits:
 
 
 @dataclass(frozen=True)
+class PdoReading:
+    """One PDO's communication and mapping parameters as read back from a drive (equal
+    to its EDS's: bring-up checks it)."""
+
+    name: str  # "RPDO1", "TPDO2", ...
+    cob_id: int  # sub 1 of 0x1400 + n or 0x1800 + n
+    transmission_type: int  # sub 2: 1 … 240 synchronous (every n-th SYNC), 254/255 event
+    mapped: tuple[int, ...]  # the mapping's entries: index << 16 | subindex << 8 | bits
+
+    def entries(self) -> list[tuple[int, int, int]]:
+        """(index, subindex, bits) of each mapped object."""
+        return [(m >> 16, (m >> 8) & 0xFF, m & 0xFF) for m in self.mapped]
+
+
+@dataclass(frozen=True)
 class DriveInfo:
     """A drive after bring-up: who it is and the limits it verifiably holds."""
 
@@ -97,6 +112,8 @@ class DriveInfo:
     statusword: int  # 0x6041 read just before NMT start
     state: DriveState
     cleared_fault: int = 0  # 0x603F of a fault the previous run left, reset at bring-up
+    device_name: str = ""  # 0x1008
+    pdos: tuple[PdoReading, ...] = ()  # as read back, equal to the EDS's
 
 
 @dataclass(frozen=True)

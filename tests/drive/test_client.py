@@ -716,6 +716,34 @@ def test_a_read_back_mismatch_names_object_written_and_read(
                                  "timeout: wrote 3 ms, read 15 ms")
 
 
+def test_a_pdo_mapping_other_than_the_eds_is_refused_naming_the_entry(
+    network: LoopbackNetwork, fake_drives: tuple[FakeDrive, FakeDrive]
+) -> None:
+    """A drive whose stored TPDO1 maps the velocity as 32 bits (another tool saved it):
+    the hot path would misread every feedback frame, so bring-up refuses it."""
+    def velocity_32_bits(index: int, subindex: int, od: Any) -> int | None:
+        return 0x606C0020 if (index, subindex) == (0x1A00, 2) else None
+
+    fake_drives[0].node.add_read_callback(velocity_32_bits)  # type: ignore[no-untyped-call]
+    with pytest.raises(DriveFault) as raised:
+        _announce_and_run(make_bring_up(network), fake_drives)
+    assert str(raised.value).startswith(
+        "r drive (node 1): 0x1A00:2 TPDO1 mapped object 2 is 0x606C0020, "
+        "dc_servo_drive.eds declares 0x606C0010")
+
+
+def test_bring_up_reads_the_pdo_layout_and_device_name_back(
+    network: LoopbackNetwork, fake_drives: tuple[FakeDrive, FakeDrive]
+) -> None:
+    infos = _announce_and_run(make_bring_up(network), fake_drives)
+    for info in infos:
+        assert [p.name for p in info.pdos] == ["RPDO1", "TPDO1", "TPDO2"]
+        assert [p.cob_id for p in info.pdos] == [0x200 + info.node_id, 0x180 + info.node_id,
+                                                  0x280 + info.node_id]
+        assert info.pdos[1].entries() == [(0x6064, 0, 32), (0x606C, 0, 16), (0x2100, 0, 16)]
+        assert info.device_name.startswith("Rake ")
+
+
 def test_an_sdo_abort_is_one_line_raised_from_the_abort(
     network: LoopbackNetwork, fake_drives: tuple[FakeDrive, FakeDrive]
 ) -> None:
