@@ -154,33 +154,22 @@ def _timing_verdict(daemon: Daemon, summary: dict[str, Any] | None = None) -> st
                           reference if isinstance(reference, float) else None)
 
 
-def _check_timing(daemon: Daemon) -> None:
-    """The loop's timing since start-up, judged before arming: with rt_mode enforce a
-    loop that cannot keep time is not armed; otherwise the verdict is logged."""
+def _check_before_arming(daemon: Daemon) -> None:
+    """What rt_mode enforce (the robot) requires before arming, each a verdict ("" when
+    met): the loop's timing since start-up, and a clamp that carries the command the drives
+    hold after the controller falls silent. Enforced, the first unmet one refuses the
+    arming; otherwise each is logged as a warning."""
     if next_state(daemon.state, Event.ARM) is None:
         return  # refused below, naming the state
-    verdict = _timing_verdict(daemon)
-    if not verdict:
-        return
-    if daemon.settings.daemon.rt_mode is RtModeSetting.ENFORCE:
-        daemon.event("arm_refused", reason=verdict)
-        raise CommandRejected(f"cannot arm: {verdict} (daemon.rt_mode: enforce)")
-    daemon.event("timing_warning", reason=verdict)
-
-
-def _check_held_command(daemon: Daemon) -> None:
-    """The clamp's bound against the drives' watchdog, judged before arming: with rt_mode
-    enforce (the robot) a configuration whose clamp does not carry the command the drives
-    hold after the controller falls silent is not armed; otherwise it is logged."""
-    if next_state(daemon.state, Event.ARM) is None:
-        return  # refused below, naming the state
-    gap = held_command_gap(daemon.settings)
-    if not gap:
-        return
-    if daemon.settings.daemon.rt_mode is RtModeSetting.ENFORCE:
-        daemon.event("arm_refused", reason=gap)
-        raise CommandRejected(f"cannot arm: {gap} (daemon.rt_mode: enforce)")
-    daemon.event("clamp_warning", reason=gap)
+    enforce = daemon.settings.daemon.rt_mode is RtModeSetting.ENFORCE
+    for warning, verdict in (("timing_warning", _timing_verdict(daemon)),
+                             ("clamp_warning", held_command_gap(daemon.settings))):
+        if not verdict:
+            continue
+        if enforce:
+            daemon.event("arm_refused", reason=verdict)
+            raise CommandRejected(f"cannot arm: {verdict} (daemon.rt_mode: enforce)")
+        daemon.event(warning, reason=verdict)
 
 
 def _simple(daemon: Daemon, event: Event, what: str, action: Callable[[], None]) -> Reply:
@@ -202,8 +191,7 @@ def make_handler(daemon: Daemon) -> Callable[[Request], Reply]:
             implausible = daemon.implausible_feedback()
             if implausible and next_state(daemon.state, Event.ARM) is not None:
                 raise CommandRejected(f"cannot arm: {implausible}")
-            _check_timing(daemon)
-            _check_held_command(daemon)
+            _check_before_arming(daemon)
             return _simple(daemon, Event.ARM, "arm", daemon.arm)
         if cmd is ApiCommand.DISARM:
             return _simple(daemon, Event.DISARM, "disarm", daemon.disarm)
