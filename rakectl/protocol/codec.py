@@ -25,7 +25,8 @@ and sends TPDO1 (transmission type 1). RPDO1 is synchronous too (type 1): the
 drive applies the latest RPDO1 at the next SYNC, so the command computed from
 the TPDO1 of SYNC k acts from SYNC k+1 (one cycle of delay). The counter lets
 either side count lost SYNCs (:func:`lost_syncs`). If no RPDO1 arrives for the
-command watchdog time (0x2003, 20 ms by default) the drive applies 0 V and
+command watchdog time (0x2003: 20 ms at power-on, ``drives.watchdog_timeout_ms`` from
+bring-up on, 3 ms on the robot) the drive applies 0 V and
 faults with :attr:`~rakectl.protocol.nmt.EmcyCode.COMMAND_WATCHDOG_TIMEOUT`.
 
 On events::
