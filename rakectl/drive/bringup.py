@@ -24,12 +24,13 @@ in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.settings.Driv
    and 0x1019 SYNC counter overflow (``drives.sync_counter_overflow``);
    a value outside the EDS's data type or limits is a ConfigError before anything is sent;
 5. SDO read every one of them back and compare;
-6. SDO read the device name 0x1008 and every PDO's communication and mapping
+6. SDO read every PDO's communication and mapping
    parameters the EDS declares (0x1400 + n and 0x1600 + n, 0x1800 + n and
    0x1A00 + n): COB-ID, transmission type and each mapped entry must be the
    EDS's, because the hot path's codecs decode that layout. Reset
    communication restores a drive's *stored* values, so a drive whose mapping
    was changed and saved by another tool is refused here, naming the object.
+   The dry run (``start=False``) also reads the device name 0x1008.
 
 Then a drive still in FAULT from the previous run (it lost that run's
 heartbeat) is fault-reset over SDO (controlword 0x6040: 0, 0x80, 0), now that
@@ -91,6 +92,7 @@ NOTIFIER_JOIN_S = 2.0
 _T = TypeVar("_T")
 SDO_RETRIES = 3  # canopen repeats an unanswered SDO request this often at bring-up
 RESET_ATTEMPTS = 3  # NMT reset communication sent this often before a drive is silent
+SDO_TOGGLE_BIT_ABORT = 0x05030000  # a segment lost or repeated
 PDO_SLOTS = 512  # CiA 301: RPDO and TPDO communication parameters 0x1400/0x1800 + 0 … 511
 
 
@@ -110,6 +112,7 @@ class BringUp:
         self._drives = drives
         self._motors = motors
         self._boot_timeout_s = boot_timeout_s
+        self._start = True  # run(start=False): the dry run
         self._joint_of_node = {node: joint for joint, node in zip(JOINTS, node_ids(drives),
                                                                   strict=True)}
         self._heard = {joint: threading.Event() for joint in JOINTS}
@@ -139,6 +142,7 @@ class BringUp:
     def run(self, start: bool = True) -> tuple[DriveInfo, DriveInfo]:
         """Configure and verify both drives, read their statusword, start them (OPERATIONAL);
         ``start=False`` (a dry run, ``rakectl drives``) leaves them PRE-OPERATIONAL."""
+        self._start = start
         configured = [self._configure(joint) for joint in JOINTS]
         cleared = [self._clear_old_fault(joint) for joint in JOINTS]
         statuswords = [self._read(joint, 0x6041, 0, "statusword") for joint in JOINTS]
@@ -203,7 +207,9 @@ class BringUp:
                 unit = f" {p.unit}" if p.unit else ""
                 raise DriveFault(f"{self._label(joint)}: read-back mismatch: {p.where()} {p.name}: "
                                  f"wrote {p.value}{unit}, read {value}{unit}")
-        name = self._read_text(joint, 0x1008, 0, "device name")
+        # the device name is a segmented transfer, the one a lossy bus breaks most easily
+        # (a lost segment is a toggle-bit abort): read for the dry run only
+        name = "" if self._start else self._read_text(joint, 0x1008, 0, "device name")
         return identity, DriveLimits(*read_back), name, self._check_pdos(joint)
 
     def _check_pdos(self, joint: Joint) -> tuple[PdoReading, ...]:
@@ -237,9 +243,23 @@ class BringUp:
         return value
 
     def _read_text(self, joint: Joint, index: int, subindex: int, name: str) -> str:
+        """A segmented upload, started again when a segment was lost (a toggle-bit abort or
+        no answer) up to ``SDO_RETRIES`` times."""
         node = self._nodes[joint]
         what = f"reading 0x{index:04X}:{subindex} {name}"
-        data = self._sdo(joint, what, lambda: node.sdo.upload(index, subindex))
+
+        def upload() -> bytes:
+            for _ in range(SDO_RETRIES):
+                try:
+                    return bytes(node.sdo.upload(index, subindex))
+                except SdoAbortedError as error:
+                    if error.code != SDO_TOGGLE_BIT_ABORT:
+                        raise
+                except SdoCommunicationError:
+                    pass
+            return bytes(node.sdo.upload(index, subindex))
+
+        data = self._sdo(joint, what, upload)
         return bytes(data).decode("ascii", errors="replace").rstrip("\0")
 
     def _wait(self, event: threading.Event, joint: Joint, what: str) -> None:

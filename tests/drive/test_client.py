@@ -732,10 +732,17 @@ def test_a_pdo_mapping_other_than_the_eds_is_refused_naming_the_entry(
         "dc_servo_drive.eds declares 0x606C0010")
 
 
-def test_bring_up_reads_the_pdo_layout_and_device_name_back(
+def test_bring_up_reads_the_pdo_layout_and_the_dry_run_the_device_name_back(
     network: LoopbackNetwork, fake_drives: tuple[FakeDrive, FakeDrive]
 ) -> None:
-    infos = _announce_and_run(make_bring_up(network), fake_drives)
+    first = make_bring_up(network)
+    started = _announce_and_run(first, fake_drives)
+    first.close()
+    assert [info.device_name for info in started] == ["", ""]  # segmented: dry run only
+    dry_run = make_bring_up(network)
+    for drive in fake_drives:
+        drive.announce()
+    infos = dry_run.run(start=False)
     for info in infos:
         assert [p.name for p in info.pdos] == ["RPDO1", "TPDO1", "TPDO2"]
         assert [p.cob_id for p in info.pdos] == [0x200 + info.node_id, 0x180 + info.node_id,
