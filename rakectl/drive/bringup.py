@@ -112,7 +112,6 @@ class BringUp:
         self._drives = drives
         self._motors = motors
         self._boot_timeout_s = boot_timeout_s
-        self._start = True  # run(start=False): the dry run
         self._joint_of_node = {node: joint for joint, node in zip(JOINTS, node_ids(drives),
                                                                   strict=True)}
         self._heard = {joint: threading.Event() for joint in JOINTS}
@@ -142,8 +141,11 @@ class BringUp:
     def run(self, start: bool = True) -> tuple[DriveInfo, DriveInfo]:
         """Configure and verify both drives, read their statusword, start them (OPERATIONAL);
         ``start=False`` (a dry run, ``rakectl drives``) leaves them PRE-OPERATIONAL."""
-        self._start = start
         configured = [self._configure(joint) for joint in JOINTS]
+        # the device name is a segmented transfer, the one a lossy bus breaks most easily
+        # (a lost segment is a toggle-bit abort): read for the dry run only
+        names = ["" if start else self._read_text(joint, 0x1008, 0, "device name")
+                 for joint in JOINTS]
         cleared = [self._clear_old_fault(joint) for joint in JOINTS]
         statuswords = [self._read(joint, 0x6041, 0, "statusword") for joint in JOINTS]
         if start:
@@ -152,8 +154,8 @@ class BringUp:
         r_info, theta_info = (
             DriveInfo(joint, self._node_id[joint], identity, limits, statusword,
                       self._state_of(joint, statusword), code, name, pdos)
-            for joint, (identity, limits, name, pdos), statusword, code in zip(
-                JOINTS, configured, statuswords, cleared, strict=True))
+            for joint, (identity, limits, pdos), name, statusword, code in zip(
+                JOINTS, configured, names, statuswords, cleared, strict=True))
         return r_info, theta_info
 
     def _clear_old_fault(self, joint: Joint) -> int:
@@ -183,8 +185,7 @@ class BringUp:
         except FrameError as error:
             raise DriveFault(f"{self._label(joint)}: {error}") from error
 
-    def _configure(self, joint: Joint
-                   ) -> tuple[Identity, DriveLimits, str, tuple[PdoReading, ...]]:
+    def _configure(self, joint: Joint) -> tuple[Identity, DriveLimits, tuple[PdoReading, ...]]:
         self._wait(self._heard[joint], joint, "no heartbeat or boot-up")
         for attempt in range(1, RESET_ATTEMPTS + 1):  # a lossy bus may lose either frame
             self._booted[joint].clear()
@@ -207,10 +208,7 @@ class BringUp:
                 unit = f" {p.unit}" if p.unit else ""
                 raise DriveFault(f"{self._label(joint)}: read-back mismatch: {p.where()} {p.name}: "
                                  f"wrote {p.value}{unit}, read {value}{unit}")
-        # the device name is a segmented transfer, the one a lossy bus breaks most easily
-        # (a lost segment is a toggle-bit abort): read for the dry run only
-        name = "" if self._start else self._read_text(joint, 0x1008, 0, "device name")
-        return identity, DriveLimits(*read_back), name, self._check_pdos(joint)
+        return identity, DriveLimits(*read_back), self._check_pdos(joint)
 
     def _check_pdos(self, joint: Joint) -> tuple[PdoReading, ...]:
         """Every PDO the EDS declares, read back; DriveFault naming the first object that
