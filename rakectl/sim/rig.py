@@ -29,7 +29,7 @@ NAMESPACE_SETUP = ("ip link set lo up && ip link set lo multicast on && "
 _SCRIPT = """\
 set -u
 {setup} || {{ echo "bench: cannot set up the namespace's loopback multicast" >&2; exit 3; }}
-$EMU_PREFIX "$PY" -m drivers --config "$EMU_CONFIG" --truth "$OUT/truth.csv" $EMU_ARGS \\
+$EMU_PREFIX "$PY" -m "$EMU_MODULE" --config "$EMU_CONFIG" --truth "$OUT/truth.csv" $EMU_ARGS \\
     > "$OUT/emulator.log" 2>&1 &
 EMU=$!
 trap 'kill -TERM $EMU 2>/dev/null; kill -TERM $DMN 2>/dev/null' TERM INT
@@ -110,9 +110,13 @@ class Bench:
 @contextlib.contextmanager
 def emulated_bench(out: Path, emulator_config: Path, daemon_config: Path,
                    emulator_args: Sequence[str] = (), daemon_args: Sequence[str] = (),
-                   stop_timeout_s: float = 20.0, emulator_rt_priority: int = 0
-                   ) -> Iterator[Bench]:
+                   stop_timeout_s: float = 20.0, emulator_rt_priority: int = 0,
+                   emulator_module: str = "drivers") -> Iterator[Bench]:
     """Start emulator + daemon in a fresh namespace; stop both (SIGTERM) on exit.
+
+    ``emulator_module`` is run as ``python -m MODULE --config FILE --truth CSV ARGS`` and
+    prints ``emulator: ready`` once its drives are on the bus: the emulator by default,
+    or any other slave that takes the same command line.
 
     ``emulator_rt_priority`` > 0 runs the emulator at that SCHED_FIFO priority
     (``chrt``): needed when the daemon runs real-time on the same cores, or the
@@ -123,6 +127,7 @@ def emulated_bench(out: Path, emulator_config: Path, daemon_config: Path,
     script = out / "bench.sh"
     script.write_text(_SCRIPT.format(setup=NAMESPACE_SETUP))
     env = dict(os.environ, PY=sys.executable, OUT=str(out), SOCK=str(socket_path),
+               EMU_MODULE=emulator_module,
                EMU_CONFIG=str(emulator_config), DAEMON_CONFIG=str(daemon_config),
                EMU_ARGS=" ".join(emulator_args), DAEMON_ARGS=" ".join(daemon_args),
                EMU_PREFIX=f"chrt -f {emulator_rt_priority}" if emulator_rt_priority > 0 else "")
