@@ -47,7 +47,10 @@ Every failure is one line naming the drive, e.g.
 read 15 ms")``, ``DriveFault("r drive (node 1): SDO abort 0x06090030 writing 0x2003
 watchdog timeout = 3 ms: Value range of parameter exceeded")``
 (raised ``from`` the canopen error), ``CommsTimeout`` when a node or an SDO
-answer does not come. The power stage is NOT enabled here: that is the
+answer does not come. A transfer that meets an answer of another kind is made
+again, twice at most: canopen empties its answer queue only before it sends, so
+the late answer to a request it had repeated is otherwise taken for the next
+request's (``Unexpected response 0x60``). The power stage is NOT enabled here: that is the
 controlword sent cyclically in RPDO1 (:meth:`DriveClient.command`), and the
 daemon enables the drives only while it is armed.
 """
@@ -93,6 +96,10 @@ _T = TypeVar("_T")
 SDO_RETRIES = 3  # canopen repeats an unanswered SDO request this often at bring-up
 RESET_ATTEMPTS = 3  # NMT reset communication sent this often before a drive is silent
 SDO_TOGGLE_BIT_ABORT = 0x05030000  # a segment lost or repeated
+# A transfer that met an answer of another kind is made again this often: canopen empties
+# its answer queue only before it sends, so the late answer to a request it had repeated
+# (a drive slower than sdo_timeout_s) is taken for the next request's
+SDO_LATE_ANSWER_RETRIES = 2
 PDO_SLOTS = 512  # CiA 301: RPDO and TPDO communication parameters 0x1400/0x1800 + 0 … 511
 
 
@@ -305,19 +312,26 @@ class BringUp:
         self._sdo(joint, what, lambda: node.sdo.download(p.index, p.subindex, data))
 
     def _sdo(self, joint: Joint, what: str, transfer: Callable[[], _T]) -> _T:
+        """One transfer (an upload, or a download of a value: either may be made again),
+        its failure as one line naming the drive and the object."""
         label = self._label(joint)
-        try:
-            return transfer()
-        except SdoAbortedError as error:
-            text = SdoAbortedError.CODES.get(error.code, "unknown abort code")
-            raise DriveFault(f"{label}: SDO abort 0x{error.code:08X} {what}: {text}") from error
-        except SdoCommunicationError as error:
-            if "No SDO response" in str(error):
-                raise CommsTimeout(f"{label}: no SDO response {what} within "
-                                   f"{self._drives.sdo_timeout_s:g} s") from error
-            raise DriveFault(f"{label}: SDO error {what}: {error}") from error
-        except can.CanError as error:
-            raise BusError(f"{label}: bus error {what}: {error}") from error
+        for attempt in range(SDO_LATE_ANSWER_RETRIES + 1):
+            try:
+                return transfer()
+            except SdoAbortedError as error:
+                text = SdoAbortedError.CODES.get(error.code, "unknown abort code")
+                raise DriveFault(f"{label}: SDO abort 0x{error.code:08X} {what}: "
+                                 f"{text}") from error
+            except SdoCommunicationError as error:
+                if "No SDO response" in str(error):
+                    raise CommsTimeout(f"{label}: no SDO response {what} within "
+                                       f"{self._drives.sdo_timeout_s:g} s") from error
+                late = str(error).startswith("Unexpected response")
+                if not late or attempt == SDO_LATE_ANSWER_RETRIES:
+                    raise DriveFault(f"{label}: SDO error {what}: {error}") from error
+            except can.CanError as error:
+                raise BusError(f"{label}: bus error {what}: {error}") from error
+        raise AssertionError("unreachable: the last attempt returns or raises")
 
 
 class _TraceListener(can.Listener):

@@ -766,6 +766,37 @@ def test_an_sdo_abort_is_one_line_raised_from_the_abort(
     assert isinstance(raised.value.__cause__, SdoAbortedError)
 
 
+class LateAnswerNetwork(LoopbackNetwork):
+    """Delivers ``late`` stale download answers (0x60) of the r drive just before its next
+    upload requests reach it: a drive slower than the SDO timeout answers canopen's repeated
+    request twice, after canopen has emptied its queue for the next request."""
+
+    def __init__(self, late: int) -> None:
+        super().__init__()
+        self.late = late
+
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        if self.late and can_id == 0x600 + R_NODE and data[0] & 0xE0 == 0x40:  # an upload
+            self.late -= 1
+            self.notify(0x580 + R_NODE, bytearray(b"\x60\x03\x20\x00\x00\x00\x00\x00"), 0.0)
+        super().send_message(can_id, data, remote)
+
+
+def test_a_late_answer_taken_for_the_next_request_is_asked_again() -> None:
+    """A test on a loaded machine failed the second bring-up with 'Unexpected response
+    0x60' (tests/drivers/test_interop.py): the transfer is made again, twice at most."""
+    network = LateAnswerNetwork(late=2)
+    drives = (FakeDrive(network, Joint.R, R_NODE), FakeDrive(network, Joint.THETA, THETA_NODE))
+    r_info, _ = _announce_and_run(make_bring_up(network), drives)
+    assert r_info.identity.vendor_id == drives[0].value(0x1018, 1)
+    assert network.late == 0
+    network = LateAnswerNetwork(late=3)
+    drives = (FakeDrive(network, Joint.R, R_NODE), FakeDrive(network, Joint.THETA, THETA_NODE))
+    with pytest.raises(DriveFault, match=r"^r drive \(node 1\): SDO error reading 0x1018:1 "
+                                         r"identity: Unexpected response 0x60$"):
+        _announce_and_run(make_bring_up(network), drives)
+
+
 def test_a_silent_node_times_out_naming_it(network: LoopbackNetwork,
                                            fake_drives: tuple[FakeDrive, FakeDrive]) -> None:
     bring_up = make_bring_up(network)
