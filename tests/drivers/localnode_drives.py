@@ -201,7 +201,6 @@ class LocalDrives:
         self.plant.set_pose_at_rest(d.start_r_m, d.start_theta_rad)
         self.ground = Ground(p.ground, p.seed)
         self.period_s, self.time_s, self.truth = d.control_period_s, 0.0, truth
-        self.lock = threading.Lock()
         for drive in self.drives:
             network.subscribe(0, drive.on_nmt)
         network.subscribe(0x80, self.on_sync)
@@ -212,21 +211,20 @@ class LocalDrives:
         r, theta = self.drives
         if not (r.operational and theta.operational):
             return
-        with self.lock:
-            m = self.plant.measure()
-            r.send_sample(m.r_m, m.r_vel_m_per_s, m.current_r_a)
-            theta.send_sample(m.theta_rad, m.theta_vel_rad_per_s, m.current_theta_a)
-            voltage_r, voltage_theta = r.latch(timestamp), theta.latch(timestamp)
-            for drive in self.drives:
-                drive.send_status()
-            self.plant.step(voltage_r, voltage_theta, self.ground, self.period_s)
-            self.time_s += self.period_s
-            if self.truth is not None:
-                reach, height = self.plant.tip_m()
-                self.truth.write(f"{self.time_s:.6f},{data[0] if data else 0},{self.plant.r_m:.7f},"
-                                 f"{self.plant.theta_rad:.7f},{voltage_r:.4f},{voltage_theta:.4f},"
-                                 f"{reach:.6f},{height:.6f},"
-                                 f"{self.ground.truth.force_down_n:.4f}\n")
+        m = self.plant.measure()
+        r.send_sample(m.r_m, m.r_vel_m_per_s, m.current_r_a)
+        theta.send_sample(m.theta_rad, m.theta_vel_rad_per_s, m.current_theta_a)
+        voltage_r, voltage_theta = r.latch(timestamp), theta.latch(timestamp)
+        for drive in self.drives:
+            drive.send_status()
+        self.plant.step(voltage_r, voltage_theta, self.ground, self.period_s)
+        self.time_s += self.period_s
+        if self.truth is not None:
+            reach, height = self.plant.tip_m()
+            self.truth.write(f"{self.time_s:.6f},{data[0] if data else 0},{self.plant.r_m:.7f},"
+                             f"{self.plant.theta_rad:.7f},{voltage_r:.4f},{voltage_theta:.4f},"
+                             f"{reach:.6f},{height:.6f},"
+                             f"{self.ground.truth.force_down_n:.4f}\n")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
