@@ -93,13 +93,11 @@ from rakectl.protocol.nmt import NmtCommand, NmtState, encode_nmt
 NOTIFIER_POLL_S = 0.02  # bring-up Notifier's recv timeout: how fast it stops
 NOTIFIER_JOIN_S = 2.0
 _T = TypeVar("_T")
-SDO_RETRIES = 3  # canopen repeats an unanswered SDO request this often at bring-up
+SDO_RETRIES = 3  # canopen repeats an unanswered SDO request this often at bring-up,
+# and a segmented upload that lost a segment is started again this often
 RESET_ATTEMPTS = 3  # NMT reset communication sent this often before a drive is silent
 SDO_TOGGLE_BIT_ABORT = 0x05030000  # a segment lost or repeated
-# A transfer that met an answer of another kind is made again this often: canopen empties
-# its answer queue only before it sends, so the late answer to a request it had repeated
-# (a drive slower than sdo_timeout_s) is taken for the next request's
-SDO_LATE_ANSWER_RETRIES = 2
+SDO_LATE_ANSWER_RETRIES = 2  # a transfer that met a late answer is made again this often
 PDO_SLOTS = 512  # CiA 301: RPDO and TPDO communication parameters 0x1400/0x1800 + 0 … 511
 
 
@@ -248,23 +246,10 @@ class BringUp:
         return value
 
     def _read_text(self, joint: Joint, index: int, subindex: int, name: str) -> str:
-        """A segmented upload, started again when a segment was lost (a toggle-bit abort or
-        no answer) up to ``SDO_RETRIES`` times."""
+        """A segmented upload, started again when a segment was lost (``_repeatable``)."""
         node = self._nodes[joint]
         what = f"reading 0x{index:04X}:{subindex} {name}"
-
-        def upload() -> bytes:
-            for _ in range(SDO_RETRIES):
-                try:
-                    return bytes(node.sdo.upload(index, subindex))
-                except SdoAbortedError as error:
-                    if error.code != SDO_TOGGLE_BIT_ABORT:
-                        raise
-                except SdoCommunicationError:
-                    pass
-            return bytes(node.sdo.upload(index, subindex))
-
-        data = self._sdo(joint, what, upload)
+        data = self._sdo(joint, what, lambda: node.sdo.upload(index, subindex), segmented=True)
         return bytes(data).decode("ascii", errors="replace").rstrip("\0")
 
     def _wait(self, event: threading.Event, joint: Joint, what: str) -> None:
@@ -311,27 +296,43 @@ class BringUp:
         what = f"writing {p.where()} {p.name} = {p.value}{' ' + p.unit if p.unit else ''}"
         self._sdo(joint, what, lambda: node.sdo.download(p.index, p.subindex, data))
 
-    def _sdo(self, joint: Joint, what: str, transfer: Callable[[], _T]) -> _T:
-        """One transfer (an upload, or a download of a value: either may be made again),
-        its failure as one line naming the drive and the object."""
+    def _sdo(self, joint: Joint, what: str, transfer: Callable[[], _T],
+             segmented: bool = False) -> _T:
+        """One transfer (an upload, or a download of a value: either may be made again), made
+        again while its failure is ``_repeatable``, up to ``SDO_RETRIES`` more times for a
+        segmented one, ``SDO_LATE_ANSWER_RETRIES`` otherwise; its failure as one line naming
+        the drive and the object."""
         label = self._label(joint)
-        for attempt in range(SDO_LATE_ANSWER_RETRIES + 1):
+        retries = SDO_RETRIES if segmented else SDO_LATE_ANSWER_RETRIES
+        for attempt in range(retries + 1):
             try:
                 return transfer()
             except SdoAbortedError as error:
+                if attempt < retries and _repeatable(error, segmented):
+                    continue
                 text = SdoAbortedError.CODES.get(error.code, "unknown abort code")
                 raise DriveFault(f"{label}: SDO abort 0x{error.code:08X} {what}: "
                                  f"{text}") from error
             except SdoCommunicationError as error:
+                if attempt < retries and _repeatable(error, segmented):
+                    continue
                 if "No SDO response" in str(error):
                     raise CommsTimeout(f"{label}: no SDO response {what} within "
                                        f"{self._drives.sdo_timeout_s:g} s") from error
-                late = str(error).startswith("Unexpected response")
-                if not late or attempt == SDO_LATE_ANSWER_RETRIES:
-                    raise DriveFault(f"{label}: SDO error {what}: {error}") from error
+                raise DriveFault(f"{label}: SDO error {what}: {error}") from error
             except can.CanError as error:
                 raise BusError(f"{label}: bus error {what}: {error}") from error
         raise AssertionError("unreachable: the last attempt returns or raises")
+
+
+def _repeatable(error: SdoAbortedError | SdoCommunicationError, segmented: bool) -> bool:
+    """Whether a failed transfer is worth making again: any transfer that met an answer of
+    another kind (canopen empties its answer queue only before it sends, so the late answer
+    to a request it had repeated is taken for the next request's); a segmented upload whose
+    segment was lost (a toggle-bit abort, no answer, a toggle mismatch)."""
+    if isinstance(error, SdoAbortedError):
+        return segmented and error.code == SDO_TOGGLE_BIT_ABORT
+    return segmented or str(error).startswith("Unexpected response")
 
 
 class _TraceListener(can.Listener):
