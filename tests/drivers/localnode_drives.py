@@ -30,6 +30,7 @@ from the same configuration: it is not what this slave tests.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import signal
 import threading
@@ -45,7 +46,7 @@ from drivers.dictionary import DriveKind
 from drivers.emulator import workspace
 from drivers.objects import Ground
 from drivers.settings import EmulatorConfig
-from rakectl.core.motor_model import MotorParams, joint_per_motor_rad
+from rakectl.core.motor_model import MotorParams, joint_per_motor_rad, joint_resolution
 
 NMT_RESET_NODE, NMT_RESET_COMMUNICATION, NMT_ENTER_PRE_OPERATIONAL = 0x81, 0x82, 0x80
 EMCY_COMMAND_WATCHDOG = 0x8250
@@ -176,11 +177,10 @@ class LocalDrive:
 
     def send_sample(self, position: float, velocity: float, current_a: float) -> None:
         """TPDO1: position [counts], motor velocity [rpm], current [mA] (joint units in)."""
-        per_motor_rad = joint_per_motor_rad(self.motor)
-        counts_per_rev = self.node.sdo[0x2004].raw
+        encoder = dataclasses.replace(self.motor, encoder_counts_per_rev=self.node.sdo[0x2004].raw)
         tpdo1 = self.node.tpdo[1]
-        tpdo1[0x6064].raw = round(position / per_motor_rad / (2 * math.pi) * counts_per_rev)
-        rpm = round(velocity / per_motor_rad * RPM_PER_RAD_PER_S)
+        tpdo1[0x6064].raw = round(position / joint_resolution(encoder))
+        rpm = round(velocity / joint_per_motor_rad(self.motor) * RPM_PER_RAD_PER_S)
         tpdo1[0x606C].raw = max(-32767, min(32767, rpm))
         tpdo1[0x2100].raw = max(-32767, min(32767, round(current_a * 1000.0)))
         tpdo1.transmit()
