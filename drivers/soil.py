@@ -309,10 +309,23 @@ class Soil:
         return self._reach_min_m + (index + 0.5) * self.cell_m
 
     def cell_edges_m(self, index: int) -> tuple[float, float]:
-        """The reach interval of cell ``index`` (the edge cells reach on beyond the lane)."""
-        low_m = -math.inf if index == 0 else self._reach_min_m + index * self.cell_m
-        high_m = math.inf if index == self._last else self._reach_min_m + (index + 1) * self.cell_m
+        """The reach interval [low, high) that :meth:`cell_index` maps to cell ``index`` (the
+        edge cells reach on beyond the lane)."""
+        low_m = -math.inf if index == 0 else self._first_reach_m(index)
+        high_m = math.inf if index == self._last else self._first_reach_m(index + 1)
         return low_m, high_m
+
+    def _first_reach_m(self, index: int) -> float:
+        """The least reach :meth:`cell_index` maps to ``index`` or beyond. min + index·cell
+        can round to the cell below (0.33 m is in cell 5 of the default lane, not 6), and
+        tines pinned there would meet the soil of a cell their mount never solved against
+        (20261127-3448: 114 N read at 1.055 m, the mount carrying 0 N)."""
+        reach_m = self._reach_min_m + index * self.cell_m
+        while self.cell_index(reach_m) < index:
+            reach_m = math.nextafter(reach_m, math.inf)
+        while self.cell_index(math.nextafter(reach_m, -math.inf)) >= index:
+            reach_m = math.nextafter(reach_m, -math.inf)
+        return reach_m
 
     def cell_index(self, reach_m: float) -> int:
         """The grid cell holding ``reach_m`` (edge cells beyond the lane)."""

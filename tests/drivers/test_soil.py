@@ -318,3 +318,36 @@ def test_configuration_is_checked() -> None:
         SoilParams(layers=(SoilLayer(), SoilLayer(from_depth_m=0.2), SoilLayer(from_depth_m=0.1)))
     with pytest.raises(ConfigError, match="lane"):
         SoilParams(lane_reach_min_m=1.0, lane_reach_max_m=1.001)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(0.0, 1.0), st.floats(0.2, 2.0), st.sampled_from([0.001, 0.0025, 0.005, 0.01]))
+def test_a_cells_edges_are_where_the_soil_looks_it_up(reach_min_m: float, length_m: float,
+                                                      cell_m: float) -> None:
+    """[low, high) of every cell is exactly what cell_index maps to it: low is in the cell
+    and the float below it in the one before; high is in the next cell and the float
+    below it in this one. Tines pinned to a cell's edge meet that cell's soil."""
+    params = replace(homogeneous(cell_m=cell_m), lane_reach_min_m=reach_min_m,
+                     lane_reach_max_m=reach_min_m + length_m)
+    soil = Soil(params, seed=0)
+    last = len(soil.surface_heights_m()) - 1
+    for i in range(last + 1):
+        low_m, high_m = soil.cell_edges_m(i)
+        assert (low_m == -math.inf) == (i == 0) and (high_m == math.inf) == (i == last)
+        if i > 0:
+            assert soil.cell_index(low_m) == i
+            assert soil.cell_index(math.nextafter(low_m, -math.inf)) == i - 1
+        if i < last:
+            assert soil.cell_index(high_m) == i + 1
+            assert soil.cell_index(math.nextafter(high_m, -math.inf)) == i
+            assert high_m == pytest.approx(reach_min_m + (i + 1) * soil.cell_m, abs=1e-12)
+
+
+def test_the_lanes_cell_6_starts_at_0_33_m() -> None:
+    """By hand, on the default lane (0.3 m, 5 mm cells): cell 6 starts at 0.33 m. Computed
+    as 0.3 + 6 × 0.005 = 0.32999999999999996 m, a reach the soil puts in cell 5, so the
+    edge is the next float up (the tine mount pins tines there, 20261127-3448)."""
+    soil = Soil(SoilParams(), seed=0)
+    assert 0.3 + 6 * soil.cell_m < 0.33 and soil.cell_index(0.3 + 6 * soil.cell_m) == 5
+    assert soil.cell_edges_m(6) == (0.33, 0.335)
+    assert soil.cell_index(0.33) == 6
