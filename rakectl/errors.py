@@ -38,6 +38,11 @@ class FrameError(RakeError, ValueError):
     """
 
 
+class TraceError(RakeError, ValueError):
+    """A bus trace or its inputs file is missing, garbled or another run's; the message
+    names the file and the line."""
+
+
 class ApiError(RakeError):
     """The command API failed: the socket cannot be set up, or a reply is unusable."""
 

@@ -1,7 +1,7 @@
 """The ``rakectl`` command line: the composition root for offline work.
 
-Errors are one line on stderr and a non-zero exit status: 2 for bad usage or
-configuration, 1 for any other failure.
+Errors are one line on stderr and a non-zero exit status: 2 for bad usage,
+configuration or input file (a bus trace to replay), 1 for any other failure.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from rakectl.errors import ConfigError, RakeError
+from rakectl.errors import ConfigError, RakeError, TraceError
 
 if TYPE_CHECKING:
     from rakectl.sim.scenario import Scenario
@@ -72,10 +72,12 @@ def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], i
                        "into DIR (refused if DIR already holds them)")
     _add_bench(sub)
     from rakectl.cli import drives as cli_drives
+    from rakectl.cli import replay as cli_replay
     from rakectl.cli import view as cli_view
 
     cli_view.add_parsers(sub)
     cli_drives.add_parser(sub)
+    cli_replay.add_parser(sub)
     return parser, ops
 
 
@@ -279,6 +281,12 @@ def _cmd_drives(args: argparse.Namespace) -> int:
     return cmd_drives(args)
 
 
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from rakectl.cli.replay import cmd_replay
+
+    return cmd_replay(args)
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from rakectl.daemon.service import run
 
@@ -296,7 +304,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "simulate": _cmd_simulate, "config-docs": _cmd_config_docs, "bench": _cmd_bench,
         "api-docs": _cmd_api_docs,
         "run": _cmd_run, "emulator": _cmd_emulator, "demo": _cmd_demo, "files": _cmd_files,
-        "fuzz": _cmd_fuzz, "view": _cmd_view, "mcap": _cmd_mcap, "drives": _cmd_drives}
+        "fuzz": _cmd_fuzz, "view": _cmd_view, "mcap": _cmd_mcap, "drives": _cmd_drives,
+        "replay": _cmd_replay}
     try:
         parser, ops = _build_parser()
         args, extra = parser.parse_known_args(argv)
@@ -306,7 +315,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         elif extra:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
         return {**commands, **ops}[args.command](args)
-    except ConfigError as exc:
+    except (ConfigError, TraceError) as exc:
         print(f"rakectl: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except (RakeError, OSError) as exc:  # OSError: TimeoutError and socket errors included

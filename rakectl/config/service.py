@@ -40,7 +40,9 @@ class BusSettings:
                            "(239.74.163.2) for udp_multicast, any name for virtual.")
     bitrate: int = setting(1_000_000, "Nominal bit rate (set on the link for socketcan).",
                            unit="bit/s", ge=125_000, le=1_000_000)
-    trace_path: str = setting("", "Record every frame to this candump .log file; empty: off.")
+    trace_path: str = setting("", "Record every frame to this candump .log file, and what "
+                              "else decides the frames sent to FILE.inputs.jsonl, for "
+                              "`rakectl replay`; empty: off.")
 
     @property
     def udp_port(self) -> int:

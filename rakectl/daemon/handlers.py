@@ -1,7 +1,9 @@
 """What each command of the API does to the running daemon (runs in the loop's slack).
 
 A request that the state table does not allow, or that cannot be carried
-out, is refused with one sentence naming why; nothing changes then.
+out, is refused with one sentence naming why; nothing changes then. With a bus
+trace, each request of :data:`CHANGING` that is carried out goes to the trace's
+inputs (rakectl.daemon.inputs) with the tick after which it took effect.
 """
 
 from __future__ import annotations
@@ -26,6 +28,13 @@ from rakectl.daemon.timing import timing_verdict
 from rakectl.errors import CommandRejected, KinematicsError
 
 Reply = Mapping[str, Any]
+
+# The commands that change what the loop sends; a replay applies them again. The others
+# read (status), write files (dump) or reset the timing statistics (timing_reset), which
+# only the wall-clock checks before arming read.
+CHANGING = frozenset({ApiCommand.ARM, ApiCommand.DISARM, ApiCommand.STOP, ApiCommand.ESTOP,
+                      ApiCommand.RESET, ApiCommand.JOG, ApiCommand.EXCAVATE,
+                      ApiCommand.SHUTDOWN})
 
 
 def _require(daemon: Daemon, event: Event, what: str) -> None:
@@ -154,15 +163,16 @@ def _timing_verdict(daemon: Daemon, summary: dict[str, Any] | None = None) -> st
                           reference if isinstance(reference, float) else None)
 
 
-def _check_before_arming(daemon: Daemon) -> None:
+def _check_before_arming(daemon: Daemon, timing_checked: bool) -> None:
     """What rt_mode enforce (the robot) requires before arming, each a verdict ("" when
-    met): the loop's timing since start-up, and a clamp that carries the command the drives
-    hold after the controller falls silent. Enforced, the first unmet one refuses the
-    arming; otherwise each is logged as a warning."""
+    met): the loop's timing since start-up (unless not ``timing_checked``), and a clamp
+    that carries the command the drives hold after the controller falls silent. Enforced,
+    the first unmet one refuses the arming; otherwise each is logged as a warning."""
     if next_state(daemon.state, Event.ARM) is None:
         return  # refused below, naming the state
     enforce = daemon.settings.daemon.rt_mode is RtModeSetting.ENFORCE
-    for warning, verdict in (("timing_warning", _timing_verdict(daemon)),
+    timing = _timing_verdict(daemon) if timing_checked else ""
+    for warning, verdict in (("timing_warning", timing),
                              ("clamp_warning", held_command_gap(daemon.settings))):
         if not verdict:
             continue
@@ -178,10 +188,20 @@ def _simple(daemon: Daemon, event: Event, what: str, action: Callable[[], None])
     return {"state": daemon.state.name.lower()}
 
 
-def make_handler(daemon: Daemon) -> Callable[[Request], Reply]:
-    """The API's handler: validated requests in, reply fields out (CommandRejected refuses)."""
+def make_handler(daemon: Daemon, timing_checked: bool = True) -> Callable[[Request], Reply]:
+    """The API's handler: validated requests in, reply fields out (CommandRejected refuses).
+
+    ``timing_checked`` False leaves out the check of the loop's measured timing before
+    arming: a replay applies an arming its run carried out, on timing it cannot measure.
+    """
 
     def handle(request: Request) -> Reply:
+        reply = dispatch(request)
+        if daemon.inputs is not None and request.cmd in CHANGING:
+            daemon.inputs.command(daemon.ticks, request)
+        return reply
+
+    def dispatch(request: Request) -> Reply:
         cmd = request.cmd
         if cmd is ApiCommand.STATUS:
             return status(daemon)
@@ -191,7 +211,7 @@ def make_handler(daemon: Daemon) -> Callable[[Request], Reply]:
             implausible = daemon.implausible_feedback()
             if implausible and next_state(daemon.state, Event.ARM) is not None:
                 raise CommandRejected(f"cannot arm: {implausible}")
-            _check_before_arming(daemon)
+            _check_before_arming(daemon, timing_checked)
             return _simple(daemon, Event.ARM, "arm", daemon.arm)
         if cmd is ApiCommand.DISARM:
             return _simple(daemon, Event.DISARM, "disarm", daemon.disarm)
@@ -219,4 +239,4 @@ def make_handler(daemon: Daemon) -> Callable[[Request], Reply]:
     return handle
 
 
-__all__ = ["ARMED_STATES", "make_handler", "status"]
+__all__ = ["ARMED_STATES", "CHANGING", "make_handler", "status"]

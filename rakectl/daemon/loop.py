@@ -27,6 +27,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import can
 import structlog
 
 from rakectl.config.settings import Settings
@@ -42,6 +43,7 @@ from rakectl.core.supervision import (
     plausible_ranges,
 )
 from rakectl.daemon.events import EventLog
+from rakectl.daemon.inputs import InputLog
 from rakectl.daemon.recorder import DumpWriter, FlightRecorder
 from rakectl.daemon.sdnotify import Notifier
 from rakectl.daemon.slack import SlackWork
@@ -113,6 +115,11 @@ class Daemon(SlackWork):
         self._ref = (0.0, 0.0)
         self.slack_hook: Callable[[float], object] | None = None  # the command server's poll
         self.trace: TraceRecorder | None = None  # bus trace, drained in the slack
+        self.inputs: InputLog | None = None  # the trace's sidecar (rakectl.daemon.inputs)
+        # "now" of the heartbeat check: the clock that stamps heartbeats (a replay gives
+        # the check the outcomes its run recorded instead)
+        self.heartbeat_clock: Callable[[], float] = client.clock
+        client.on_send_error = self._on_send_error
         self._exec_us = 0.0
 
     # ------------------------------------------------------------------ life cycle
@@ -124,6 +131,10 @@ class Daemon(SlackWork):
     def bring_up(self) -> None:
         """Configure the drives, then cycle until both report valid feedback: READY."""
         infos = self.client.bring_up(self.settings.daemon.boot_timeout_s)
+        if self.inputs is not None:
+            self.inputs.start(self.trace.recorded if self.trace is not None else 0,
+                              (infos[Joint.R].statusword, infos[Joint.THETA].statusword),
+                              self.settings)
         self.event("drives_configured", drives=[
             {"node": i.node_id, "serial": i.identity.serial,
              "max_voltage_mv": i.limits.max_voltage_mv,
@@ -134,21 +145,26 @@ class Daemon(SlackWork):
         """The loop, until a stop is requested. Ends with 0 V, drives disabled, a dump."""
         timeout_ticks = round(self.settings.daemon.boot_timeout_s * self.settings.rate_hz)
         self.timer.start()
+        ended = "stop requested"
         try:
             while not self._stop_requested:
                 skipped = self.timer.wait()
+                if skipped and self.inputs is not None:
+                    self.inputs.overrun(self.ticks, skipped)
                 started_ns = self._clock_ns()
                 self.tick(skipped)
                 exec_ns = self._clock_ns() - started_ns
                 self._exec_us = exec_ns * 1e-3
                 self.timing.record(exec_ns)
-                self._overrun_streak = self._overrun_streak + 1 if skipped else 0
                 if self.state is DaemonState.INIT and self.ticks > timeout_ticks:
                     raise CommsTimeout("no valid feedback from both drives within "
                                        f"{self.settings.daemon.boot_timeout_s:g} s of bring-up")
                 self.slack()
+        except BaseException as error:
+            ended = f"{type(error).__name__}: {error}"
+            raise
         finally:
-            self.finish()
+            self.finish(ended)
 
     # ------------------------------------------------------------------ one tick
 
@@ -172,6 +188,7 @@ class Daemon(SlackWork):
         client.send(*voltages)
         client.sync()
         self._send_failures = self._send_failures + 1 if client.send_failed() else 0
+        self._overrun_streak = self._overrun_streak + 1 if skipped else 0
         self.voltages = voltages
         self._record(voltages)
 
@@ -196,8 +213,9 @@ class Daemon(SlackWork):
         limit = self.settings.drives.feedback_timeout_cycles
         heartbeat_check = self.ticks % HEARTBEAT_CHECK_TICKS == 0
         if client.drive_faults() or (armed and client.stale_feedback(limit)) or (
-                heartbeat_check and client.heartbeat_lost(time.monotonic())):
-            return "; ".join(client.describe_problems(time.monotonic(), limit)) or "drive problem"
+                heartbeat_check and self._heartbeat_lost()):
+            return ("; ".join(client.describe_problems(self.heartbeat_clock(), limit))
+                    or "drive problem")
         if not armed:
             return ""
         if not (math.isfinite(fb.r_m) and math.isfinite(fb.theta_rad)
@@ -212,6 +230,22 @@ class Daemon(SlackWork):
         if self._overrun_streak >= self.settings.daemon.overrun_fault_streak:
             return f"{self._overrun_streak} late ticks in a row: the loop cannot keep time"
         return ""
+
+    def _heartbeat_lost(self) -> bool:
+        """The heartbeat check, on the wall clock; a lost heartbeat goes to the trace's
+        inputs (rare: it faults)."""
+        lost = self.client.heartbeat_lost(self.heartbeat_clock())
+        if lost and self.inputs is not None:
+            self.inputs.heartbeat_lost(self.ticks)
+        return lost
+
+    def _on_send_error(self, msg: can.Message, error: can.CanError) -> None:
+        """A send failed (the client calls this, rarely): into the trace's inputs."""
+        if self.inputs is not None:
+            stats = self.client.stats
+            self.inputs.send_failed(self.ticks, stats.sends + stats.send_errors - 1,
+                                    self.trace.recorded if self.trace is not None else 0,
+                                    msg, error)
 
     def implausible_feedback(self) -> str:
         """Which drive reports a joint position no robot of this geometry can have, or ""."""
@@ -401,14 +435,14 @@ class Daemon(SlackWork):
         limit = self.settings.drives.feedback_timeout_cycles
         client = self.client
         if not (client.drive_faults() or client.stale_feedback(limit)
-                or client.heartbeat_lost(time.monotonic())):
+                or self._heartbeat_lost()):
             self._reset_deadline = -1
             self.client.command(None, DriveCommand.DISABLE_VOLTAGE)
             self.fault_reason = ""
             self._transition(Event.RESET, "reset")
         elif self.ticks > self._reset_deadline:
             self._reset_deadline = -1
-            problems = client.describe_problems(time.monotonic(), limit)
+            problems = client.describe_problems(self.heartbeat_clock(), limit)
             self.fault_reason = "reset failed: " + ("; ".join(problems) or "a drive problem")
             self.event("reset_failed", problems=problems)
 

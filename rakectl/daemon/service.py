@@ -27,6 +27,7 @@ from rakectl.config.service import DaemonSettings
 from rakectl.config.settings import Settings, held_command_gap
 from rakectl.daemon.cyclictest import run_cyclictest
 from rakectl.daemon.handlers import make_handler
+from rakectl.daemon.inputs import open_inputs
 from rakectl.daemon.loop import Daemon
 from rakectl.daemon.rt import RtMode, RtRequest, apply_rt, freeze_gc
 from rakectl.daemon.sdnotify import Notifier
@@ -85,10 +86,11 @@ def run(config: Path | None, overrides: list[str]) -> int:
     log = structlog.get_logger("rakectl")
     bus = open_bus(settings.bus, receive_ids(settings.drives))
     trace = open_trace(settings.bus)
+    inputs = open_inputs(settings.bus)  # what a replay needs besides the trace
     client = DriveClient(bus, settings.drives, settings.motors, settings.rate_hz, trace)
     notifier = Notifier.from_environ(os.environ)
     daemon = Daemon(settings, client, notifier, _dump_dir(settings))
-    daemon.trace = trace
+    daemon.trace, daemon.inputs = trace, inputs
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
         daemon.request_stop()
@@ -121,6 +123,8 @@ def run(config: Path | None, overrides: list[str]) -> int:
             server.close()
         if trace is not None:
             trace.close()
+        if inputs is not None:
+            inputs.close()
         with contextlib.suppress(Exception):
             bus.shutdown()
     log.info("stopped", **{**daemon.timing.summary(), "ticks": daemon.ticks})

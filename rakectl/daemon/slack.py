@@ -19,6 +19,7 @@ import numpy as np
 
 from rakectl.config.settings import Settings
 from rakectl.daemon.events import EventLog
+from rakectl.daemon.inputs import InputLog
 from rakectl.daemon.recorder import DumpError, DumpWriter, FlightRecorder
 from rakectl.daemon.sdnotify import Notifier
 from rakectl.daemon.states import ARMED_STATES, DaemonState
@@ -44,16 +45,20 @@ class SlackWork:
     ticks: int
     slack_hook: Callable[[float], object] | None  # the command server's poll
     trace: TraceRecorder | None  # bus trace, drained in the slack
+    inputs: InputLog | None  # the trace's sidecar, drained in the slack
     _dumps: collections.deque[DumpWriter]
     dump_failures: collections.deque[str]  # the last dumps that could not be written
     _clock_ns: Callable[[], int]
     _next_stats_tick: int
     _next_watchdog_tick: int
 
-    def finish(self) -> None:
-        """0 V, drives disabled, the recorder dumped: the end of every run."""
+    def finish(self, reason: str = "stop requested") -> None:
+        """0 V, drives disabled, the recorder dumped: the end of every run (``reason``
+        goes to the trace's inputs)."""
         self.notifier.stopping()
         self.client.stop_all()
+        if self.inputs is not None:
+            self.inputs.end(self.ticks, reason, self.trace)
         self._dump("shutdown")
         self.event("bus_latency", **self.bus_latency())
         while self._dumps:
@@ -78,6 +83,8 @@ class SlackWork:
                 self._work_on_dump(left)
         if self.trace is not None:
             self.trace.drain(32)
+        if self.inputs is not None and self.inputs.pending:
+            self.inputs.drain()
         self.events.flush(self.state.name, 1)
         self._periodic()
 

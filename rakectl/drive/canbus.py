@@ -101,11 +101,14 @@ class TraceRecorder:
     ``record`` copies id, flags, data and a timestamp into preallocated slots
     (received frames keep the bus's timestamp, sent ones get ``time.time()``,
     the candump convention). ``drain(max_frames)`` writes at most that many to
-    the writer, oldest first. ``dropped`` counts frames that found the ring full.
+    the writer, oldest first. ``dropped`` counts frames that found the ring full;
+    ``first_dropped_at`` is how many frames were recorded before the first of them (-1:
+    none), where the written trace stops being complete (a replay stops there).
     """
 
     __slots__ = ("_channel", "_data", "_flags", "_head", "_ids", "_lengths", "_size",
-                 "_stamps", "_tail", "_writer", "dropped", "recorded", "written")
+                 "_stamps", "_tail", "_writer", "dropped", "first_dropped_at", "recorded",
+                 "written")
 
     _RX = 1
     _EXTENDED = 2
@@ -129,6 +132,7 @@ class TraceRecorder:
         self.recorded = 0
         self.written = 0
         self.dropped = 0
+        self.first_dropped_at = -1
 
     @property
     def pending(self) -> int:
@@ -138,6 +142,8 @@ class TraceRecorder:
     def record(self, msg: can.Message, is_rx: bool) -> None:
         """Copy ``msg`` into the ring (hot path: no allocation, no I/O)."""
         if self.recorded - self.written >= self._size:
+            if not self.dropped:
+                self.first_dropped_at = self.recorded
             self.dropped += 1
             return
         slot = self._head

@@ -134,7 +134,10 @@ class DriveClient(DriveSupervision):
         self._drives = drives
         self._motors = motors
         self._trace = trace
-        self._clock = clock
+        self.clock = clock  # the heartbeat check's "now" must come from it too
+        # called (rarely) with each frame whose send failed and the error: the bus trace
+        # holds only frames sent, a replay needs the failures too (rakectl.daemon.inputs)
+        self.on_send_error: Callable[[can.Message, can.CanError], None] | None = None
         self.feedback = Feedback()
         self.stats = Stats()
         self.last_send_error: can.CanError | None = None
@@ -186,15 +189,23 @@ class DriveClient(DriveSupervision):
         infos = run_bring_up(self._bus, self._drives, self._motors, boot_timeout_s,
                              self._trace)
         self.infos = infos
-        self._heard_s = [self._clock(), self._clock()]
-        self._rebooted = [False, False]
-        for info in infos:
-            self.feedback.statusword[info.joint] = info.statusword
-            self.feedback.state[info.joint] = info.state
-            self._state_fault[info.joint] = info.state in (DriveState.FAULT,
-                                                            DriveState.FAULT_REACTION_ACTIVE)
-            self._update_fault(info.joint)
+        self.started((infos[Joint.R].statusword, infos[Joint.THETA].statusword))
         return infos
+
+    def started(self, statuswords: tuple[int, int]) -> None:
+        """Take up where a bring-up left the drives: each drive's statusword read at its
+        end (per :class:`Joint`); heartbeat times start now. :meth:`bring_up` calls it; a
+        replay (rakectl.daemon.replay) calls it with the statuswords its run recorded."""
+        self._heard_s = [self.clock(), self.clock()]
+        self._rebooted = [False, False]
+        for joint in JOINTS:
+            statusword = statuswords[joint]
+            state = decode_statusword(statusword)
+            self.feedback.statusword[joint] = statusword
+            self.feedback.state[joint] = state
+            self._state_fault[joint] = state in (DriveState.FAULT,
+                                                 DriveState.FAULT_REACTION_ACTIVE)
+            self._update_fault(joint)
 
     # ------------------------------------------------------------------- receive
 
@@ -309,7 +320,7 @@ class DriveClient(DriveSupervision):
             return
         state = decode_heartbeat(data)
         self.feedback.nmt_state[j] = state
-        self._heard_s[j] = self._clock()
+        self._heard_s[j] = self.clock()
         if state is NmtState.BOOT_UP:
             self._rebooted[j] = True
             self._update_fault(j)
@@ -397,6 +408,8 @@ class DriveClient(DriveSupervision):
             self.stats.send_errors += 1
             self.last_send_error = error
             self._send_failed = True
+            if self.on_send_error is not None:
+                self.on_send_error(msg, error)
             return
         self.stats.sends += 1
         if self._trace is not None:

@@ -1,0 +1,589 @@
+"""Replaying a recorded bus trace through the controller, offline: no bus, no clock.
+
+A run recorded with ``bus.trace_path`` leaves two files: the candump ``.log`` of
+every frame the daemon sent and received (rakectl.drive.canbus) and its sidecar
+``<trace>.inputs.jsonl`` (rakectl.daemon.inputs): the operator's commands,
+overruns, heartbeats found lost and failed sends, each at its tick. :func:`replay`
+reads both (python-can's ``CanutilsLogReader``), builds a real
+:class:`~rakectl.daemon.loop.Daemon` and :class:`~rakectl.drive.client.DriveClient`
+on a :class:`ReplayBus` that serves the recorded frames and compares what is
+sent, and runs the loop tick by tick:
+
+- bring-up is not replayed: the client takes up the state the bring-up left
+  (each drive's statusword, recorded in the sidecar) and the comparison starts
+  with the first frame of the loop (the sidecar's ``start.frame``);
+- each tick, the client's drain gets the frames the run received in that tick
+  (those recorded before the tick's first frame sent), the tick runs with the
+  deadlines the run skipped before it, and each frame it sends must equal the next
+  frame the run sent: COB-ID, DLC and data (timestamps are not compared);
+- between ticks, the commands the run carried out are applied through the same
+  handler (rakectl.daemon.handlers), except for the check of the loop's measured
+  timing before arming; the heartbeat check is given the outcomes the run's wall
+  clock gave; a send the run saw fail fails again;
+- at the run's end, the frames of its ``finish`` (0 V, drives disabled) are
+  compared too.
+
+The result names the first frame that differs (the tick, the trace's line, the
+frame expected and the frame sent) or how many frames were reproduced. A trace or
+sidecar that is missing, garbled or from another run raises :class:`TraceError`
+naming the file and line; a configuration other than the run's raises
+:class:`ConfigError` naming the first option that differs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import tempfile
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import can
+
+from rakectl.api.schema import Request, decode_request
+from rakectl.config.settings import Settings
+from rakectl.daemon.events import EventLog
+from rakectl.daemon.handlers import make_handler
+from rakectl.daemon.inputs import FORMAT, flat_settings, sidecar_path
+from rakectl.daemon.loop import Daemon
+from rakectl.daemon.sdnotify import Notifier
+from rakectl.drive.client import DriveClient
+from rakectl.errors import CommandRejected, ConfigError, FrameError, TraceError
+from rakectl.protocol.codec import NMT_COB_ID, SYNC_COB_ID, split_cob_id
+
+# Options that change nothing the loop sends: where things are, how the process is set up
+# and the figures only the wall-clock checks before arming read (replayed as carried out).
+UNCOMPARED = frozenset({
+    "bus.interface", "bus.channel", "bus.bitrate", "bus.trace_path", "daemon.rt_priority",
+    "daemon.cpu", "daemon.socket_path", "daemon.socket_group", "daemon.dump_dir",
+    "daemon.recorder_s", "daemon.stats_interval_s", "daemon.startup_cyclictest_s",
+    "daemon.arm_timing_s", "daemon.arm_max_latency_p99_us", "daemon.arm_max_late_share",
+    "daemon.arm_max_latency_ratio"})
+
+
+# =========================================================================== reading
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One frame of the trace and the file line it is on (1-based)."""
+
+    line: int
+    msg: can.Message
+
+    @property
+    def rx(self) -> bool:
+        return bool(self.msg.is_rx)
+
+
+def frames_of(path: Path) -> Iterator[Frame]:
+    """The frames of a candump ``-L`` log written by ``bus.trace_path``, in file order,
+    read as they are needed (a trace of hours does not fit in memory); TraceError names
+    the line of anything that is not such a frame."""
+    try:
+        lines = open(path, encoding="ascii")  # noqa: SIM115 (closed below)
+    except FileNotFoundError:
+        raise TraceError(f"{path}: no such trace") from None
+    except OSError as error:
+        raise TraceError(f"{path}: cannot read the trace: {error}") from None
+    reader = can.CanutilsLogReader(path)
+    messages = iter(reader)
+    number = 0
+    try:
+        for number, raw in enumerate(lines, 1):
+            line = raw.strip()
+            if not line:
+                continue
+            try:
+                msg = next(messages)
+            except (ValueError, IndexError, KeyError, StopIteration) as error:
+                raise TraceError(f"{path}, line {number}: not a candump -L frame "
+                                 f"({type(error).__name__}: {error}): {line[:60]!r}") from None
+            if line[-2:] not in (" R", " T") and not msg.is_error_frame:
+                raise TraceError(f"{path}, line {number}: no direction (R or T) at the end: "
+                                 f"{line[:60]!r}; a trace of bus.trace_path marks each frame")
+            yield Frame(number, msg)
+    except UnicodeDecodeError as error:
+        raise TraceError(f"{path}, line {number + 1}: not text: {error}") from None
+    except OSError as error:
+        raise TraceError(f"{path}: cannot read the trace: {error}") from None
+    finally:
+        lines.close()
+        reader.stop()
+
+
+@dataclass(frozen=True)
+class Command:
+    after_tick: int
+    request: Request
+    line: int
+
+
+@dataclass(frozen=True)
+class Overrun:
+    after_tick: int
+    skipped: int
+
+
+@dataclass(frozen=True)
+class SendFailure:
+    tick: int
+    attempt: int
+    frame: int  # frames in the trace before it
+    can_id: int
+    error: str
+
+
+@dataclass(frozen=True)
+class End:
+    after_tick: int
+    reason: str
+    frames: int
+    dropped: int
+    first_dropped_at: int
+
+
+@dataclass
+class Inputs:
+    """The sidecar, read: what the run's output depended on besides its frames."""
+
+    path: Path
+    start_frame: int
+    statuswords: tuple[int, int]
+    settings: dict[str, Any]
+    version: str
+    between_ticks: list[Command | Overrun]  # in the order they happened
+    heartbeat_lost: frozenset[int]  # ticks
+    failures: dict[int, SendFailure]  # by attempt
+    end: End | None
+    complete_until_tick: int | None  # entries were lost after this tick
+
+
+def _int(entry: dict[str, Any], key: str, where: str, minimum: int = 0) -> int:
+    value = entry.get(key)
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise TraceError(f"{where}: {key!r} must be an integer >= {minimum}, got "
+                         f"{json.dumps(value)}")
+    return value
+
+
+def _text(entry: dict[str, Any], key: str, where: str) -> str:
+    value = entry.get(key)
+    if not isinstance(value, str):
+        raise TraceError(f"{where}: {key!r} must be a string, got {json.dumps(value)}")
+    return value
+
+
+def _entries(path: Path) -> Iterator[tuple[str, dict[str, Any]]]:
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise TraceError(f"{path}: no such file: the trace's inputs (written next to "
+                         "the trace while bus.trace_path is set) are needed to replay it") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise TraceError(f"{path}: cannot read the trace's inputs: {error}") from None
+    for number, line in enumerate(text.splitlines(), 1):
+        where = f"{path}, line {number}"
+        if not line.strip():
+            continue
+        try:
+            entry = json.loads(line)
+        except json.JSONDecodeError as error:
+            raise TraceError(f"{where}: not JSON ({error.msg} at column {error.colno})") from None
+        if not isinstance(entry, dict) or not isinstance(entry.get("kind"), str):
+            raise TraceError(f"{where}: not an entry of the trace's inputs (no \"kind\")")
+        yield where, entry
+
+
+def read_inputs(path: Path) -> Inputs:
+    """The sidecar at ``path``; TraceError naming the line of anything wrong."""
+    entries = list(_entries(path))
+    if not entries or entries[0][1]["kind"] != "start":
+        raise TraceError(f"{path}: no start entry: the run ended before its bring-up did, "
+                         "or this is not a trace's inputs file")
+    where, start = entries[0]
+    if start.get("format") != FORMAT:
+        raise TraceError(f"{where}: format {json.dumps(start.get('format'))}, this rakectl "
+                         f"reads format {FORMAT}")
+    words = start.get("statuswords")
+    if not (isinstance(words, list) and len(words) == 2
+            and all(isinstance(w, int) and 0 <= w <= 0xFFFF for w in words)):
+        raise TraceError(f"{where}: 'statuswords' must be two 16-bit integers")
+    settings = start.get("settings")
+    if not isinstance(settings, dict):
+        raise TraceError(f"{where}: 'settings' must be an object")
+    inputs = Inputs(path, _int(start, "frame", where), (words[0], words[1]), settings,
+                    str(start.get("rakectl", "?")), [], frozenset(), {}, None, None)
+    lost: set[int] = set()
+    last_tick = 0
+    ticks_of_lines = [0]  # the tick each entry was recorded at, by entry (start: 0)
+    for where, entry in entries[1:]:
+        kind = entry["kind"]
+        if inputs.end is not None:
+            raise TraceError(f"{where}: an entry after the end entry")
+        if kind == "command":
+            after = _int(entry, "after_tick", where)
+            fields = entry.get("request")
+            request = decode_request(json.dumps(fields).encode()) if isinstance(
+                fields, dict) else None
+            if not isinstance(request, Request):
+                raise TraceError(f"{where}: not a request of the API: "
+                                 f"{request.error if request else json.dumps(fields)}")
+            inputs.between_ticks.append(Command(after, request, int(where.rsplit(" ", 1)[1])))
+        elif kind == "overrun":
+            after = _int(entry, "after_tick", where)
+            inputs.between_ticks.append(Overrun(after, _int(entry, "skipped", where, 1)))
+        elif kind == "heartbeat_lost":
+            after = _int(entry, "tick", where, 1)
+            lost.add(after)
+        elif kind == "send_failed":
+            after = _int(entry, "tick", where)
+            failure = SendFailure(after, _int(entry, "attempt", where),
+                                  _int(entry, "frame", where), _int(entry, "id", where),
+                                  _text(entry, "error", where))
+            inputs.failures[failure.attempt] = failure
+        elif kind == "lost":
+            complete = _int(entry, "complete_entries", where, 1)
+            tick = ticks_of_lines[min(complete, len(ticks_of_lines)) - 1]
+            if inputs.complete_until_tick is None:
+                inputs.complete_until_tick = tick
+            continue
+        elif kind == "end":
+            after = _int(entry, "after_tick", where)
+            inputs.end = End(after, _text(entry, "reason", where), _int(entry, "frames", where),
+                             _int(entry, "dropped", where),
+                             _int(entry, "first_dropped_at", where, -1))
+        else:
+            raise TraceError(f"{where}: unknown entry kind {json.dumps(kind)}")
+        if after < last_tick and kind in ("command", "overrun", "end"):
+            raise TraceError(f"{where}: tick {after} comes after tick {last_tick}: "
+                             "the entries are out of order")
+        if kind in ("command", "overrun", "end"):
+            last_tick = after
+        ticks_of_lines.append(after)
+    inputs.heartbeat_lost = frozenset(lost)
+    return inputs
+
+
+def check_settings(recorded: dict[str, Any], settings: Settings, path: Path) -> None:
+    """ConfigError naming the first option (that changes what the loop sends) whose value
+    differs from the run's; options only one side knows are not compared."""
+    here = json.loads(json.dumps(flat_settings(settings)))
+    for key in sorted(recorded.keys() & here.keys() - UNCOMPARED):
+        if recorded[key] != here[key]:
+            raise ConfigError(
+                f"replay: {key} is {json.dumps(here[key])} here but was "
+                f"{json.dumps(recorded[key])} in the run ({path}): replay with the daemon's "
+                "own --config and --set")
+
+
+# =========================================================================== the bus
+
+
+def describe(msg: can.Message) -> str:
+    """A frame in candump's notation with what it is: ``201#E8030F00 (RPDO1 of node 1)``."""
+    if msg.is_error_frame:
+        return "an error frame"
+    can_id = msg.arbitration_id
+    frame = f"{can_id:03X}#" + ("R" if msg.is_remote_frame else msg.data.hex().upper())
+    if can_id == SYNC_COB_ID:
+        name = "SYNC"
+    elif can_id == NMT_COB_ID:
+        name = "NMT"
+    else:
+        try:
+            function, node = split_cob_id(can_id)
+            name = f"{function.name} of node {node}"
+        except FrameError:
+            name = "an unknown ID"
+    return f"{frame} ({name})"
+
+
+def same_frame(a: can.Message, b: can.Message) -> bool:
+    """Equal on the bus: ID, its format, kind, DLC and data (not timestamps)."""
+    return (a.arbitration_id == b.arbitration_id and a.is_extended_id == b.is_extended_id
+            and a.is_remote_frame == b.is_remote_frame and a.is_error_frame == b.is_error_frame
+            and a.dlc == b.dlc and bytes(a.data or b"") == bytes(b.data or b""))
+
+
+class _Stop(Exception):
+    """Ends the replay from inside the loop; never a RakeError, never a CanError."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message)
+        self.message = message
+
+
+class _Diverged(_Stop):
+    """A frame sent differs from the run's."""
+
+
+class _Incomplete(_Stop):
+    """The record is not complete beyond this point."""
+
+
+class _TraceEnds(_Stop):
+    """No frame left to compare with."""
+
+
+class _Replayed(_Stop):
+    """The sidecar lost entries: replayed as far as it is complete."""
+
+
+class ReplayBus(can.BusABC):
+    """A python-can bus serving a trace's received frames and comparing what is sent.
+
+    ``recv`` returns the next frame the run received, up to the next frame the run
+    sent (or the next send that failed): the frames of the tick's drain. ``send``
+    compares the frame with the next frame the run sent and raises (an internal
+    exception the loop does not catch) on the first difference; a send the run saw
+    fail raises ``CanOperationError`` with the run's error. The trace is read as the
+    replay goes: ``start`` frames (bring-up's) are skipped, and the frames from
+    ``complete`` on are not the run's, all of them (a ring that dropped frames).
+    """
+
+    def __init__(self, frames: Iterator[Frame], start: int, failures: dict[int, SendFailure],
+                 complete: int | None) -> None:
+        super().__init__(channel="replay")
+        self.channel_info = "replay of a bus trace"
+        self._frames = frames
+        self._next: Frame | None = None
+        self.position = 0  # frames of the trace consumed
+        self._peek()
+        while self.position < start and self._next is not None:
+            self._take()
+        if self.position < start:
+            raise TraceError(f"{self.position} frames in the trace, but its inputs say the "
+                             f"loop began after frame {start}: not this run's trace")
+        self._failures = failures
+        self._fail_frames = sorted((f.attempt, f.frame) for f in failures.values())
+        self._next_failure = 0
+        self._attempts = 0
+        self._complete = complete
+        self.reproduced = 0  # frames sent that equal the run's
+
+    def _peek(self) -> None:
+        self._next = next(self._frames, None)
+
+    def _take(self) -> Frame:
+        frame = self._next
+        assert frame is not None
+        self.position += 1
+        self._peek()
+        return frame
+
+    @property
+    def next_frame(self) -> Frame | None:
+        """The next frame of the trace not consumed yet, None at its end."""
+        return self._next
+
+    def _check_complete(self) -> None:
+        if self._complete is not None and self.position >= self._complete:
+            raise _Incomplete("the trace lost frames here")
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        frame = self._next
+        if frame is None or not frame.rx:
+            return None, False
+        self._check_complete()
+        if (self._next_failure < len(self._fail_frames)
+                and self._fail_frames[self._next_failure][1] <= self.position):
+            return None, False  # the run's next send failed before this frame arrived
+        return self._take().msg, True
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        attempt = self._attempts
+        self._attempts += 1
+        failure = self._failures.get(attempt)
+        if failure is not None:
+            self._next_failure += 1
+            if failure.frame != self.position:
+                raise _Diverged(f"the run's send {attempt} ({failure.can_id:03X}#) failed "
+                                f"before trace frame {failure.frame}, the replay's is at "
+                                f"frame {self.position}")
+            raise can.CanOperationError(f"replayed: {failure.error}")
+        expected = self._next
+        if expected is None:
+            raise _TraceEnds(f"the trace ends; the replay sends {describe(msg)}")
+        self._check_complete()
+        if expected.rx:
+            raise _Diverged(f"trace line {expected.line}: the run sent nothing more before "
+                            f"receiving {describe(expected.msg)}; the replay sends "
+                            f"{describe(msg)}")
+        if not same_frame(expected.msg, msg):
+            raise _Diverged(f"trace line {expected.line}: expected {describe(expected.msg)}, "
+                            f"got {describe(msg)}")
+        self._take()
+        self.reproduced += 1
+
+
+# =========================================================================== the replay
+
+
+@dataclass
+class ReplayResult:
+    """How a replay went: reproduced, or the first difference, or where the record stops."""
+
+    reproduced: int  # frames sent that equal the run's
+    ticks: int  # the tick counter reached
+    bring_up_frames: int  # trace frames before the loop, not compared
+    states: list[str]  # the states the replay went through
+    ended: str  # how the run ended, as its inputs say
+    faults: list[str] = dataclasses.field(default_factory=list)  # why it entered FAULT
+    mismatch: str = ""  # the first difference, one line
+    incomplete: str = ""  # the record is not complete beyond this point, one line
+
+    @property
+    def ok(self) -> bool:
+        return not self.mismatch and not self.incomplete
+
+    def message(self) -> str:
+        if self.mismatch:
+            return f"replay: mismatch at {self.mismatch} ({self.reproduced} frames reproduced " \
+                   "before it)"
+        if self.incomplete:
+            return f"replay: {self.incomplete}; {self.reproduced} frames reproduced up to there"
+        return (f"replay: {self.reproduced} frames reproduced, frame for frame, over "
+                f"{self.ticks} ticks ({' → '.join(self.states)}; {self.ended}; "
+                f"{self.bring_up_frames} bring-up frames before the loop not compared)")
+
+
+class _Events:
+    """Collects the daemon's events (a structlog-like logger) instead of writing them."""
+
+    def __init__(self) -> None:
+        self.states: list[str] = []
+        self.faults: list[str] = []
+
+    def _event(self, name: str, **fields: Any) -> None:
+        if name == "state":
+            self.states.append(str(fields.get("new")))
+            if fields.get("new") == "FAULT":
+                self.faults.append(str(fields.get("reason")))
+
+    info = warning = error = _event
+
+
+def replay(trace: Path, settings: Settings, inputs_path: Path | None = None) -> ReplayResult:
+    """Feed ``trace``'s received frames through a real daemon and compare what it sends.
+
+    ``settings`` must be the run's (ConfigError names the first option that differs);
+    TraceError for a trace or inputs file that is missing, garbled or another run's.
+    """
+    if not trace.is_file():
+        raise TraceError(f"{trace}: no such trace")
+    inputs = read_inputs(sidecar_path(trace) if inputs_path is None else inputs_path)
+    check_settings(inputs.settings, settings, inputs.path)
+    complete: int | None = None
+    end = inputs.end
+    if end is not None and end.first_dropped_at >= 0:
+        complete = end.first_dropped_at
+    try:
+        bus = ReplayBus(frames_of(trace), inputs.start_frame, inputs.failures, complete)
+    except TraceError as error:
+        if str(error).startswith(f"{trace}"):
+            raise
+        raise TraceError(f"{trace}: {error} ({inputs.path})") from None
+    with tempfile.TemporaryDirectory(prefix="rakectl-replay-") as dump_dir:
+        client = DriveClient(bus, settings.drives, settings.motors, settings.rate_hz,
+                             clock=lambda: 0.0)
+        try:
+            client.started(inputs.statuswords)
+        except FrameError as error:
+            raise TraceError(f"{inputs.path}, line 1: a recorded statusword: {error}") from None
+        daemon = Daemon(settings, client, Notifier(None), Path(dump_dir))
+        events = _Events()
+        daemon.events = EventLog(events)
+        daemon.heartbeat_clock = _outcomes(daemon, inputs.heartbeat_lost)
+        result = ReplayResult(0, 0, inputs.start_frame, [daemon.state.name],
+                              end.reason if end is not None else
+                              "no end entry: the run was killed or its files not closed")
+        try:
+            _run(daemon, make_handler(daemon, timing_checked=False), inputs, bus)
+            frame = bus.next_frame
+            if frame is not None:
+                raise _Diverged(f"trace line {frame.line}: the run's end, and the trace goes "
+                                f"on with {describe(frame.msg)}")
+        except _Incomplete:
+            assert end is not None
+            result.incomplete = (f"the trace lost {end.dropped} frames from frame "
+                                 f"{end.first_dropped_at} on, its ring full (tick "
+                                 f"{daemon.ticks})")
+        except _TraceEnds:
+            if end is not None:  # (no end entry: the run was killed, its trace ends here)
+                result.incomplete = (f"the trace ends at frame {bus.position} of the "
+                                     f"{end.frames} the run recorded (tick {daemon.ticks}): "
+                                     "cut short")
+        except _Diverged as diverged:
+            result.mismatch = f"tick {daemon.ticks}, {diverged.message}"
+        except _Replayed as stopped:
+            result.incomplete = stopped.message
+        daemon.events.flush(daemon.state.name)
+        result.reproduced, result.ticks = bus.reproduced, daemon.ticks
+        result.states = [result.states[0], *events.states]
+        result.faults = events.faults
+        bus.shutdown()
+    return result
+
+
+def _outcomes(daemon: Daemon, lost_ticks: frozenset[int]) -> Callable[[], float]:
+    """The heartbeat check's "now": the client stamps every heartbeat 0.0, so a check is
+    lost exactly at the ticks where the run found it lost (now = ∞)."""
+
+    def now() -> float:
+        return math.inf if daemon.ticks in lost_ticks else 0.0
+
+    return now
+
+
+def _run(daemon: Daemon, handle: Callable[[Request], object], inputs: Inputs,
+         bus: ReplayBus) -> None:
+    """The loop of ``Daemon.run`` with the run's inputs in place of the clock and socket."""
+    between = inputs.between_ticks
+    end = inputs.end
+    index = 0
+    while True:
+        skipped = 0
+        while index < len(between) and between[index].after_tick == daemon.ticks:
+            entry = between[index]
+            index += 1
+            if isinstance(entry, Overrun):
+                skipped = entry.skipped
+                continue
+            try:
+                handle(entry.request)
+            except CommandRejected as error:
+                raise _Diverged(f"{inputs.path}, line {entry.line}: the run carried out "
+                                f"{entry.request.cmd.value}, the replay refuses it: "
+                                f"{error}") from None
+        if index < len(between) and between[index].after_tick < daemon.ticks:
+            raise _Diverged(f"{inputs.path}: an entry after tick {between[index].after_tick}, "
+                            f"which the replay's tick counter passed")
+        if end is not None and daemon.ticks == end.after_tick:
+            break
+        if inputs.complete_until_tick is not None and daemon.ticks >= inputs.complete_until_tick:
+            raise _Replayed(f"the trace's inputs lost entries after tick {daemon.ticks}")
+        if end is None and bus.next_frame is None:
+            return  # the trace ends between ticks: the run was not ended cleanly
+        try:
+            daemon.tick(skipped)
+        except _Stop:
+            raise
+        except TraceError:
+            raise  # a garbled line met on the way
+        except Exception as error:  # the run's loop ends on it: its end entry must say so
+            if end is None or end.after_tick != daemon.ticks or \
+                    not end.reason.startswith(type(error).__name__):
+                raise _Diverged(f"the replay's tick raised {type(error).__name__}: "
+                                f"{error}") from None
+            break
+        daemon.events.flush(daemon.state.name)
+    if end is not None:
+        daemon.finish(end.reason)
+
+
+__all__ = ["Frame", "Inputs", "ReplayBus", "ReplayResult", "check_settings", "describe",
+           "frames_of", "read_inputs", "replay", "same_frame"]

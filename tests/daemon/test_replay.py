@@ -1,0 +1,362 @@
+"""Deterministic replay of a recorded bus trace (rakectl.daemon.replay, ``rakectl replay``).
+
+The recording is a real run: the daemon (``rakectl run`` with ``bus.trace_path``) and the
+emulated drives as separate processes on udp_multicast in a private network namespace
+(rakectl.sim.rig), driven over the command socket. Its wall-clock inputs are provoked
+on purpose: the emulator is stopped (SIGSTOP) until the daemon finds its heartbeats
+lost, and the daemon itself is stopped for tens of milliseconds (an overrun of many
+deadlines). The replay then runs offline and must reproduce every frame the daemon sent.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import can
+import pytest
+
+from rakectl.api.schema import decode_request
+from rakectl.bench.tick import LockstepRig
+from rakectl.cli.main import main
+from rakectl.config.loader import load_settings
+from rakectl.config.settings import Settings
+from rakectl.daemon.handlers import make_handler
+from rakectl.daemon.inputs import InputLog, sidecar_path
+from rakectl.daemon.loop import Daemon
+from rakectl.daemon.replay import replay
+from rakectl.daemon.sdnotify import Notifier
+from rakectl.daemon.states import DaemonState
+from rakectl.drive.canbus import TraceRecorder
+from rakectl.drive.client import DriveClient
+from rakectl.errors import ApiError
+from rakectl.sim.rig import Bench, emulated_bench, namespaces_unavailable
+
+CONFIG = Path(__file__).resolve().parents[2] / "config"
+EMULATOR = CONFIG / "emulator-demo.yaml"
+DAEMON = CONFIG / "rakectl-emulated.yaml"
+
+_reason = namespaces_unavailable()
+needs_namespace = pytest.mark.skipif(_reason is not None,
+                                     reason=f"no network namespace: {_reason}")
+
+
+@dataclass(frozen=True)
+class Recording:
+    trace: Path
+    inputs: list[dict[str, object]]
+
+    @property
+    def start_frame(self) -> int:
+        return int(self.inputs[0]["frame"])  # type: ignore[call-overload]
+
+
+def _emulator_pid(bench: Bench) -> int:
+    """The emulator's process: the bench script's child running ``-m drivers``."""
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            status = (entry / "status").read_text()
+            cmdline = (entry / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        parent = next(int(line.split()[1]) for line in status.splitlines()
+                      if line.startswith("PPid:"))
+        if parent == bench.process.pid and b"drivers" in cmdline:
+            return int(entry.name)
+    raise AssertionError("the emulator's process was not found")
+
+
+def _paused(pid: int, seconds: float) -> None:
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        time.sleep(seconds)
+    finally:
+        os.kill(pid, signal.SIGCONT)
+
+
+def _reset_until_disarmed(bench: Bench) -> None:
+    for _ in range(5):
+        try:
+            bench.request("reset")
+            bench.wait_for_state(["disarmed"], 3.0)
+            return
+        except (ApiError, TimeoutError):
+            time.sleep(0.3)
+    raise AssertionError(f"no reset: {bench.request('status')}")
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> Recording:
+    out = tmp_path_factory.mktemp("replay")
+    trace = out / "trace.log"
+    with emulated_bench(out, EMULATOR, DAEMON,
+                        daemon_args=[f"--set bus.trace_path={trace}"]) as bench:
+        bench.wait_for_state(["disarmed"], 60.0)
+        _paused(_emulator_pid(bench), 1.0)  # no heartbeat for 1 s: above the 0.5 s timeout
+        faulted = bench.wait_for_state(["fault"], 5.0)
+        assert "no heartbeat" in str(faulted["fault"]), faulted
+        _reset_until_disarmed(bench)
+        for _ in range(2):  # the arming is not under test: a loaded host may fault its check
+            bench.request("arm")
+            state = bench.wait_for_state(["armed", "fault"], 15.0)
+            if state["state"] == "armed":
+                break
+            _reset_until_disarmed(bench)
+        assert state["state"] == "armed", state
+        daemon_pid = int(bench.request("status")["pid"])  # type: ignore[call-overload]
+        _paused(daemon_pid, 0.03)  # the loop sleeps through ~30 deadlines
+        for _ in range(5):
+            bench.request("jog", space="task", height_m_per_s=-0.03)
+            time.sleep(0.1)
+        bench.request("stop")
+        time.sleep(0.2)
+        bench.request("estop")
+        time.sleep(0.2)
+        _reset_until_disarmed(bench)
+    lines = sidecar_path(trace).read_text().splitlines()
+    return Recording(trace, [json.loads(line) for line in lines])
+
+
+def _sent_after(trace: Path, start: int) -> int:
+    """Frames the daemon sent in its loop, counted from the file itself."""
+    lines = [line for line in trace.read_text().splitlines() if line.strip()]
+    return sum(1 for line in lines[start:] if line.endswith(" T"))
+
+
+@pytest.mark.crossprocess
+@needs_namespace
+def test_the_sidecar_holds_the_commands_overruns_and_the_lost_heartbeat(
+        recording: Recording) -> None:
+    kinds = [entry["kind"] for entry in recording.inputs]
+    assert kinds[0] == "start" and kinds[-1] == "end"
+    commands = [entry["request"]["cmd"] for entry in recording.inputs  # type: ignore[index]
+                if entry["kind"] == "command"]
+    for cmd in ("arm", "jog", "stop", "estop", "reset", "shutdown"):
+        assert cmd in commands, commands
+    assert "status" not in commands  # read-only requests are not inputs
+    assert "heartbeat_lost" in kinds
+    assert max(int(e["skipped"]) for e in recording.inputs  # type: ignore[call-overload]
+               if e["kind"] == "overrun") >= 10
+
+
+@pytest.mark.crossprocess
+@needs_namespace
+def test_a_recorded_run_is_reproduced_frame_for_frame(recording: Recording) -> None:
+    settings = load_settings(DAEMON, [], root=Settings)
+    result = replay(recording.trace, settings)
+    assert result.ok, result.message()
+    assert result.reproduced == _sent_after(recording.trace, recording.start_frame) > 1000
+    for state in ("DISARMED", "FAULT", "CHECKING", "ARMED", "JOG", "HOLD", "ESTOP"):
+        assert state in result.states, result.states
+    assert "no heartbeat" in result.faults[0], result.faults  # as the run's status said
+    end = recording.inputs[-1]
+    assert result.ticks == end["after_tick"]
+
+
+@pytest.mark.crossprocess
+@needs_namespace
+def test_the_cli_says_how_many_frames_it_reproduced(recording: Recording,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["replay", str(recording.trace), "--config", str(DAEMON)]) == 0
+    out = capsys.readouterr().out.strip()
+    sent = _sent_after(recording.trace, recording.start_frame)
+    assert out.startswith(f"replay: {sent} frames reproduced, frame for frame"), out
+
+
+@pytest.mark.crossprocess
+@needs_namespace
+@pytest.mark.parametrize("left_out", ["heartbeat_lost", "overrun"])
+def test_without_a_wall_clock_input_the_replay_diverges(recording: Recording, tmp_path: Path,
+                                                        left_out: str) -> None:
+    """The sidecar's record is what the run depended on: without it, the replay does not
+    do what the run did (a heartbeat lost while disarmed changes no frame by itself when a
+    drive's own fault follows: then the reason of the fault differs)."""
+    def kept(entry: dict[str, object]) -> bool:
+        if left_out == "overrun":  # the daemon stopped for 30 ms, not the machine's jitter
+            return not (entry["kind"] == "overrun"
+                        and int(entry["skipped"]) >= 10)  # type: ignore[call-overload]
+        return entry["kind"] != left_out
+
+    inputs = tmp_path / "inputs.jsonl"
+    inputs.write_text("".join(json.dumps(e) + "\n" for e in recording.inputs if kept(e)))
+    result = replay(recording.trace, load_settings(DAEMON, [], root=Settings), inputs)
+    heartbeat_faults = [reason for reason in result.faults if "no heartbeat" in reason]
+    assert result.mismatch or (left_out == "heartbeat_lost" and not heartbeat_faults), \
+        (result.message(), result.faults)
+
+
+def _ticks_of_lines(recording: Recording) -> dict[int, int]:
+    """The tick (the daemon's counter) of each loop frame's line, from the trace's SYNCs
+    and the overruns in the sidecar: a tick's frames end with its SYNC (and heartbeat)."""
+    skipped = {int(e["after_tick"]): int(e["skipped"])  # type: ignore[call-overload]
+               for e in recording.inputs if e["kind"] == "overrun"}
+    numbered = [(n, line) for n, line in enumerate(recording.trace.read_text().splitlines(), 1)
+                if line.strip()]
+    tick, ticks, after_sync = 0, {}, True
+    for number, line in numbered[recording.start_frame:]:
+        frame = line.split()[2]
+        if after_sync and not frame.startswith("70A#"):  # the controller's heartbeat
+            tick += 1 + skipped.get(tick, 0)
+            after_sync = False
+        ticks[number] = tick
+        if frame.startswith("080#") and line.endswith(" T"):
+            after_sync = True
+    return ticks
+
+
+@pytest.mark.crossprocess
+@needs_namespace
+def test_a_changed_feedback_frame_is_the_first_mismatch_at_its_tick(
+        recording: Recording, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    jogs = [int(e["after_tick"]) for e in recording.inputs  # type: ignore[call-overload]
+            if e["kind"] == "command" and e["request"]["cmd"] == "jog"]  # type: ignore[index]
+    ticks = _ticks_of_lines(recording)
+    lines = recording.trace.read_text().splitlines()
+    target = next(n for n, tick in ticks.items()  # the r drive's TPDO1, mid-jog
+                  if tick > jogs[0] + 50 and lines[n - 1].split()[2].startswith("181#"))
+    head, data = lines[target - 1].split()[2].split("#")
+    counts = int.from_bytes(bytes.fromhex(data[:8]), "little", signed=True) + 2000
+    changed = counts.to_bytes(4, "little", signed=True).hex().upper() + data[8:]
+    lines[target - 1] = lines[target - 1].replace(f"{head}#{data}", f"{head}#{changed}")
+    tampered = tmp_path / "tampered.log"
+    tampered.write_text("\n".join(lines) + "\n")
+    sidecar_path(tampered).write_text(sidecar_path(recording.trace).read_text())
+
+    assert main(["replay", str(tampered), "--config", str(DAEMON)]) == 1
+    out = capsys.readouterr().out.strip()
+    assert "\n" not in out
+    tick = ticks[target]
+    sent_in_tick = [n for n, t in ticks.items() if t == tick and lines[n - 1].endswith(" T")]
+    assert out.startswith(f"replay: mismatch at tick {tick}, trace line "), out
+    line = int(out.split("trace line ")[1].split(":")[0])
+    assert line in sent_in_tick and line > target, (out, target, sent_in_tick)
+    assert "expected 201#" in out or "expected 202#" in out, out
+
+
+def _cli(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    status = main(args)
+    captured = capsys.readouterr()
+    assert captured.out == "" and "Traceback" not in captured.err
+    return status, captured.err.strip()
+
+
+@pytest.mark.crossprocess
+@needs_namespace
+def test_bad_input_is_one_line_and_exit_status_2(recording: Recording, tmp_path: Path,
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    lines = recording.trace.read_text().splitlines()
+    garbled = tmp_path / "garbled.log"
+    garbled.write_text("\n".join([*lines[:9], "(12.5) can0 not-a-frame R", *lines[9:]]) + "\n")
+    sidecar_path(garbled).write_text(sidecar_path(recording.trace).read_text())
+    status, err = _cli(["replay", str(garbled), "--config", str(DAEMON)], capsys)
+    assert status == 2 and err.startswith(f"rakectl: error: {garbled}, line 10: not a candump")
+    assert "\n" not in err
+
+    lonely = tmp_path / "lonely.log"
+    lonely.write_text(recording.trace.read_text())
+    status, err = _cli(["replay", str(lonely), "--config", str(DAEMON)], capsys)
+    assert status == 2 and f"{sidecar_path(lonely)}: no such file" in err, err
+
+    status, err = _cli(["replay", str(tmp_path / "absent.log")], capsys)
+    assert status == 2 and err == f"rakectl: error: {tmp_path / 'absent.log'}: no such trace"
+
+    status, err = _cli(["replay", str(recording.trace), "--config", str(DAEMON),
+                        "--set", "drives.feedback_timeout_cycles=3"], capsys)
+    assert status == 2 and "drives.feedback_timeout_cycles is 3 here but was 25" in err, err
+
+    cut = tmp_path / "cut.log"
+    cut.write_text(recording.trace.read_text())
+    sidecar = sidecar_path(recording.trace).read_text().splitlines()
+    sidecar_path(cut).write_text("\n".join([*sidecar[:3], sidecar[3][:20], *sidecar[4:]]))
+    status, err = _cli(["replay", str(cut), "--config", str(DAEMON)], capsys)
+    assert status == 2 and f"{sidecar_path(cut)}, line 4: not JSON" in err, err
+
+
+
+# --------------------------------------------------------------------------- failed sends
+
+
+class _LinkDown(can.BusABC):
+    """The controller's side of a real virtual bus whose link can be taken down: every
+    send then fails as socketcan's does (ENETDOWN), as the drive client meets it."""
+
+    def __init__(self, bus: can.BusABC) -> None:
+        super().__init__(channel="link")
+        self._bus, self.down = bus, False
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        return self._bus.recv(timeout), True
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self.down:
+            raise can.CanOperationError("Failed to transmit: Network is down", 100)
+        self._bus.send(msg, timeout)
+
+
+def _recorded_in_lockstep(out: Path) -> tuple[Path, Settings, LockstepRig]:
+    """A lock-step run (rakectl.bench.tick's rig: the daemon and the emulated drives on a
+    virtual bus) recorded as the service records one, with the link down for 5 ticks
+    while armed: the drives hear no SYNC, the daemon faults."""
+    rig = LockstepRig(out)
+    settings = rig.daemon.settings
+    trace_path = out / "lockstep.log"
+    trace = TraceRecorder(can.CanutilsLogWriter(trace_path, channel="can0"), "can0")
+    inputs = InputLog(open(sidecar_path(trace_path), "w", encoding="utf-8"))  # noqa: SIM115
+    link = _LinkDown(rig.controller_bus)
+    client = DriveClient(link, settings.drives, settings.motors, settings.rate_hz, trace)
+    daemon = Daemon(settings, client, Notifier(None), out)
+    daemon.trace, daemon.inputs, rig.daemon = trace, inputs, daemon
+    handle = make_handler(daemon)
+
+    def ticks(count: int) -> None:
+        for _ in range(count):
+            rig.tick()
+            trace.drain(64)
+            inputs.drain()
+
+    rig.bring_up()
+    ticks(300)
+    assert daemon.state is DaemonState.DISARMED, daemon.fault_reason
+    handle(decode_request(b'{"cmd": "arm"}'))  # type: ignore[arg-type]
+    for _ in range(60):
+        ticks(100)
+        if daemon.state is DaemonState.ARMED:
+            break
+    assert daemon.state is DaemonState.ARMED, daemon.fault_reason
+    ticks(100)
+    link.down = True
+    ticks(5)
+    link.down = False
+    ticks(100)
+    daemon.finish()
+    trace.close()
+    inputs.close()
+    link.shutdown()  # (the virtual bus under it: rig.close)
+    return trace_path, settings, rig
+
+
+def test_failed_sends_are_recorded_and_fail_again_in_the_replay(tmp_path: Path) -> None:
+    trace, settings, rig = _recorded_in_lockstep(tmp_path)
+    try:
+        assert rig.daemon.state is DaemonState.FAULT  # stale feedback, or the sends
+    finally:
+        rig.close()
+    entries = [json.loads(line) for line in sidecar_path(trace).read_text().splitlines()]
+    failed = [e for e in entries if e["kind"] == "send_failed"]
+    assert len(failed) >= 15 and all("Network is down" in e["error"] for e in failed)
+    result = replay(trace, settings)
+    assert result.ok, result.message()
+    assert result.reproduced == _sent_after(trace, entries[0]["frame"])
+    assert result.states[-1] == "FAULT"
+
+    without = tmp_path / "without.jsonl"  # the failures are what made it fault
+    without.write_text("".join(json.dumps(e) + "\n" for e in entries
+                               if e["kind"] != "send_failed"))
+    diverged = replay(trace, settings, without)
+    assert not diverged.ok and diverged.mismatch.startswith(f"tick {failed[0]['tick']}, ")
