@@ -32,6 +32,7 @@ from drivers.emulator import Emulator
 from rakectl.config.loader import load_settings
 from rakectl.config.service import BusInterface, BusSettings
 from rakectl.config.settings import Settings
+from rakectl.daemon.replay import replay
 from rakectl.drive.canbus import open_bus
 from rakectl.protocol.cia402 import DriveCommand, DriveState, decode_statusword
 from tests.vcan.vcan_bench import (
@@ -169,6 +170,11 @@ def test_bring_up_jog_excavate_and_estop_on_the_wire(tmp_path: Path) -> None:
     _check_truth(truth)
     _check_bring_up_on_the_wire(read_trace(wire))
     _check_daemon_trace(read_trace(trace))
+    # the same trace, fed back offline through the controller, gives every frame it sent
+    # on the wire (rakectl replay, docs/can-bus.md#replaying-a-field-trace)
+    replayed = replay(trace, SETTINGS)
+    assert replayed.ok, replayed.message()
+    print(f"\n{replayed.message()}")
     bus = final["bus"]
     assert isinstance(bus, dict)
     print(f"\nlane: deepest {-min(float(r['tip_height_m']) for r in truth) * 1e3:.1f} mm, "
