@@ -31,7 +31,7 @@ from rakectl.daemon.loop import Daemon
 from rakectl.daemon.replay import replay
 from rakectl.daemon.sdnotify import Notifier
 from rakectl.daemon.states import DaemonState
-from rakectl.drive.canbus import TraceRecorder
+from rakectl.drive.canbus import DEFAULT_TRACE_CAPACITY, TraceRecorder
 from rakectl.drive.client import DriveClient
 from rakectl.errors import ApiError
 from rakectl.sim.rig import Bench, emulated_bench, namespaces_unavailable
@@ -299,14 +299,17 @@ class _LinkDown(can.BusABC):
         self._bus.send(msg, timeout)
 
 
-def _recorded_in_lockstep(out: Path) -> tuple[Path, Settings, LockstepRig]:
+def _recorded_in_lockstep(out: Path, capacity: int = DEFAULT_TRACE_CAPACITY,
+                          undrained_ticks: int = 0) -> tuple[Path, Settings, LockstepRig]:
     """A lock-step run (rakectl.bench.tick's rig: the daemon and the emulated drives on a
     virtual bus) recorded as the service records one, with the link down for 5 ticks
-    while armed: the drives hear no SYNC, the daemon faults."""
+    while armed: the drives hear no SYNC, the daemon faults. ``undrained_ticks`` armed
+    ticks before that go by with no slack to write the trace's ring of ``capacity``."""
     rig = LockstepRig(out)
     settings = rig.daemon.settings
     trace_path = out / "lockstep.log"
-    trace = TraceRecorder(can.CanutilsLogWriter(trace_path, channel="can0"), "can0")
+    trace = TraceRecorder(can.CanutilsLogWriter(trace_path, channel="can0"), "can0",
+                          capacity)
     inputs = InputLog(open(sidecar_path(trace_path), "w", encoding="utf-8"))  # noqa: SIM115
     link = _LinkDown(rig.controller_bus)
     client = DriveClient(link, settings.drives, settings.motors, settings.rate_hz, trace)
@@ -330,6 +333,8 @@ def _recorded_in_lockstep(out: Path) -> tuple[Path, Settings, LockstepRig]:
             break
     assert daemon.state is DaemonState.ARMED, daemon.fault_reason
     ticks(100)
+    for _ in range(undrained_ticks):
+        rig.tick()
     link.down = True
     ticks(5)
     link.down = False
@@ -360,3 +365,22 @@ def test_failed_sends_are_recorded_and_fail_again_in_the_replay(tmp_path: Path) 
                                if e["kind"] != "send_failed"))
     diverged = replay(trace, settings, without)
     assert not diverged.ok and diverged.mismatch.startswith(f"tick {failed[0]['tick']}, ")
+
+
+def test_a_trace_whose_ring_overflowed_is_replayed_up_to_its_first_lost_frame(
+        tmp_path: Path) -> None:
+    """100 armed ticks with no slack to write a ring of 256 frames (5 frames a tick): the
+    trace is complete only up to the first frame the ring dropped. The replay reproduces
+    every frame sent before it, then stops there, saying so (not as a mismatch)."""
+    trace, settings, rig = _recorded_in_lockstep(tmp_path, capacity=256, undrained_ticks=100)
+    rig.close()
+    entries = [json.loads(line) for line in sidecar_path(trace).read_text().splitlines()]
+    end = entries[-1]
+    assert end["kind"] == "end" and end["dropped"] > 0, end
+    first_lost = int(end["first_dropped_at"])
+    lines = [line for line in trace.read_text().splitlines() if line.strip()]
+    sent_before = sum(1 for line in lines[entries[0]["frame"]:first_lost] if line.endswith(" T"))
+    result = replay(trace, settings)
+    assert not result.ok and not result.mismatch, result.message()
+    assert f"lost {end['dropped']} frames from frame {first_lost} on" in result.incomplete
+    assert result.reproduced == sent_before > 1000
