@@ -30,11 +30,13 @@ With ``bus.trace_path`` set, :class:`InputLog` writes them to the sidecar
     ``tick``: the heartbeat check of that tick found a drive's heartbeat too old.
 ``send_failed``
     ``tick``, ``attempt`` (the client's transmissions counted from 0), ``frame`` (the
-    trace's frame count then), ``id`` and ``error``.
+    trace's frame count then), ``id``, ``data`` (hex) and ``error``; at most
+    MAX_SEND_FAILURES of them, the rest counted as ``lost``.
 ``lost``
-    ``entries`` that found the queue full (the slack had no time for the sidecar);
+    ``entries`` that found the queue full (the slack had no time for the sidecar), or
+    failed sends past MAX_SEND_FAILURES, and every entry after the first of them;
     the record is complete only up to entry ``complete_entries`` (counted from 1, the
-    start entry included).
+    start entry included). It may follow the ``end`` entry.
 ``end``
     the loop's end: ``after_tick``, ``reason`` and the trace's counts (``frames``
     recorded, ``dropped`` on a full ring, ``first_dropped_at``).
@@ -63,6 +65,10 @@ from rakectl.drive.canbus import BusError, TraceRecorder
 SIDECAR_SUFFIX = ".inputs.jsonl"
 FORMAT = 1
 QUEUE_LENGTH = 65536  # entries waiting for the slack: over a minute of overruns at 1 kHz
+# Failed sends recorded in one run of the daemon: about 1 s of a link down at 1 kHz (3
+# sends a tick), 0.5 MB. A link down for longer (disarmed, nothing faults) would write
+# ~2 GB an hour; past this the record ends there as for a full queue (``lost``).
+MAX_SEND_FAILURES = 3000
 SLACK_ENTRIES = 8  # written per slack
 
 
@@ -120,6 +126,7 @@ class InputLog:
         self.lost = 0  # entries that found the queue full
         self._lost_written = 0
         self._complete_entries = 0  # entries before the first lost one
+        self._send_failures = 0
         self.written = 0
 
     # ------------------------------------------------------------------ recording
@@ -145,21 +152,30 @@ class InputLog:
 
     def send_failed(self, tick: int, attempt: int, frame: int, msg: can.Message,
                     error: can.CanError) -> None:
-        """Transmission ``attempt`` (of ``msg``) failed in ``tick`` (O(1): no formatting)."""
-        self._append(("send_failed", tick, attempt, frame, msg.arbitration_id, error))
+        """Transmission ``attempt`` (of ``msg``) failed in ``tick`` (O(1): no formatting;
+        past MAX_SEND_FAILURES, counted as lost)."""
+        self._send_failures += 1
+        if self._send_failures > MAX_SEND_FAILURES:
+            self._lose()
+            return
+        self._append(("send_failed", tick, attempt, frame, msg.arbitration_id,
+                      bytes(msg.data), error))
 
     def end(self, after_tick: int, reason: str, trace: TraceRecorder | None) -> None:
         """The loop ended after ``after_tick``; the trace's counts as they are now."""
         counts = (trace.recorded, trace.dropped, trace.first_dropped_at) if trace else (0, 0, -1)
-        self._append(("end", after_tick, reason, *counts))
+        self._queue.append(("end", after_tick, reason, *counts))  # even past a loss
 
     def _append(self, entry: tuple[Any, ...]) -> None:
-        if len(self._queue) >= self._queue_length:
-            if not self.lost:
-                self._complete_entries = self.written + len(self._queue)
-            self.lost += 1
+        if len(self._queue) >= self._queue_length or self.lost:
+            self._lose()  # (once one is lost, the record is complete only up to it)
             return
         self._queue.append(entry)
+
+    def _lose(self) -> None:
+        if not self.lost:
+            self._complete_entries = self.written + len(self._queue)
+        self.lost += 1
 
     # ------------------------------------------------------------------ writing (slack)
 
@@ -201,9 +217,9 @@ class InputLog:
         if kind == "heartbeat_lost":
             return {"kind": kind, "tick": entry[1]}
         if kind == "send_failed":
-            _, tick, attempt, frame, can_id, error = entry
+            _, tick, attempt, frame, can_id, data, error = entry
             return {"kind": kind, "tick": tick, "attempt": attempt, "frame": frame,
-                    "id": can_id, "error": f"{type(error).__name__}: {error}"}
+                    "id": can_id, "data": data.hex(), "error": f"{type(error).__name__}: {error}"}
         _, after_tick, reason, frames, dropped, first_dropped_at = entry
         return {"kind": kind, "after_tick": after_tick, "reason": reason, "frames": frames,
                 "dropped": dropped, "first_dropped_at": first_dropped_at}

@@ -39,19 +39,19 @@ import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import can
 
 from rakectl.api.schema import Request, decode_request
 from rakectl.config.settings import Settings
 from rakectl.daemon.events import EventLog
-from rakectl.daemon.handlers import make_handler
+from rakectl.daemon.handlers import CHANGING, make_handler
 from rakectl.daemon.inputs import FORMAT, flat_settings, sidecar_path
 from rakectl.daemon.loop import Daemon
 from rakectl.daemon.sdnotify import Notifier
 from rakectl.drive.client import DriveClient
-from rakectl.errors import CommandRejected, ConfigError, FrameError, TraceError
+from rakectl.errors import CommandRejected, ConfigError, FrameError, RakeError, TraceError
 from rakectl.protocol.codec import NMT_COB_ID, SYNC_COB_ID, split_cob_id
 
 # Options that change nothing the loop sends: where things are, how the process is set up
@@ -79,39 +79,65 @@ class Frame:
         return bool(self.msg.is_rx)
 
 
+class _Lines:
+    """A trace's lines as the text file python-can's reader iterates: each decoded and
+    numbered here, so a bad byte is named with its own line; a last line with no end
+    (a daemon killed while its writer held the rest) ends the trace."""
+
+    def __init__(self, path: Path, file: BinaryIO) -> None:
+        self._path, self._file = path, file
+        self.number = 0  # the line last handed on (1-based)
+        self.text = ""  # that line, stripped
+
+    def __iter__(self) -> Iterator[str]:
+        for number, raw in enumerate(self._file, 1):
+            self.number = number
+            if not raw.endswith(b"\n"):
+                return  # cut short: the run's writer never finished this line
+            try:
+                line = raw.decode("ascii")
+            except UnicodeDecodeError:
+                raise TraceError(f"{self._path}, line {number}: not text") from None
+            self.text = line.strip()
+            yield line
+
+    def close(self) -> None:
+        self._file.close()
+
+
 def frames_of(path: Path) -> Iterator[Frame]:
     """The frames of a candump ``-L`` log written by ``bus.trace_path``, in file order,
     read as they are needed (a trace of hours does not fit in memory); TraceError names
     the line of anything that is not such a frame."""
     try:
-        lines = open(path, encoding="ascii")  # noqa: SIM115 (closed below)
+        file = open(path, "rb")  # noqa: SIM115 (closed by the reader's stop, below)
     except FileNotFoundError:
         raise TraceError(f"{path}: no such trace") from None
     except OSError as error:
         raise TraceError(f"{path}: cannot read the trace: {error}") from None
-    reader = can.CanutilsLogReader(path)
+    lines = _Lines(path, file)
+    reader = can.CanutilsLogReader(lines)  # type: ignore[arg-type]  # (iterated, closed)
     messages = iter(reader)
-    number = 0
     try:
-        for number, raw in enumerate(lines, 1):
-            line = raw.strip()
-            if not line:
-                continue
+        while True:
             try:
                 msg = next(messages)
-            except (ValueError, IndexError, KeyError, StopIteration) as error:
-                raise TraceError(f"{path}, line {number}: not a candump -L frame "
-                                 f"({type(error).__name__}: {error}): {line[:60]!r}") from None
-            if line[-2:] not in (" R", " T") and not msg.is_error_frame:
-                raise TraceError(f"{path}, line {number}: no direction (R or T) at the end: "
-                                 f"{line[:60]!r}; a trace of bus.trace_path marks each frame")
-            yield Frame(number, msg)
-    except UnicodeDecodeError as error:
-        raise TraceError(f"{path}, line {number + 1}: not text: {error}") from None
+            except StopIteration:
+                return
+            except TraceError:
+                raise  # (a ValueError too) a line that is not text
+            except (ValueError, IndexError, KeyError) as error:
+                raise TraceError(f"{path}, line {lines.number}: not a candump -L frame "
+                                 f"({type(error).__name__}: {error}): "
+                                 f"{lines.text[:60]!r}") from None
+            if lines.text[-2:] not in (" R", " T") and not msg.is_error_frame:
+                raise TraceError(f"{path}, line {lines.number}: no direction (R or T) at the "
+                                 f"end: {lines.text[:60]!r}; a trace of bus.trace_path marks "
+                                 "each frame")
+            yield Frame(lines.number, msg)
     except OSError as error:
         raise TraceError(f"{path}: cannot read the trace: {error}") from None
     finally:
-        lines.close()
         reader.stop()
 
 
@@ -134,6 +160,7 @@ class SendFailure:
     attempt: int
     frame: int  # frames in the trace before it
     can_id: int
+    data: bytes
     error: str
 
 
@@ -162,11 +189,17 @@ class Inputs:
     complete_until_tick: int | None  # entries were lost after this tick
 
 
+MAX_COUNT = 2 ** 53  # ticks, frames, attempts: far beyond any run
+
+
 def _int(entry: dict[str, Any], key: str, where: str, minimum: int = 0) -> int:
     value = entry.get(key)
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise TraceError(f"{where}: {key!r} must be an integer >= {minimum}, got "
-                         f"{json.dumps(value)}")
+    if (isinstance(value, bool) or not isinstance(value, int) or value < minimum
+            or value > MAX_COUNT):
+        shown = json.dumps(value) if not isinstance(value, int) or abs(value) < 10 ** 20 \
+            else "a huge integer"
+        raise TraceError(f"{where}: {key!r} must be an integer from {minimum} to 2**53, "
+                         f"got {shown}")
     return value
 
 
@@ -193,6 +226,9 @@ def _entries(path: Path) -> Iterator[tuple[str, dict[str, Any]]]:
             entry = json.loads(line)
         except json.JSONDecodeError as error:
             raise TraceError(f"{where}: not JSON ({error.msg} at column {error.colno})") from None
+        except (ValueError, RecursionError) as error:  # integers too long, nesting too deep
+            raise TraceError(f"{where}: not an entry of the trace's inputs "
+                             f"({type(error).__name__})") from None
         if not isinstance(entry, dict) or not isinstance(entry.get("kind"), str):
             raise TraceError(f"{where}: not an entry of the trace's inputs (no \"kind\")")
         yield where, entry
@@ -222,7 +258,7 @@ def read_inputs(path: Path) -> Inputs:
     ticks_of_lines = [0]  # the tick each entry was recorded at, by entry (start: 0)
     for where, entry in entries[1:]:
         kind = entry["kind"]
-        if inputs.end is not None:
+        if inputs.end is not None and kind != "lost":  # (a loss is written when it can be)
             raise TraceError(f"{where}: an entry after the end entry")
         if kind == "command":
             after = _int(entry, "after_tick", where)
@@ -232,6 +268,9 @@ def read_inputs(path: Path) -> Inputs:
             if not isinstance(request, Request):
                 raise TraceError(f"{where}: not a request of the API: "
                                  f"{request.error if request else json.dumps(fields)}")
+            if request.cmd not in CHANGING:  # (the daemon records no other: never replayed)
+                raise TraceError(f"{where}: {request.cmd.value!r} is not a command a run "
+                                 "records")
             inputs.between_ticks.append(Command(after, request, int(where.rsplit(" ", 1)[1])))
         elif kind == "overrun":
             after = _int(entry, "after_tick", where)
@@ -241,9 +280,13 @@ def read_inputs(path: Path) -> Inputs:
             lost.add(after)
         elif kind == "send_failed":
             after = _int(entry, "tick", where)
+            try:
+                data = bytes.fromhex(_text(entry, "data", where))
+            except ValueError:
+                raise TraceError(f"{where}: 'data' must be hex bytes") from None
             failure = SendFailure(after, _int(entry, "attempt", where),
                                   _int(entry, "frame", where), _int(entry, "id", where),
-                                  _text(entry, "error", where))
+                                  data, _text(entry, "error", where))
             inputs.failures[failure.attempt] = failure
         elif kind == "lost":
             complete = _int(entry, "complete_entries", where, 1)
@@ -404,6 +447,10 @@ class ReplayBus(can.BusABC):
                 raise _Diverged(f"the run's send {attempt} ({failure.can_id:03X}#) failed "
                                 f"before trace frame {failure.frame}, the replay's is at "
                                 f"frame {self.position}")
+            if msg.arbitration_id != failure.can_id or bytes(msg.data) != failure.data:
+                raise _Diverged(f"the run's send {attempt}, which failed, was "
+                                f"{failure.can_id:03X}#{failure.data.hex().upper()}; the "
+                                f"replay sends {describe(msg)}")
             raise can.CanOperationError(f"replayed: {failure.error}")
         expected = self._next
         if expected is None:
@@ -487,45 +534,47 @@ def replay(trace: Path, settings: Settings, inputs_path: Path | None = None) -> 
         if str(error).startswith(f"{trace}"):
             raise
         raise TraceError(f"{trace}: {error} ({inputs.path})") from None
-    with tempfile.TemporaryDirectory(prefix="rakectl-replay-") as dump_dir:
-        client = DriveClient(bus, settings.drives, settings.motors, settings.rate_hz,
-                             clock=lambda: 0.0)
-        try:
-            client.started(inputs.statuswords)
-        except FrameError as error:
-            raise TraceError(f"{inputs.path}, line 1: a recorded statusword: {error}") from None
-        daemon = Daemon(settings, client, Notifier(None), Path(dump_dir))
-        events = _Events()
-        daemon.events = EventLog(events)
-        daemon.heartbeat_clock = _outcomes(daemon, inputs.heartbeat_lost)
-        result = ReplayResult(0, 0, inputs.start_frame, [daemon.state.name],
-                              end.reason if end is not None else
-                              "no end entry: the run was killed or its files not closed")
-        try:
-            _run(daemon, make_handler(daemon, timing_checked=False), inputs, bus)
-            frame = bus.next_frame
-            if frame is not None:
-                raise _Diverged(f"trace line {frame.line}: the run's end, and the trace goes "
-                                f"on with {describe(frame.msg)}")
-        except _Incomplete:
-            assert end is not None
-            result.incomplete = (f"the trace lost {end.dropped} frames from frame "
-                                 f"{end.first_dropped_at} on, its ring full (tick "
-                                 f"{daemon.ticks})")
-        except _TraceEnds:
-            if end is not None:  # (no end entry: the run was killed, its trace ends here)
-                result.incomplete = (f"the trace ends at frame {bus.position} of the "
-                                     f"{end.frames} the run recorded (tick {daemon.ticks}): "
-                                     "cut short")
-        except _Diverged as diverged:
-            result.mismatch = f"tick {daemon.ticks}, {diverged.message}"
-        except _Replayed as stopped:
-            result.incomplete = stopped.message
-        daemon.events.flush(daemon.state.name)
-        result.reproduced, result.ticks = bus.reproduced, daemon.ticks
-        result.states = [result.states[0], *events.states]
-        result.faults = events.faults
-        bus.shutdown()
+    try:
+        with tempfile.TemporaryDirectory(prefix="rakectl-replay-") as dump_dir:
+            client = DriveClient(bus, settings.drives, settings.motors, settings.rate_hz,
+                                 clock=lambda: 0.0)
+            try:
+                client.started(inputs.statuswords)
+            except FrameError as error:
+                raise TraceError(f"{inputs.path}, line 1: a recorded statusword: {error}") from None
+            daemon = Daemon(settings, client, Notifier(None), Path(dump_dir))
+            events = _Events()
+            daemon.events = EventLog(events)
+            daemon.heartbeat_clock = _outcomes(daemon, inputs.heartbeat_lost)
+            result = ReplayResult(0, 0, inputs.start_frame, [daemon.state.name],
+                                  end.reason if end is not None else
+                                  "no end entry: the run was killed or its files not closed")
+            try:
+                _run(daemon, make_handler(daemon, timing_checked=False), inputs, bus)
+                frame = bus.next_frame
+                if frame is not None:
+                    raise _Diverged(f"trace line {frame.line}: the run's end, and the trace goes "
+                                    f"on with {describe(frame.msg)}")
+            except _Incomplete:
+                assert end is not None
+                result.incomplete = (f"the trace lost {end.dropped} frames from frame "
+                                     f"{end.first_dropped_at} on, its ring full (tick "
+                                     f"{daemon.ticks})")
+            except _TraceEnds:
+                if end is not None:  # (no end entry: the run was killed, its trace ends here)
+                    result.incomplete = (f"the trace ends at frame {bus.position} of the "
+                                         f"{end.frames} the run recorded (tick {daemon.ticks}): "
+                                         "cut short")
+            except _Diverged as diverged:
+                result.mismatch = f"tick {daemon.ticks}, {diverged.message}"
+            except _Replayed as stopped:
+                result.incomplete = stopped.message
+            daemon.events.flush(daemon.state.name)
+            result.reproduced, result.ticks = bus.reproduced, daemon.ticks
+            result.states = [result.states[0], *events.states]
+            result.faults = events.faults
+    finally:
+        bus.shutdown()  # (also when a garbled line ends it)
     return result
 
 
@@ -555,7 +604,7 @@ def _run(daemon: Daemon, handle: Callable[[Request], object], inputs: Inputs,
                 continue
             try:
                 handle(entry.request)
-            except CommandRejected as error:
+            except (CommandRejected, RakeError) as error:
                 raise _Diverged(f"{inputs.path}, line {entry.line}: the run carried out "
                                 f"{entry.request.cmd.value}, the replay refuses it: "
                                 f"{error}") from None
@@ -564,7 +613,9 @@ def _run(daemon: Daemon, handle: Callable[[Request], object], inputs: Inputs,
                             f"which the replay's tick counter passed")
         if end is not None and daemon.ticks == end.after_tick:
             break
-        if inputs.complete_until_tick is not None and daemon.ticks >= inputs.complete_until_tick:
+        # (the last complete entry may be one of several in its tick: that tick not run)
+        if (inputs.complete_until_tick is not None
+                and daemon.ticks + 1 >= inputs.complete_until_tick):
             raise _Replayed(f"the trace's inputs lost entries after tick {daemon.ticks}")
         if end is None and bus.next_frame is None:
             return  # the trace ends between ticks: the run was not ended cleanly

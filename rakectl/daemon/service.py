@@ -121,10 +121,12 @@ def run(config: Path | None, overrides: list[str]) -> int:
         gc.enable()
         if server is not None:
             server.close()
-        if trace is not None:
-            trace.close()
-        if inputs is not None:
-            inputs.close()
+        for recording in (trace, inputs):
+            if recording is not None:
+                try:
+                    recording.close()
+                except OSError as error:  # a full disk: the trace ends, the stop goes on
+                    log.warning("trace_failed", error=f"{type(error).__name__}: {error}")
         with contextlib.suppress(Exception):
             bus.shutdown()
     log.info("stopped", **{**daemon.timing.summary(), "ticks": daemon.ticks})

@@ -81,12 +81,24 @@ class SlackWork:
             left = budget_s - (time.perf_counter() - started)
             if left > 0:
                 self._work_on_dump(left)
-        if self.trace is not None:
-            self.trace.drain(32)
-        if self.inputs is not None and self.inputs.pending:
-            self.inputs.drain()
+        if self.trace is not None or self.inputs is not None:
+            self._write_trace()
         self.events.flush(self.state.name, 1)
         self._periodic()
+
+    def _write_trace(self) -> None:
+        """A little of the bus trace and of its inputs. A file that cannot be written (a
+        full disk) ends the recording, logged once, never the loop: the ring then drops
+        what it can no longer hand on (counted in its ``dropped``)."""
+        try:
+            if self.trace is not None:
+                self.trace.drain(32)
+            if self.inputs is not None and self.inputs.pending:
+                self.inputs.drain()
+        except OSError as error:
+            self.event("trace_failed", error=f"{type(error).__name__}: {error}",
+                       path=self.settings.bus.trace_path)
+            self.trace = self.inputs = None
 
     def _work_on_dump(self, budget_s: float) -> None:
         """Write on the oldest dump; a dump that cannot be written is dropped and logged,

@@ -10,10 +10,12 @@ deadlines). The replay then runs offline and must reproduce every frame the daem
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,10 +27,11 @@ from rakectl.bench.tick import LockstepRig
 from rakectl.cli.main import main
 from rakectl.config.loader import load_settings
 from rakectl.config.settings import Settings
+from rakectl.daemon.events import EventLog
 from rakectl.daemon.handlers import make_handler
-from rakectl.daemon.inputs import InputLog, sidecar_path
+from rakectl.daemon.inputs import MAX_SEND_FAILURES, InputLog, sidecar_path
 from rakectl.daemon.loop import Daemon
-from rakectl.daemon.replay import replay
+from rakectl.daemon.replay import read_inputs, replay
 from rakectl.daemon.sdnotify import Notifier
 from rakectl.daemon.states import DaemonState
 from rakectl.drive.canbus import DEFAULT_TRACE_CAPACITY, TraceRecorder
@@ -218,8 +221,18 @@ def test_a_changed_feedback_frame_is_the_first_mismatch_at_its_tick(
             if e["kind"] == "command" and e["request"]["cmd"] == "jog"]  # type: ignore[index]
     ticks = _ticks_of_lines(recording)
     lines = recording.trace.read_text().splitlines()
-    target = next(n for n, tick in ticks.items()  # the r drive's TPDO1, mid-jog
-                  if tick > jogs[0] + 50 and lines[n - 1].split()[2].startswith("181#"))
+
+    def last_of_its_drain(n: int) -> bool:  # no later r TPDO1 before the tick's sends
+        for line in lines[n:]:
+            if line.endswith(" T"):
+                return True
+            if line.split()[2].startswith("181#"):
+                return False
+        return False
+
+    target = next(n for n, tick in ticks.items()  # the r drive's TPDO1, mid-jog, the one
+                  if tick > jogs[0] + 50  # its tick decodes (a loaded host delivers several)
+                  and lines[n - 1].split()[2].startswith("181#") and last_of_its_drain(n))
     head, data = lines[target - 1].split()[2].split("#")
     counts = int.from_bytes(bytes.fromhex(data[:8]), "little", signed=True) + 2000
     changed = counts.to_bytes(4, "little", signed=True).hex().upper() + data[8:]
@@ -276,6 +289,54 @@ def test_bad_input_is_one_line_and_exit_status_2(recording: Recording, tmp_path:
     sidecar_path(cut).write_text("\n".join([*sidecar[:3], sidecar[3][:20], *sidecar[4:]]))
     status, err = _cli(["replay", str(cut), "--config", str(DAEMON)], capsys)
     assert status == 2 and f"{sidecar_path(cut)}, line 4: not JSON" in err, err
+
+    def hostile(entry: str) -> str:  # a sidecar with one more line after the start entry
+        path = tmp_path / f"hostile-{len(list(tmp_path.iterdir()))}.log"
+        path.write_text(recording.trace.read_text())
+        sidecar_path(path).write_text("\n".join([sidecar[0], entry, *sidecar[1:]]) + "\n")
+        status, err = _cli(["replay", str(path), "--config", str(DAEMON)], capsys)
+        assert status == 2 and "\n" not in err, err
+        assert err.startswith(f"rakectl: error: {sidecar_path(path)}, line 2: "), err
+        return err
+
+    victim = tmp_path / "victim.txt"
+    victim.write_text("kept")
+    err = hostile(json.dumps({"kind": "command", "after_tick": 0,
+                              "request": {"cmd": "dump", "path": str(victim)}}))
+    assert "'dump' is not a command a run records" in err and victim.read_text() == "kept"
+    assert "not an entry of the trace's inputs (ValueError)" in hostile(
+        '{"kind": "overrun", "after_tick": ' + "9" * 5000 + ', "skipped": 1}')
+    assert "not an entry of the trace's inputs (RecursionError)" in hostile(
+        "[" * 100000 + "]" * 100000)
+    assert "'skipped' must be an integer from 1 to 2**53, got a huge integer" in hostile(
+        json.dumps({"kind": "overrun", "after_tick": 0, "skipped": 10 ** 400}))
+
+    accent = tmp_path / "accent.log"  # a byte that is not text, far into the file
+    data = recording.trace.read_bytes().splitlines(keepends=True)
+    accent.write_bytes(b"".join([*data[:150], b"(1.0) can0 201#00\xe9 T\n", *data[150:]]))
+    sidecar_path(accent).write_text(sidecar_path(recording.trace).read_text())
+    status, err = _cli(["replay", str(accent), "--config", str(DAEMON)], capsys)
+    assert status == 2 and err == f"rakectl: error: {accent}, line 151: not text", err
+
+
+@pytest.mark.crossprocess
+@needs_namespace
+def test_a_trace_cut_short_in_a_line_is_replayed_up_to_its_end(recording: Recording,
+                                                              tmp_path: Path) -> None:
+    """A daemon killed while its trace's writer held part of a line leaves a last line
+    with no end: the frames before it are compared, and the replay says where the trace
+    ends (not that it is garbled)."""
+    data = recording.trace.read_bytes()
+    lines = data.splitlines(keepends=True)
+    keep = len(lines) * 2 // 3
+    cut = tmp_path / "cut.log"
+    cut.write_bytes(b"".join(lines[:keep]) + lines[keep][:17])
+    sidecar_path(cut).write_text(sidecar_path(recording.trace).read_text())
+    result = replay(cut, load_settings(DAEMON, [], root=Settings))
+    assert not result.ok and not result.mismatch, result.message()
+    assert f"the trace ends at frame {keep} of the" in result.incomplete
+    sent = sum(1 for line in lines[recording.start_frame:keep] if line.rstrip().endswith(b" T"))
+    assert result.reproduced == sent > 1000
 
 
 
@@ -384,3 +445,72 @@ def test_a_trace_whose_ring_overflowed_is_replayed_up_to_its_first_lost_frame(
     assert not result.ok and not result.mismatch, result.message()
     assert f"lost {end['dropped']} frames from frame {first_lost} on" in result.incomplete
     assert result.reproduced == sent_before > 1000
+
+
+def test_a_link_down_for_long_is_recorded_up_to_a_bound_then_as_lost(tmp_path: Path) -> None:
+    """Sends failing every tick (a link down while disarmed: nothing faults) would write
+    ~2 GB an hour: past MAX_SEND_FAILURES the inputs count them as lost, and every entry
+    after; the end entry is still written, and a replay stops before the first tick that
+    may be incomplete."""
+    path = tmp_path / "flood.log.inputs.jsonl"
+    log = InputLog(open(path, "w", encoding="utf-8"))  # noqa: SIM115 (closed below)
+    log.start(0, (0x0237, 0x0237), Settings())
+    msg = can.Message(arbitration_id=0x201, data=b"\x00\x00\x0f\x00", is_extended_id=False)
+    error = can.CanOperationError("Failed to transmit: Network is down", 100)
+    extra = 25
+    for attempt in range(MAX_SEND_FAILURES + extra):
+        log.send_failed(1 + attempt // 3, attempt, 0, msg, error)
+        if attempt % 100 == 0:
+            log.drain(1000)
+    stop = decode_request(b'{"cmd": "stop"}')
+    assert not isinstance(stop, str)
+    log.command(MAX_SEND_FAILURES, stop)  # after the loss: lost too
+    log.end(MAX_SEND_FAILURES + 1, "stop requested", None)
+    log.close()
+    entries = [json.loads(line) for line in path.read_text().splitlines()]
+    kinds = [e["kind"] for e in entries]
+    assert kinds.count("send_failed") == MAX_SEND_FAILURES
+    assert "command" not in kinds and kinds[-2:] == ["end", "lost"]
+    lost = [e for e in entries if e["kind"] == "lost"]  # written as the slack can
+    assert sum(e["entries"] for e in lost) == extra + 1
+    assert all(e["complete_entries"] == 1 + MAX_SEND_FAILURES for e in lost)
+    assert entries[1]["data"] == "00000f00" and entries[1]["id"] == 0x201
+    inputs = read_inputs(path)
+    last = entries[MAX_SEND_FAILURES]["tick"]
+    assert inputs.end is not None and inputs.complete_until_tick == last
+
+
+def test_a_trace_the_disk_cannot_take_ends_the_recording_not_the_loop(tmp_path: Path) -> None:
+    """The trace and its inputs on /dev/full (every write: ENOSPC): the slack's writing
+    fails, one trace_failed event is logged, the recording stops, the loop goes on."""
+    rig = LockstepRig(tmp_path)
+    settings = rig.daemon.settings
+    trace = TraceRecorder(can.CanutilsLogWriter("/dev/full", channel="can0"), "can0")
+    inputs = InputLog(open("/dev/full", "w", encoding="utf-8"))  # noqa: SIM115
+    client = DriveClient(rig.controller_bus, settings.drives, settings.motors,
+                         settings.rate_hz, trace)
+    daemon = Daemon(settings, client, Notifier(None), tmp_path)
+    daemon.trace, rig.daemon = trace, daemon
+    events: list[str] = []
+
+    class Log:
+        def __getattr__(self, level: str) -> Callable[..., None]:
+            return lambda name, **fields: events.append(name)
+
+    daemon.events = EventLog(Log())
+    try:
+        rig.bring_up()  # (the inputs' start entry is written at once: not on /dev/full)
+        daemon.inputs = inputs
+        inputs.overrun(daemon.ticks, 1)  # something pending for the inputs too
+        for _ in range(300):
+            rig.tick()
+            daemon._write_trace()
+            daemon.events.flush(daemon.state.name)
+        assert events.count("trace_failed") == 1, events
+        assert daemon.trace is None and daemon.inputs is None
+        assert daemon.state is DaemonState.DISARMED and daemon.ticks >= 300
+    finally:
+        rig.close()
+        for recording in (trace, inputs):
+            with contextlib.suppress(OSError):
+                recording.close()

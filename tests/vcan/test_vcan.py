@@ -32,6 +32,7 @@ from drivers.emulator import Emulator
 from rakectl.config.loader import load_settings
 from rakectl.config.service import BusInterface, BusSettings
 from rakectl.config.settings import Settings
+from rakectl.daemon.inputs import sidecar_path
 from rakectl.daemon.replay import replay
 from rakectl.drive.canbus import open_bus
 from rakectl.protocol.cia402 import DriveCommand, DriveState, decode_statusword
@@ -174,6 +175,9 @@ def test_bring_up_jog_excavate_and_estop_on_the_wire(tmp_path: Path) -> None:
     # on the wire (rakectl replay, docs/can-bus.md#replaying-a-field-trace)
     replayed = replay(trace, SETTINGS)
     assert replayed.ok, replayed.message()
+    start = json.loads(sidecar_path(trace).read_text().splitlines()[0])["frame"]
+    lines = [line for line in trace.read_text().splitlines() if line.strip()]
+    assert replayed.reproduced == sum(1 for line in lines[start:] if line.endswith(" T"))
     print(f"\n{replayed.message()}")
     bus = final["bus"]
     assert isinstance(bus, dict)
