@@ -31,7 +31,8 @@ from rakectl.daemon.events import EventLog
 from rakectl.daemon.handlers import make_handler
 from rakectl.daemon.inputs import MAX_SEND_FAILURES, InputLog, sidecar_path
 from rakectl.daemon.loop import Daemon
-from rakectl.daemon.replay import read_inputs, replay
+from rakectl.daemon.recording import read_inputs
+from rakectl.daemon.replay import replay
 from rakectl.daemon.sdnotify import Notifier
 from rakectl.daemon.states import DaemonState
 from rakectl.drive.canbus import DEFAULT_TRACE_CAPACITY, TraceRecorder
