@@ -50,7 +50,8 @@ watchdog timeout = 3 ms: Value range of parameter exceeded")``
 answer does not come. A transfer that meets an answer of another kind is made
 again, twice at most: canopen empties its answer queue only before it sends, so
 the late answer to a request it had repeated is otherwise taken for the next
-request's (``Unexpected response 0x60``). The power stage is NOT enabled here: that is the
+request's (``Unexpected response 0x60``, or ``Node returned a value for 0x1018:01
+instead``). The power stage is NOT enabled here: that is the
 controlword sent cyclically in RPDO1 (:meth:`DriveClient.command`), and the
 daemon enables the drives only while it is armed.
 """
@@ -329,10 +330,12 @@ def _repeatable(error: SdoAbortedError | SdoCommunicationError, segmented: bool)
     """Whether a failed transfer is worth making again: any transfer that met an answer of
     another kind (canopen empties its answer queue only before it sends, so the late answer
     to a request it had repeated is taken for the next request's); a segmented upload whose
-    segment was lost (a toggle-bit abort, no answer, a toggle mismatch)."""
+    segment was lost (a toggle-bit abort, no answer, a toggle mismatch). An answer of another
+    kind reads ``Unexpected response 0x60`` (a download's answer) or ``Node returned a value
+    for 0x1018:01 instead`` (an upload's answer for the object asked before)."""
     if isinstance(error, SdoAbortedError):
         return segmented and error.code == SDO_TOGGLE_BIT_ABORT
-    return segmented or str(error).startswith("Unexpected response")
+    return segmented or str(error).startswith(("Unexpected response", "Node returned a value"))
 
 
 class _TraceListener(can.Listener):

@@ -14,6 +14,7 @@ from __future__ import annotations
 import gc
 import io
 import math
+import re
 import threading
 import uuid
 from collections import deque
@@ -766,34 +767,47 @@ def test_an_sdo_abort_is_one_line_raised_from_the_abort(
     assert isinstance(raised.value.__cause__, SdoAbortedError)
 
 
-class LateAnswerNetwork(LoopbackNetwork):
-    """Delivers ``late`` stale download answers (0x60) of the r drive just before its next
-    upload requests reach it: a drive slower than the SDO timeout answers canopen's repeated
-    request twice, after canopen has emptied its queue for the next request."""
+DOWNLOAD_ANSWER = b"\x60\x03\x20\x00\x00\x00\x00\x00"  # 0x2003:0 written
+UPLOAD_ANSWER = b"\x43\x18\x10\x01\x00\x00\x00\x00"  # 0x1018:1 read, another object's
 
-    def __init__(self, late: int) -> None:
+
+class LateAnswerNetwork(LoopbackNetwork):
+    """Delivers ``late`` stale answers of the r drive just before its next upload requests
+    reach it: a drive slower than the SDO timeout answers canopen's repeated request twice,
+    after canopen has emptied its queue for the next request."""
+
+    def __init__(self, late: int, stale: bytes) -> None:
         super().__init__()
-        self.late = late
+        self.late, self.stale = late, stale
 
     def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
-        if self.late and can_id == 0x600 + R_NODE and data[0] & 0xE0 == 0x40:  # an upload
+        upload = can_id == 0x600 + R_NODE and data[0] & 0xE0 == 0x40
+        if self.late and upload and data[1:4] != self.stale[1:4]:  # not its own answer
             self.late -= 1
-            self.notify(0x580 + R_NODE, bytearray(b"\x60\x03\x20\x00\x00\x00\x00\x00"), 0.0)
+            self.notify(0x580 + R_NODE, bytearray(self.stale), 0.0)
         super().send_message(can_id, data, remote)
 
 
-def test_a_late_answer_taken_for_the_next_request_is_asked_again() -> None:
-    """A test on a loaded machine failed the second bring-up with 'Unexpected response
-    0x60' (tests/drivers/test_interop.py): the transfer is made again, twice at most."""
-    network = LateAnswerNetwork(late=2)
+@pytest.mark.parametrize(("stale", "first", "message"), [
+    (DOWNLOAD_ANSWER, "1", "Unexpected response 0x60"),
+    (UPLOAD_ANSWER, "2", "Node returned a value for 0x1018:01 instead, maybe there is another "
+                         "SDO client communicating on the same SDO channel?"),
+])
+def test_a_late_answer_taken_for_the_next_request_is_asked_again(
+        stale: bytes, first: str, message: str) -> None:
+    """Tests on a loaded machine failed the second bring-up with 'Unexpected response 0x60'
+    and with 'Node returned a value for 0x1018:01 instead' (tests/drivers/test_interop.py):
+    the transfer is made again, twice at most."""
+    network = LateAnswerNetwork(late=2, stale=stale)
     drives = (FakeDrive(network, Joint.R, R_NODE), FakeDrive(network, Joint.THETA, THETA_NODE))
     r_info, _ = _announce_and_run(make_bring_up(network), drives)
     assert r_info.identity.vendor_id == drives[0].value(0x1018, 1)
+    assert r_info.identity.product_code == drives[0].value(0x1018, 2)
     assert network.late == 0
-    network = LateAnswerNetwork(late=3)
+    network = LateAnswerNetwork(late=3, stale=stale)
     drives = (FakeDrive(network, Joint.R, R_NODE), FakeDrive(network, Joint.THETA, THETA_NODE))
-    with pytest.raises(DriveFault, match=r"^r drive \(node 1\): SDO error reading 0x1018:1 "
-                                         r"identity: Unexpected response 0x60$"):
+    with pytest.raises(DriveFault, match=rf"^r drive \(node 1\): SDO error reading 0x1018:{first} "
+                                         rf"identity: {re.escape(message)}$"):
         _announce_and_run(make_bring_up(network), drives)
 
 
