@@ -19,7 +19,9 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "rakectl": (),  # the package's own __init__, and any subpackage not listed below
     "rakectl.errors": (),
     "rakectl.limits": (),
-    "rakectl.config": (*BASE, "rakectl.config", "rakectl.core.motor_model"),
+    # the motor model's declarations; the geometry that checks a configured pose (pure)
+    "rakectl.config": (*BASE, "rakectl.config", "rakectl.core.motor_model",
+                       "rakectl.core.kinematics"),
     "rakectl.core": (*BASE, "rakectl.config", "rakectl.core"),
     "rakectl.protocol": (*BASE, "rakectl.protocol"),
     "rakectl.drive": (*BASE, "rakectl.config", "rakectl.core", "rakectl.protocol",

@@ -22,7 +22,7 @@ from rakectl.errors import ApiError
 
 POLL_S = 0.2
 CLEAR_TO_END = "\x1b[K"  # ANSI: erase from the cursor to the end of the line
-CHECK_TIMEOUT_S = 30.0  # the weight check takes about 3 s
+CHECK_TIMEOUT_S = 120.0  # the weight check takes about 3 s, the press up to a minute
 RESET_TIMEOUT_S = 2.0  # the daemon gives the drives 1 s to clear
 DUMP_TIMEOUT_S = 30.0
 MAX_JOG_S = 600.0  # a dump is written in the loop's slack, a few hundred ms
@@ -49,18 +49,27 @@ def simple(cmd: str) -> Ops:
 
 
 def arm(args: argparse.Namespace) -> int:
-    """Arm; the first time after start-up, wait for the weight check and print its verdict."""
+    """Arm; the first time after start-up, wait for the checks and print their verdicts."""
     path = _path(args)
     reply = call(path, {"cmd": "arm"})
     if reply.get("state") == "checking":
         print("arm: weight check: lifting the tip and lowering it back", file=sys.stderr)
         deadline = time.monotonic() + CHECK_TIMEOUT_S
+        announced = False
         with Client(path) as client:
             while reply.get("state") == "checking" and time.monotonic() < deadline:
                 time.sleep(POLL_S)
                 reply = client.request({"cmd": "status"})
-        check = reply.get("weight_check") or {}
-        print(check.get("message", ""), file=sys.stderr)
+                if not announced and (reply.get("weight_check") or {}).get("passed"):
+                    announced = True
+                    print(reply["weight_check"]["message"], file=sys.stderr)
+                    if (reply.get("mount_check") or {}).get("message") == "not run":
+                        print("arm: tine-mount check: pressing the tines on the anvil",
+                              file=sys.stderr)
+        for name in ("weight_check", "mount_check")[1 if announced else 0:]:
+            message = (reply.get(name) or {}).get("message", "")
+            if message and not message.startswith(("not run", "disabled")):
+                print(message, file=sys.stderr)
     _print(args, reply, f"arm: {reply.get('state', 'ok')}"
            + (f" ({reply['fault']})" if reply.get("fault") else ""))
     return 0 if reply.get("state") == "armed" else 1
@@ -95,6 +104,7 @@ def status(args: argparse.Namespace) -> int:
         f"worst case {force['clamp_worst_case_n']:.1f} N of {force['clamp_limit_n']:.1f} N",
         "drives     " + ", ".join(f"{d['state']}" for d in reply["drives"]),
         f"weight     {reply['weight_check']['message']}",
+        f"mount      {reply['mount_check']['message']}",
     ]
     if "latency_ns" in timing:
         lat = timing["latency_ns"]
@@ -256,7 +266,7 @@ def add_parsers(sub: Any, parent: argparse.ArgumentParser) -> dict[str, Ops]:
     """Sub-commands for the operator; returns their functions by name."""
     ops: dict[str, Ops] = {}
     sub.add_parser("arm", parents=[parent], help="enable the drives and hold the pose (the "
-                   "first time, after the weight check)")
+                   "first time, after the weight and tine-mount checks)")
     ops["arm"] = arm
     sub.add_parser("reset", parents=[parent], help="clear a fault or e-stop once its cause "
                    "is gone (exit status 1 if it stays)")

@@ -112,7 +112,10 @@ _SPECS = (
     CommandSpec(ApiCommand.STATUS, "The daemon's state, pose and counters (changes nothing)."),
     CommandSpec(ApiCommand.ARM, "Enable the drives and hold the present pose; the first time "
                 "after start-up through the weight check (state `checking`, about 3 s: the tip "
-                "lifted 20 mm and lowered back; a mismatch with the configured weight faults)."),
+                "lifted 20 mm and lowered back; a mismatch with the configured weight faults) "
+                "and, with `selftest.press`, the tine-mount check (the tines pressed on the "
+                "anvil and brought back, up to a minute; a mount stiffer or softer than "
+                "configured faults)."),
     CommandSpec(ApiCommand.DISARM, "Stop any motion and disable the drives."),
     CommandSpec(ApiCommand.STOP, "Stop the jog or excavation and hold the pose; stays armed."),
     CommandSpec(ApiCommand.ESTOP, "Emergency stop: quick-stop both drives now and latch it "

@@ -82,7 +82,8 @@ class DrivesSettings:
 
 @dataclass(frozen=True)
 class SelfTestSettings:
-    """The weight check before the first arming (rakectl.core.selftest)."""
+    """The checks before the first arming: the rake's weight (rakectl.core.selftest) and,
+    with ``press``, the tine mount's stiffness (rakectl.core.mount_check)."""
 
     enabled: bool = setting(
         True, "Before the first arming after start-up, lift the tip and lower it back and "
@@ -95,6 +96,27 @@ class SelfTestSettings:
     tolerance: float = setting(
         0.3, "Largest relative difference between the measured and the configured unbalanced "
         "weight (a missing counterweight doubles it).", gt=0, lt=1)
+    press: bool = setting(
+        False, "After the weight check, press the tines on the anvil and compare the tine "
+        "mount's stiffness, measured through the motor currents and encoders, with "
+        "clamp.contact_stiffness_n_per_m (rakectl.core.mount_check); a mismatch faults "
+        "instead of arming. Needs the anvil: a rigid block on the robot's frame.")
+    anvil_reach_m: float = setting(0.45, "Reach of the anvil's centre (from the pivot).",
+                                   unit="m", gt=0, le=3)
+    anvil_height_m: float = setting(0.1, "Height of the anvil's flat top above ground level 0, "
+                                    "known within 5 mm.", unit="m", ge=-0.5, le=1)
+    press_force_n: float = setting(
+        10.0, "How hard the tines press the anvil, read through the currents above their "
+        "reading in free air. At most half clamp.force_limit_n (the clamp's bound on a push "
+        "at rest); in practice the clamp's worst-case model holds a press near 18 N.",
+        unit="N", ge=5, le=45)
+    press_speed_m_per_s: float = setting(0.005, "Speed of the press.", unit="m/s", gt=0,
+                                         le=0.02)
+    travel_speed_m_per_s: float = setting(0.05, "Speed to the anvil and back.", unit="m/s",
+                                          gt=0, le=0.1)
+    mount_tolerance: float = setting(
+        0.5, "Largest relative difference between the measured and the configured mount "
+        "stiffness (a blocked mount is many times stiffer).", gt=0, lt=1)
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,9 @@ from rakectl.config.service import (
     DrivesSettings,
     SelfTestSettings,
 )
+from rakectl.core.kinematics import Workspace, inverse
 from rakectl.core.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, MotorParams
+from rakectl.errors import KinematicsError
 from rakectl.limits import FORCE_LIMIT_N
 
 __all__ = ["Bounds", "has_default", "section", "setting"]  # re-exported declaration functions
@@ -358,9 +360,32 @@ def cross_checks(s: Settings) -> list[tuple[str, str]]:
     if d.heartbeat_timeout_ms <= d.heartbeat_period_ms:
         errors.append(("drives.heartbeat_timeout_ms",
                        f"must be > drives.heartbeat_period_ms ({d.heartbeat_period_ms})"))
+    errors.extend(_press_checks(s))
     delay_ticks = s.estimator.delay_s * s.rate_hz
     if not math.isclose(delay_ticks, round(delay_ticks), abs_tol=1e-6):
         errors.append(
             ("estimator.delay_s", f"must be a whole number of loop periods (1/{s.rate_hz:g} s)")
         )
+    return errors
+
+
+def _press_checks(s: Settings) -> list[tuple[str, str]]:
+    """The tine-mount check's anvil must be reachable and its press within the clamp's
+    bound on a push at rest."""
+    t = s.selftest
+    if not t.press:
+        return []
+    errors = []
+    if t.press_force_n > 0.5 * s.clamp.force_limit_n:
+        errors.append(("selftest.press_force_n", f"must be <= half clamp.force_limit_n "
+                       f"({0.5 * s.clamp.force_limit_n:g} N), got {t.press_force_n:g}"))
+    g = s.geometry
+    try:  # from below the anvil's top (the press's deepest) to above it (the approach)
+        workspace = Workspace(g.pivot_height_m, g.r_min_m, g.r_max_m, g.theta_min_rad,
+                              g.theta_max_rad)
+        for height_m in (t.anvil_height_m - 0.02, t.anvil_height_m + 0.03):
+            inverse(workspace, t.anvil_reach_m, height_m)
+    except KinematicsError as error:
+        errors.append(("selftest.anvil_reach_m",
+                       f"the press on the anvil leaves the workspace: {error}"))
     return errors

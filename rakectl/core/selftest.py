@@ -18,8 +18,8 @@ the weight: the check fails and says so. An arm that does not follow the lift at
 all fails too: the clamp bounds the upward push by the configured weight, so a rake
 much heavier than configured (no counterweight) cannot be lifted within it.
 
-The check trusts the motor model as the clamp does; it cannot see the tine mount's
-stiffness (that needs a press on a known surface: not built).
+The check trusts the motor model as the clamp does; the tine mount's stiffness is the
+next check's (rakectl.core.mount_check, a press on the anvil).
 """
 
 from __future__ import annotations

@@ -63,10 +63,8 @@ class ForceSupervisor:
                               current_theta_a: float) -> float:
         """Vertical force of the tip on the ground (> 0 down) that balances the motors and
         the rake's weight at rest."""
-        load_r = self._kt_r * current_r_a + self._g * math.sin(theta_rad)
-        load_theta = (self._kt_theta * current_theta_a
-                      + self._g * (r_m - self._half_length_m) * math.cos(theta_rad))
-        return -kinematics.tip_force(r_m, theta_rad, load_r, load_theta)[1]
+        return down_force_n(r_m, theta_rad, self._kt_r * current_r_a,
+                            self._kt_theta * current_theta_a, self._g, self._half_length_m)
 
     def step(self, f_hat_n: float, r_m: float, theta_rad: float, current_r_a: float,
              current_theta_a: float) -> ForceLevel:
@@ -85,6 +83,15 @@ class ForceSupervisor:
         self.level = (ForceLevel.HARD if sustained > self.hard_n else
                       ForceLevel.CAUTION if force > self.caution_n else ForceLevel.OK)
         return self.level
+
+
+def down_force_n(r_m: float, theta_rad: float, load_r_n: float, load_theta_nm: float,
+                 weight_n: float, half_length_m: float) -> float:
+    """Vertical force of the tip on the ground (> 0 down) that balances the joints' motor
+    loads and an unbalanced weight ``weight_n`` (acting at half the rake's length) at rest."""
+    load_r = load_r_n + weight_n * math.sin(theta_rad)
+    load_theta = load_theta_nm + weight_n * (r_m - half_length_m) * math.cos(theta_rad)
+    return -kinematics.tip_force(r_m, theta_rad, load_r, load_theta)[1]
 
 
 PLAUSIBLE_MARGIN = (0.05, 0.1)  # m on r, rad on θ: beyond the workspace's limits by more

@@ -24,12 +24,12 @@ ERROR_STATES = frozenset({"FAULT", "ESTOP"})
 
 
 def level_of(name: str, fields: dict[str, Any]) -> str:
-    """The log level of an event: entering FAULT or ESTOP and a failed weight check are
+    """The log level of an event: entering FAULT or ESTOP and a failed check before arming are
     errors, refusals and failures warnings (``journalctl -p warning`` shows them), the
     rest info."""
     if name == "state" and fields.get("new") in ERROR_STATES:
         return "error"
-    if name == "weight_check" and not fields.get("passed", True):
+    if name in ("weight_check", "mount_check") and not fields.get("passed", True):
         return "error"
     return "warning" if name in WARNINGS else "info"
 

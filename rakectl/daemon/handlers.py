@@ -89,6 +89,14 @@ def status(daemon: Daemon) -> dict[str, Any]:
          "expected_n": check.expected_n, "message": check.message} if check is not None
         else {"passed": None, "message": "not run" if daemon.settings.selftest.enabled
               else "disabled (selftest.enabled: false)"})
+    mount, selftest = daemon.mount_result, daemon.settings.selftest
+    reply["mount_check"] = (
+        {"passed": mount.passed, "stiffness_n_per_m": _finite(mount.stiffness_n_per_m),
+         "expected_n_per_m": mount.expected_n_per_m, "at_least": mount.at_least,
+         "message": mount.message} if mount is not None
+        else {"passed": None, "message": "not run" if selftest.enabled and selftest.press
+              else "disabled (selftest.press: false)" if selftest.enabled
+              else "disabled (selftest.enabled: false)"})
     planner = daemon.planner
     if planner is not None:
         reply["excavation"] = {

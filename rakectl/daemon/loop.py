@@ -35,6 +35,7 @@ from rakectl.core import kinematics
 from rakectl.core.control import TipController
 from rakectl.core.jog import Jog
 from rakectl.core.lane import LanePlanner
+from rakectl.core.mount_check import MountCheck, MountResult
 from rakectl.core.selftest import WeightCheck, WeightResult
 from rakectl.core.supervision import (
     ForceLevel,
@@ -95,6 +96,8 @@ class Daemon(SlackWork):
         self.planner: LanePlanner | None = None
         self.weight_check: WeightCheck | None = None  # running in CHECKING
         self.weight_result: WeightResult | None = None  # the last check's
+        self.mount_check: MountCheck | None = None  # running in CHECKING, after the weight's
+        self.mount_result: MountResult | None = None  # the last check's
         self._plausible = plausible_ranges(settings.geometry)
         self.f_hat_max_n = 0.0
         self.voltages = (0.0, 0.0)  # sent on the last tick (after the clamp)
@@ -309,6 +312,15 @@ class Daemon(SlackWork):
             if check.done:
                 self._judge_weight(check)
             return check.reach_m, check.depth_m, False
+        mount = self.mount_check
+        if state is DaemonState.CHECKING and mount is not None:
+            fb, c = self.client.feedback, self.controller
+            mount.observe(fb.r_m, fb.theta_rad, fb.r_vel_m_per_s, fb.theta_vel_rad_per_s,
+                          fb.current_r_a, fb.current_theta_a)
+            mount.step(c.reach_m, c.depth_m)
+            if mount.done:
+                self._judge_mount(mount)
+            return mount.reach_m, mount.depth_m, False
         moving = state in (DaemonState.JOG, DaemonState.EXCAVATE)
         if self.supervisor.level is ForceLevel.CAUTION and moving:
             return self._ref[0], self._ref[1], True
@@ -367,8 +379,8 @@ class Daemon(SlackWork):
         if new is None:
             return False
         old, self.state = self.state, new
-        if old is DaemonState.CHECKING:
-            self.weight_check = None  # passed, or left unfinished (judged again next arm)
+        if old is DaemonState.CHECKING:  # passed, or left unfinished (judged again next arm)
+            self.weight_check = self.mount_check = None
         if old in ARMED_STATES and new not in ARMED_STATES:
             self._enabled = False
             self.client.command(None, DriveCommand.QUICK_STOP if new is DaemonState.ESTOP
@@ -401,18 +413,33 @@ class Daemon(SlackWork):
         self._ref = self.hold
         self._enabled = False
         self._enable_deadline = self.ticks + round(s.daemon.enable_timeout_s * s.rate_hz)
-        if self.weight_checked:
+        if self.weight_checked and self.mount_checked:
             self._transition(Event.ARM)
             return
-        self.weight_check = WeightCheck(s.selftest, s.clamp, s.motors.r, s.motors.theta,
-                                        self.dt_s, *self.hold)
-        self._transition(Event.CHECK, "weight check first")
+        if self.weight_checked:
+            self._start_mount_check()
+        else:
+            self.weight_check = WeightCheck(s.selftest, s.clamp, s.motors.r, s.motors.theta,
+                                            self.dt_s, *self.hold)
+        self._transition(Event.CHECK, "weight check first" if self.weight_check is not None
+                         else "tine-mount check first")
 
     @property
     def weight_checked(self) -> bool:
-        """The weight check passed since start-up (or is disabled): arming goes straight on."""
+        """The weight check passed since start-up (or is disabled)."""
         result = self.weight_result
         return not self.settings.selftest.enabled or (result is not None and result.passed)
+
+    @property
+    def mount_checked(self) -> bool:
+        """The tine-mount check passed since start-up (or is not configured)."""
+        t, result = self.settings.selftest, self.mount_result
+        return not (t.enabled and t.press) or (result is not None and result.passed)
+
+    def _start_mount_check(self) -> None:
+        s = self.settings
+        self.mount_check = MountCheck(s.selftest, s.clamp, s.motors.r, s.motors.theta,
+                                      self.workspace, self.dt_s, *self.hold)
 
     def _judge_weight(self, check: WeightCheck) -> None:
         result = check.result
@@ -421,6 +448,23 @@ class Daemon(SlackWork):
         self.hold = check.start
         self.event("weight_check", passed=result.passed, weight_n=result.weight_n,
                    expected_n=result.expected_n, samples=result.samples)
+        if not result.passed:
+            self.fault(result.message)
+        elif self.mount_checked:
+            self._transition(Event.CHECKED, result.message)
+        else:
+            self.weight_check = None
+            self._start_mount_check()
+
+    def _judge_mount(self, check: MountCheck) -> None:
+        result = check.result
+        assert result is not None
+        self.mount_result = result
+        self.hold = check.start
+        self.event("mount_check", passed=result.passed,
+                   stiffness_n_per_m=result.stiffness_n_per_m,
+                   expected_n_per_m=result.expected_n_per_m, at_least=result.at_least,
+                   samples=result.samples, press_n=result.peak_force_n)
         if result.passed:
             self._transition(Event.CHECKED, result.message)
         else:

@@ -7,14 +7,20 @@ carries, and arms when it is not."""
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import pytest
 
-from rakectl.api.schema import decode_request
+from drivers.ground_params import BuriedObjects, StoneParams
+from drivers.settings import EmulatorConfig
+from rakectl.api.schema import Request, decode_request
 from rakectl.bench.tick import LockstepRig
 from rakectl.config.service import RtModeSetting
 from rakectl.config.settings import Settings, held_command_gap
+from rakectl.core.control import workspace_of
+from rakectl.core.kinematics import inverse
 from rakectl.daemon.handlers import make_handler
 from rakectl.daemon.states import DaemonState
 from rakectl.errors import CommandRejected
@@ -32,10 +38,14 @@ def _enforcing(watchdog_ms: int) -> Settings:
                                                           watchdog_timeout_ms=watchdog_ms))
 
 
-def _arm(rig: LockstepRig) -> dict[str, object]:
-    request = decode_request(b'{"cmd": "arm"}')
-    assert not isinstance(request, str), request
+def _call(rig: LockstepRig, line: bytes) -> Mapping[str, Any]:
+    request = decode_request(line)
+    assert isinstance(request, Request), request
     return make_handler(rig.daemon)(request)
+
+
+def _arm(rig: LockstepRig) -> Mapping[str, Any]:
+    return _call(rig, b'{"cmd": "arm"}')
 
 
 def test_the_robot_defaults_carry_the_watchdog() -> None:
@@ -67,5 +77,56 @@ def test_enforce_arms_only_when_the_clamp_carries_the_watchdog(
             return
         _arm(rig)
         rig.until(DaemonState.ARMED, 8000)
+    finally:
+        rig.close()
+
+
+def _with_anvil(mount_n_per_m: float) -> tuple[Settings, EmulatorConfig]:
+    """The daemon with the tine-mount check on, and the emulated robot with its anvil (a
+    steel block whose top is 30 mm above the ground at 1 m of reach) and this mount,
+    started 60 mm above the ground beside it."""
+    s = Settings()
+    selftest = dataclasses.replace(s.selftest, press=True, anvil_reach_m=1.0,
+                                   anvil_height_m=0.03)
+    e = EmulatorConfig()
+    anvil = StoneParams(reach_m=1.0, depth_m=-0.03, width_m=0.06, thickness_m=0.2)
+    ground = dataclasses.replace(e.physics.ground, objects=BuriedObjects(stones=(anvil,)))
+    arm = dataclasses.replace(e.physics.arm, tine_mount_stiffness_n_per_m=mount_n_per_m)
+    r_m, theta_rad = inverse(workspace_of(s), 1.05, 0.06)
+    emulator = dataclasses.replace(
+        e, physics=dataclasses.replace(e.physics, ground=ground, arm=arm),
+        drives=dataclasses.replace(e.drives, start_r_m=r_m, start_theta_rad=theta_rad))
+    return dataclasses.replace(s, selftest=selftest), emulator
+
+
+@pytest.mark.parametrize("mount_n_per_m", [5.0e3, 5.0e4])
+def test_the_first_arming_presses_the_anvil_and_refuses_a_stiffer_mount(
+        tmp_path: Path, mount_n_per_m: float) -> None:
+    """selftest.press: the first arming runs the weight check, then the press on the
+    anvil; the mount the clamp is configured for arms, one ten times stiffer faults naming
+    both stiffnesses, and the status says why; the second arming checks again."""
+    settings, emulator = _with_anvil(mount_n_per_m)
+    rig = LockstepRig(tmp_path, settings, emulator)
+    try:
+        rig.bring_up()
+        rig.until(DaemonState.DISARMED, 3000)
+        assert _arm(rig)["state"] == "checking"
+        status = _call(rig, b'{"cmd": "status"}')
+        assert status["mount_check"] == {"passed": None, "message": "not run"}
+        end = DaemonState.ARMED if mount_n_per_m == 5.0e3 else DaemonState.FAULT
+        rig.until(end, 30000)
+        status = _call(rig, b'{"cmd": "status"}')
+        assert status["weight_check"]["passed"]
+        check = status["mount_check"]
+        if end is DaemonState.ARMED:
+            assert check["passed"] and check["stiffness_n_per_m"] == pytest.approx(5e3, rel=0.2)
+            tip = status["tip"]  # back where the check started
+            assert (tip["reach_m"], tip["depth_m"]) == pytest.approx((1.05, -0.06), abs=0.003)
+            return
+        assert not check["passed"] and check["stiffness_n_per_m"] > 2.5e4
+        assert status["fault"] == check["message"]
+        assert "does not match 5000 N/m configured (clamp.contact_stiffness_n_per_m" in (
+            check["message"])
+        assert rig.emulator.ground.truth.max_force_down_n < 45.0
     finally:
         rig.close()
