@@ -64,7 +64,7 @@ FIT_WINDOW = (0.2, 1.0)  # of press_force_n: the ticks the slope is fitted over
 MIN_FIT_SAMPLES = 20
 MIN_SPREAD_COUNTS = 5.0  # least spread of the tip's height, in encoder counts, for a slope
 MAX_PRESS_TRAVEL = 3.0  # × press_force_n / contact_stiffness: past it, no anvil was met
-PATH_STEP_M = 0.005  # the way to the anvil is checked against the joints' limits this often
+PATH_STEP_M = 0.01  # the way to the anvil is checked against the joints' limits this often
 
 
 class Phase(enum.Enum):
@@ -87,7 +87,7 @@ class MountResult:
     expected_n_per_m: float  # configured (clamp.contact_stiffness_n_per_m)
     at_least: bool
     samples: int
-    peak_force_n: float  # the largest force read through the currents in the press
+    peak_force_n: float  # the press's largest force read through the currents, over free air
     message: str
 
 
