@@ -29,7 +29,8 @@ squares over the press's ticks whose force lies within ``FIT_WINDOW`` of
 the check fails, naming both. A mount too stiff for the encoders to see it give is at
 least ΔF/(``MIN_SPREAD_COUNTS`` counts of the tip's height) stiff, and fails the same
 way. A press whose reference went ``MAX_PRESS_TRAVEL`` times the configured compression
-past the anvil's top without the force fails too: nothing where the anvil should be.
+past the anvil's top without the force fails too: nothing where the anvil should be, or
+(the force rose less than ``MIN_FORCE_SPAN`` of the press) too little to weigh.
 
 On the emulated arm (tests/core/test_mount_check.py) the press of 10 N reads the default
 5000 N/m mount as 5057 N/m, a 2000 N/m one as 1976 N/m, a 50 000 N/m one as 63 000 N/m
@@ -63,7 +64,8 @@ HOLD_S = 0.3  # at the press's end
 FIT_WINDOW = (0.2, 1.0)  # of press_force_n: the ticks the slope is fitted over
 MIN_FIT_SAMPLES = 20
 MIN_SPREAD_COUNTS = 5.0  # least spread of the tip's height, in encoder counts, for a slope
-MAX_PRESS_TRAVEL = 3.0  # × press_force_n / contact_stiffness: past it, no anvil was met
+MAX_PRESS_TRAVEL = 5.0  # × press_force_n / contact_stiffness: past it, no anvil was met
+MIN_FORCE_SPAN = 0.5  # of press_force_n: the least rise of the force over the fit's ticks
 PATH_STEP_M = 0.01  # the way to the anvil is checked against the joints' limits this often
 
 
@@ -267,6 +269,14 @@ class MountCheck:
                           f"{self._s.press_force_n:g} N pressed for: check the anvil's "
                           "position in the configuration")
         z_lo, z_hi, f_lo, f_hi = self._spread
+        if f_hi - f_lo < MIN_FORCE_SPAN * self._s.press_force_n:
+            return result(False, math.nan, False,
+                          f"tine-mount check: the press reached {peak:.1f} N of the "
+                          f"{self._s.press_force_n:g} N pressed for, "
+                          f"{(self._press_limit_m + self._s.anvil_height_m) * 1e3:.0f} mm "
+                          f"below the top of {anvil}: too little to weigh the mount (the "
+                          "anvil lower than configured, or a mount much softer than "
+                          f"{expected:.0f} N/m)")
         spread_m = z_hi - z_lo
         if n >= MIN_FIT_SAMPLES and spread_m >= MIN_SPREAD_COUNTS * self._height_resolution_m:
             k, at_least = -(n * szf - sz * sf) / (n * szz - sz * sz), False

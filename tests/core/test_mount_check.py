@@ -21,15 +21,17 @@ ANVIL_REACH_M, ANVIL_HEIGHT_M = 1.0, 0.03
 START = (1.05, -0.06)  # reach, depth: 60 mm above the ground, beside the anvil
 
 
-def _press(mount_n_per_m: float, anvil: bool = True) -> tuple[MountCheck, float, list[Phase]]:
-    """The check run on the emulated arm with this mount; its true peak force down."""
+def _press(mount_n_per_m: float, anvil: bool = True, configured_height_m: float = ANVIL_HEIGHT_M
+           ) -> tuple[MountCheck, float, list[Phase]]:
+    """The check run on the emulated arm with this mount, the anvil's top configured at
+    ``configured_height_m``; its true peak force down."""
     base = Scenario()
     stones = (StoneParams(reach_m=ANVIL_REACH_M, depth_m=-ANVIL_HEIGHT_M, width_m=0.06,
                           thickness_m=0.2),) if anvil else ()
     ground = dataclasses.replace(base.emulator.ground, objects=BuriedObjects(stones=stones))
     arm = dataclasses.replace(base.emulator.arm, tine_mount_stiffness_n_per_m=mount_n_per_m)
     selftest = dataclasses.replace(base.selftest, press=True, anvil_reach_m=ANVIL_REACH_M,
-                                   anvil_height_m=ANVIL_HEIGHT_M)
+                                   anvil_height_m=configured_height_m)
     s = dataclasses.replace(base, plant=PlantSettings(kind=PlantKind.RAKE), selftest=selftest,
                             emulator=dataclasses.replace(base.emulator, arm=arm, ground=ground))
     loop = RakeLoop(s, *START)
@@ -85,6 +87,24 @@ def test_a_mount_of_another_stiffness_fails_naming_both(mount_n_per_m: float,
     else:
         assert result.stiffness_n_per_m == pytest.approx(mount_n_per_m, rel=0.2)
     assert true_peak_n < 45.0  # the clamp's bound on a push at rest, whatever the mount
+
+
+@pytest.mark.parametrize("error_m", [-0.005, 0.005])
+def test_an_anvil_known_within_5_mm_is_enough(error_m: float) -> None:
+    check, _, _ = _press(5000.0, configured_height_m=ANVIL_HEIGHT_M + error_m)
+    result = _result(check)
+    assert result.passed, result.message
+    assert result.stiffness_n_per_m == pytest.approx(5000.0, rel=0.15)
+
+
+def test_a_press_too_short_to_weigh_the_mount_fails_saying_so() -> None:
+    """A mount ten times softer than configured gives 5 N at the press's deepest (10 mm
+    past the anvil's top): too little rise of the force to fit."""
+    check, _, _ = _press(500.0)
+    result = _result(check)
+    assert not result.passed and math.isnan(result.stiffness_n_per_m)
+    assert "too little to weigh the mount" in result.message
+    assert "a mount much softer than 5000 N/m" in result.message
 
 
 def test_no_anvil_where_configured_fails_saying_so() -> None:
