@@ -403,7 +403,10 @@ def test_wallclock_physics_follows_the_wall_clock() -> None:
 def test_config_file_loads_and_errors_name_file_and_line(tmp_path: Path) -> None:
     config = load_config(ROOT / "config" / "emulator.yaml", ["drives.timing=wallclock"])
     assert config.drives.timing is TimingMode.WALLCLOCK
-    assert config.physics == EmulatorConfig().physics
+    defaults = EmulatorConfig().physics
+    assert dataclasses.replace(config.physics, ground=defaults.ground) == defaults
+    (anvil,) = config.physics.ground.objects.stones  # the tine-mount check's (config/rakectl.yaml)
+    assert (anvil.reach_m, -anvil.depth_m) == (0.45, 0.1)
     bad = tmp_path / "emulator.yaml"
     bad.write_text("drives:\n  start_r_m: 0.2\n")
     with pytest.raises(ConfigError, match=r"emulator.yaml:2: drives.start_r_m must lie"):
