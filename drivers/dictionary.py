@@ -23,8 +23,9 @@ OPERATIONAL (0x08000022; 1 or above 240: 0x06090030). 0x1003, the pre-defined
 error field, holds the last 8 EMCY error codes, newest at sub 1; an entry
 beyond sub 0's count answers 0x08000024, and writing 0 to sub 0 clears it
 (any other value: 0x06090030); reset communication clears it too. Other
-writable communication objects (COB-IDs, transmission types) are fixed in this
-drive: writing their present value succeeds, any other value aborts. Identity
+writable communication objects (transmission types, inhibit times) are fixed in
+this drive: writing their present value succeeds, any other value aborts. The PDOs'
+COB-IDs and mappings are remappable in CiA 301's order (:mod:`drivers.pdo_map`). Identity
 0x1018: product code from the EDS, serial number from the configuration.
 """
 
@@ -41,6 +42,7 @@ from typing import Any, Final
 import canopen
 from canopen import SdoAbortedError
 
+from drivers.pdo_map import PdoMaps
 from rakectl.core.motor_model import MotorParams, joint_resolution
 from rakectl.protocol.cia402 import DriveState
 from rakectl.protocol.codec import SYNC_COUNTER_MAX, FunctionCode, cob_id
@@ -134,6 +136,7 @@ class DriveObjects:
         self._network = _Outbox()
         self._od = _SdoServerNode(spec.node_id, str(spec.kind.eds_path))
         self._network.add_node(self._od)
+        self.pdos = PdoMaps(self._od.object_dictionary)
         self._od.add_read_callback(self._od_read)  # type: ignore[no-untyped-call]
         self._od.add_write_callback(self._od_write)
         self._sdo_response_id = cob_id(FunctionCode.SDO_RESPONSE, spec.node_id)
@@ -196,6 +199,7 @@ class DriveObjects:
         self._heartbeat_ms, self._consumer = self._power_on[0x1017], self._power_on[0x1016]
         self._sync_overflow = self._power_on[0x1019]
         self._errors = []
+        self.pdos.restore()
         self._next_heartbeat_s = now_s + self._heartbeat_ms * 0.001
         self._heartbeat_seen_s = None
         self._heartbeat_lost = False
@@ -243,7 +247,9 @@ class DriveObjects:
 
     def _od_read(self, index: int, subindex: int, od: Any, **_: Any) -> int | None:
         reader = self._readers.get((index, subindex))
-        return reader() if reader is not None else None
+        if reader is not None:
+            return reader()
+        return self.pdos.read(index, subindex) if self.pdos.owns(index) else None
 
     def _od_write(self, index: int, subindex: int, od: Any, data: bytes, **_: Any) -> None:
         value = od.decode_raw(data)
@@ -256,6 +262,8 @@ class DriveObjects:
         writer = self._writers.get((index, subindex))
         if writer is not None:
             writer(value)
+        elif self.pdos.owns(index) and self.pdos.write(index, subindex, value):
+            return
         elif value != od.decode_raw(self._od.get_data(index, subindex)):
             raise SdoAbortedError(SdoAbort.VALUE_RANGE)  # fixed in this drive
 

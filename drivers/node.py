@@ -1,7 +1,8 @@
 """One emulated CANopen drive with an open-loop voltage mode: frames in, frames out.
 
 A :class:`DriveNode` is the protocol side of one Roboteq/Faulhaber-class drive
-(CiA 301 + CiA 402, the layouts of :mod:`rakectl.protocol.codec`). It does no bus I/O
+(CiA 301 + CiA 402, the layouts of :mod:`rakectl.protocol.codec`, remappable in
+CiA 301's order: :mod:`drivers.pdo_map`). It does no bus I/O
 and reads no clock: :meth:`DriveNode.receive` takes a frame's COB-ID, data and
 the time, :meth:`~DriveNode.poll` the time alone, :meth:`~DriveNode.sense` the
 physics' latest sample; each returns the frames to send as ``(can_id, data)``.
@@ -26,6 +27,7 @@ from collections.abc import Callable, Sequence
 from typing import Final
 
 from drivers.dictionary import DriveSpec, Frame
+from drivers.pdo_map import Pdo, PdoCodec
 from drivers.power_stage import EMCY_STATES, NO_FRAMES, REGISTER, PowerStage
 from drivers.stats import BadInput
 from rakectl.errors import FrameError
@@ -35,6 +37,8 @@ from rakectl.protocol.codec import (
     NMT_COB_ID,
     RPDO1_SIZE,
     SYNC_COB_ID,
+    TPDO1_SIZE,
+    TPDO2_SIZE,
     FunctionCode,
     current_a_to_ma,
     decode_rpdo,
@@ -77,6 +81,8 @@ class DriveNode(PowerStage):
         self.nmt = NmtState.BOOT_UP
         self._power_on_application()
         self._power_on_communication(0.0)
+        self._pdo_revision = -1
+        self._sync_pdos()
 
     # ------------------------------------------------------------------- public
 
@@ -160,7 +166,9 @@ class DriveNode(PowerStage):
         if self._last_counter and counter:
             stats.lost_syncs += lost_syncs(self._last_counter, counter, overflow)
         self._last_counter = counter
-        out = [self._sample()]
+        if self._pdo_revision != self.pdos.revision:
+            self._sync_pdos()
+        out = [self._sample()] if self._tpdo1_on else []
         self._check_watchdog(now_s, out)
         self._last_sync_s = now_s
         if self._fresh_controlword:
@@ -169,7 +177,7 @@ class DriveNode(PowerStage):
         if self._fresh_voltage:
             self._fresh_voltage = False
             self._latch(self._rx_voltage_mv, out)
-        if not self._emit_status(out) and self._tpdo2_refresh and (
+        if not self._emit_status(out) and self._tpdo2_on and self._tpdo2_refresh and (
                 stats.syncs % self._tpdo2_refresh == 0):
             out.append(self._tpdo2_frame())
         return out
@@ -187,13 +195,23 @@ class DriveNode(PowerStage):
                  encode_emcy(code, self._register() | REGISTER[code]))]
 
     def _on_rpdo(self, can_id: int, data: bytes | bytearray, now_s: float) -> Sequence[Frame]:
-        if len(data) != RPDO1_SIZE:
+        if self._pdo_revision != self.pdos.revision:
+            self._sync_pdos()
+        codec = self._rpdo1_codec
+        if len(data) != (RPDO1_SIZE if codec is None else codec.size):
             return self._bad(BadInput.WRONG_LENGTH, can_id, data)
-        if self.nmt is not NmtState.OPERATIONAL:
+        if self.nmt is not NmtState.OPERATIONAL or not self._rpdo1_on:
             self.stats.rpdos_ignored += 1
             return NO_FRAMES
-        self._rx_voltage_mv, self._rx_controlword = decode_rpdo(data)
-        self._fresh_voltage = self._fresh_controlword = True
+        if codec is None:  # the EDS's layout
+            self._rx_voltage_mv, self._rx_controlword = decode_rpdo(data)
+            self._fresh_voltage = self._fresh_controlword = True
+        else:
+            for (index, _), value in zip(codec.entries, codec.unpack(data), strict=True):
+                if index == 0x2000:
+                    self._rx_voltage_mv, self._fresh_voltage = value, True
+                else:
+                    self._rx_controlword, self._fresh_controlword = value, True
         self._last_rpdo_s = now_s
         self.stats.rpdos += 1
         return NO_FRAMES
@@ -243,11 +261,45 @@ class DriveNode(PowerStage):
     # ------------------------------------------------------------------- behaviour
 
     def _sample(self) -> Frame:
-        counts = round(self._position / self._resolution)
-        counts = max(-INT32_LIMIT, min(INT32_LIMIT, counts))
-        pack_tpdo1_into(self._tpdo1, counts, rad_per_s_to_rpm(self._motor_vel),
-                        current_a_to_ma(self._current_a))
+        codec = self._tpdo1_codec
+        if codec is None:  # the EDS's layout
+            counts = round(self._position / self._resolution)
+            counts = max(-INT32_LIMIT, min(INT32_LIMIT, counts))
+            pack_tpdo1_into(self._tpdo1, counts, rad_per_s_to_rpm(self._motor_vel),
+                            current_a_to_ma(self._current_a))
+        else:
+            codec.pack_into(self._tpdo1, [self._value(*entry) for entry in codec.entries])
         return self._ids[FunctionCode.TPDO1], self._tpdo1
+
+    def _tpdo2_frame(self) -> Frame:
+        codec = self._tpdo2_codec
+        if codec is None:  # the EDS's layout
+            return super()._tpdo2_frame()
+        codec.pack_into(self._tpdo2, [self._value(*entry) for entry in codec.entries])
+        return self._ids[FunctionCode.TPDO2], self._tpdo2
+
+    def _value(self, index: int, subindex: int) -> int:
+        reader = self._readers.get((index, subindex))
+        return reader() if reader is not None else self._eds_default(index, subindex)
+
+    def _sync_pdos(self) -> None:
+        """The PDOs' layouts and validity, compiled again after their parameters changed
+        over SDO (:mod:`drivers.pdo_map`); the EDS's layouts keep the codec module's."""
+        pdos, od = self.pdos, self._od.object_dictionary
+        codecs = {pdo: None if pdos.is_default(pdo) or not pdos.layout(pdo)
+                  else PdoCodec(od, pdos.layout(pdo)) for pdo in Pdo}
+        self._tpdo1_codec, self._tpdo2_codec = codecs[Pdo.TPDO1], codecs[Pdo.TPDO2]
+        self._rpdo1_codec = codecs[Pdo.RPDO1]
+        for codec, attribute in ((codecs[Pdo.TPDO1], "_tpdo1"), (codecs[Pdo.TPDO2], "_tpdo2")):
+            if codec is not None:
+                setattr(self, attribute, bytearray(codec.size))
+            elif attribute == "_tpdo1":
+                self._tpdo1 = bytearray(TPDO1_SIZE)
+            else:
+                self._tpdo2 = bytearray(TPDO2_SIZE)
+        on = {pdo: pdos.valid(pdo) and bool(pdos.layout(pdo)) for pdo in Pdo}
+        self._tpdo1_on, self._tpdo2_on, self._rpdo1_on = on[Pdo.TPDO1], on[Pdo.TPDO2], on[Pdo.RPDO1]
+        self._pdo_revision = pdos.revision
 
     def _set_nmt(self, state: NmtState) -> None:
         if state is self.nmt:

@@ -56,6 +56,7 @@ class PowerStage(DriveObjects):
         self.stats = NodeStats()
         self.notes: list[tuple[str, enum.Enum]] = []  # events for the log, drained by the caller
         self._tpdo2 = bytearray(3)
+        self._tpdo2_on = True  # TPDO2 valid and mapped (drivers.pdo_map)
         self._ids = {f: cob_id(f, spec.node_id) for f in FunctionCode}
         self._readers |= self._live_objects()
         self._writers |= {(0x2001, 0): self._write_max_voltage,
@@ -104,13 +105,14 @@ class PowerStage(DriveObjects):
         return self._ids[FunctionCode.TPDO2], self._tpdo2
 
     def _emit_status(self, out: list[Frame]) -> bool:
-        """Update statusword and error register; TPDO2 if they changed (and OPERATIONAL)."""
+        """Update statusword and error register; TPDO2 if they changed (and OPERATIONAL,
+        and TPDO2 is valid)."""
         statusword = _STATUSWORD[self.state] | (_CLAMP_FLAGS if self._clamping else 0)
         register = self._register()
         if statusword == self._statusword and register == self._error_register:
             return False
         self._statusword, self._error_register = statusword, register
-        if self.nmt is not NmtState.OPERATIONAL:
+        if self.nmt is not NmtState.OPERATIONAL or not self._tpdo2_on:
             return False
         out.append(self._tpdo2_frame())
         return True

@@ -6,7 +6,7 @@ drives' EDS, its ``SyncProducer``, its PDO and SDO clients), on a python-can
 ``virtual`` bus; the emulator runs in a thread on its own bus object, lockstep
 (one control period per SYNC). What a lab's tool does by default must work:
 SYNC without a counter once 0x1019 is 0, PDO mapping read back over SDO as
-the EDS declares it, heartbeats, EMCY.
+the EDS declares it and remapped in CiA 301's order, heartbeats, EMCY.
 """
 
 from __future__ import annotations
@@ -16,9 +16,10 @@ import itertools
 import os
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import can
 import canopen
@@ -124,6 +125,98 @@ def test_canopen_master_brings_up_and_cycles_the_drives(
     # Back to PRE-OPERATIONAL: 0 V at once, no PDOs (CiA 301).
     network.nmt.state = "PRE-OPERATIONAL"
     assert r.sdo[0x2000].raw == 0
+
+
+def _abort(code: int, write: Callable[[], None]) -> None:
+    with pytest.raises(canopen.SdoAbortedError) as refused:
+        write()
+    assert refused.value.code == code, f"0x{refused.value.code:08X}"
+
+
+def test_a_canopen_master_remaps_the_pdos_in_the_cia301_order(
+        master: tuple[canopen.Network, Emulator]) -> None:
+    """canopen's PdoMap.save writes in CiA 301's order (COB-ID not valid, sub 0 = 0, the
+    entries, sub 0 = n, COB-ID valid): TPDO1 of the r drive remapped to statusword and
+    position, RPDO1 to the voltage alone. The mapping reads back, the frames carry what
+    it names, and NMT reset communication restores the EDS's."""
+    network, _ = master
+    r = _remote(network, R_NODE, DriveKind.DC_SERVO)
+    network.nmt.state = "RESET COMMUNICATION"
+    r.nmt.wait_for_bootup(TIMEOUT_S)
+    r.sdo[0x1019].raw = 0
+    r.tpdo.read()
+    r.rpdo.read()
+    tpdo1, rpdo1 = r.tpdo[1], r.rpdo[1]
+    tpdo1.clear()
+    tpdo1.add_variable(0x6041)
+    tpdo1.add_variable(0x6064)
+    tpdo1.enabled = True
+    tpdo1.save()
+    rpdo1.clear()
+    rpdo1.add_variable(0x2000)
+    rpdo1.enabled = True
+    rpdo1.save()
+    assert [r.sdo[0x1A00][k].raw for k in (0, 1, 2)] == [2, 0x60410010, 0x60640020]
+    assert [r.sdo[0x1600][k].raw for k in (0, 1)] == [1, 0x20000010]
+    assert r.sdo[0x1800][1].raw == 0x181 and r.sdo[0x1400][1].raw == 0x201
+
+    network.nmt.state = "OPERATIONAL"
+    assert r.nmt.wait_for_heartbeat(TIMEOUT_S) == "OPERATIONAL"
+    frames: list[bytes] = []
+    tpdo1.add_callback(lambda pdo: frames.append(bytes(pdo.data)))
+    rpdo1[0].raw = 1234  # mV, applied at the next SYNC
+    rpdo1.transmit()
+    for cycle in range(3):
+        network.sync.transmit()
+        deadline_s = time.monotonic() + TIMEOUT_S
+        while len(frames) <= cycle and time.monotonic() < deadline_s:
+            time.sleep(0.0005)
+    assert len(frames) == 3 and all(len(f) == 6 for f in frames)  # 16 + 32 bits
+    statusword, position = tpdo1[0].raw, tpdo1[1].raw
+    assert statusword == r.sdo[0x6041].raw
+    assert abs(position - r.sdo[0x6064].raw) <= 50  # the disarmed arm sinks slowly
+    assert r.sdo[0x2000].raw == 1234  # the 2-byte RPDO1 was taken
+
+    network.nmt.state = "RESET COMMUNICATION"
+    r.nmt.wait_for_bootup(TIMEOUT_S)
+    assert [r.sdo[0x1A00][k].raw for k in (0, 1, 2, 3)] == [3, 0x60640020, 0x606C0010,
+                                                            0x21000010]
+    assert [r.sdo[0x1600][k].raw for k in (0, 1, 2)] == [2, 0x20000010, 0x60400010]
+
+
+def test_a_remap_out_of_order_or_beyond_the_pdo_is_refused_with_cia301_aborts(
+        master: tuple[canopen.Network, Emulator]) -> None:
+    network, _ = master
+    r = _remote(network, R_NODE, DriveKind.DC_SERVO)
+    network.nmt.state = "RESET COMMUNICATION"
+    r.nmt.wait_for_bootup(TIMEOUT_S)
+    mapping, cob_id = r.sdo[0x1A00], r.sdo[0x1800][1]
+
+    def write(variable: Any, value: int) -> Callable[[], None]:
+        def do() -> None:
+            variable.raw = value
+        return do
+
+    _abort(0x06010000, write(mapping[0], 0))  # the PDO is still valid
+    _abort(0x06090030, write(cob_id, 0x80000182))  # another CAN-ID
+    cob_id.raw = 0x80000181  # not valid
+    _abort(0x06010000, write(mapping[1], 0x60410010))  # sub 0 is not 0 yet
+    mapping[0].raw = 0
+    _abort(0x06040043, write(cob_id, 0x181))  # valid over an empty mapping
+    _abort(0x06020000, write(mapping[1], 0x70000010))  # no such object
+    _abort(0x06040041, write(mapping[1], 0x10080000))  # the device name: not mappable
+    _abort(0x06040041, write(mapping[1], 0x60640010))  # a 32-bit object as 16 bits
+    for k, entry in ((1, 0x60640020), (2, 0x60640020), (3, 0x60640020)):
+        mapping[k].raw = entry
+    _abort(0x06040042, write(mapping[0], 3))  # 96 bits
+    _abort(0x06040042, write(mapping[0], 4))  # beyond the entries the EDS gives it
+    mapping[0].raw = 2
+    cob_id.raw = 0x181
+    assert [mapping[k].raw for k in (0, 1, 2)] == [2, 0x60640020, 0x60640020]
+    rpdo_mapping = r.sdo[0x1600]
+    r.sdo[0x1400][1].raw = 0x80000201
+    rpdo_mapping[0].raw = 0
+    _abort(0x06040041, write(rpdo_mapping[1], 0x60410010))  # the drive reports it, not takes it
 
 
 @contextlib.contextmanager
