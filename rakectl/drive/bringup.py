@@ -28,8 +28,11 @@ in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.settings.Driv
    parameters the EDS declares (0x1400 + n and 0x1600 + n, 0x1800 + n and
    0x1A00 + n): COB-ID, transmission type and each mapped entry must be the
    EDS's, because the hot path's codecs decode that layout. Reset
-   communication restores a drive's *stored* values, so a drive whose mapping
-   was changed and saved by another tool is refused here, naming the object.
+   communication restores a drive's *stored* values, so a mapping another tool
+   changed and saved is found here: that PDO is written back to the EDS's in
+   CiA 301's order (COB-ID not valid, sub 0 = 0, the entries, sub 0 = n, the
+   COB-ID valid) and read again; a drive that refuses it or keeps its own is
+   refused, naming the object and both values.
    The dry run (``start=False``) also reads the device name 0x1008.
 
 Then a drive still in FAULT from the previous run (it lost that run's
@@ -100,6 +103,7 @@ RESET_ATTEMPTS = 3  # NMT reset communication sent this often before a drive is 
 SDO_TOGGLE_BIT_ABORT = 0x05030000  # a segment lost or repeated
 SDO_LATE_ANSWER_RETRIES = 2  # a transfer that met a late answer is made again this often
 PDO_SLOTS = 512  # CiA 301: RPDO and TPDO communication parameters 0x1400/0x1800 + 0 … 511
+PDO_NOT_VALID = 1 << 31  # bit 31 of a PDO's COB-ID
 
 
 class BringUp:
@@ -217,23 +221,72 @@ class BringUp:
         return identity, DriveLimits(*read_back), self._check_pdos(joint)
 
     def _check_pdos(self, joint: Joint) -> tuple[PdoReading, ...]:
-        """Every PDO the EDS declares, read back; DriveFault naming the first object that
-        differs from the EDS."""
+        """Every PDO the EDS declares, read back. One that differs from the EDS (another
+        tool stored its own mapping, which reset communication restores) is written back
+        to the EDS's in CiA 301's order (:meth:`_remap`) and read again; DriveFault naming
+        the first object that still differs."""
+        slots = self._pdo_slots(joint)
+        declared = [self._declared_pdo(joint, *slot) for slot in slots]
+        readings = [self._read_pdo(joint, *slot, eds)
+                    for slot, eds in zip(slots, declared, strict=True)]
+        if readings == declared:
+            return tuple(readings)
+        for (_, comm, mapping), reading, eds in zip(slots, readings, declared, strict=True):
+            if reading != eds:
+                self._remap(joint, comm, mapping, eds)
+        for (name, comm, mapping), eds in zip(slots, declared, strict=True):
+            self._expect(joint, comm, 1, f"{name} COB-ID")
+            self._expect(joint, comm, 2, f"{name} transmission type")
+            self._expect(joint, mapping, 0, f"{name} number of mapped objects")
+            for k in range(1, len(eds.mapped) + 1):
+                self._expect(joint, mapping, k, f"{name} mapped object {k}")
+        return tuple(declared)
+
+    def _pdo_slots(self, joint: Joint) -> list[tuple[str, int, int]]:
+        """(name, communication index, mapping index) of each PDO the EDS declares."""
         od = self._nodes[joint].object_dictionary
-        readings = []
-        for kind, comm_base, map_base in (("RPDO", 0x1400, 0x1600), ("TPDO", 0x1800, 0x1A00)):
-            for n in range(PDO_SLOTS):
-                if comm_base + n not in od:
-                    continue
-                name = f"{kind}{n + 1}"
-                comm, mapping = comm_base + n, map_base + n
-                cob_id = self._expect(joint, comm, 1, f"{name} COB-ID")
-                transmission = self._expect(joint, comm, 2, f"{name} transmission type")
-                count = self._expect(joint, mapping, 0, f"{name} number of mapped objects")
-                mapped = tuple(self._expect(joint, mapping, k, f"{name} mapped object {k}")
-                               for k in range(1, count + 1))
-                readings.append(PdoReading(name, cob_id, transmission, mapped))
-        return tuple(readings)
+        return [(f"{kind}{n + 1}", comm_base + n, map_base + n)
+                for kind, comm_base, map_base in (("RPDO", 0x1400, 0x1600),
+                                                  ("TPDO", 0x1800, 0x1A00))
+                for n in range(PDO_SLOTS) if comm_base + n in od]
+
+    def _read_pdo(self, joint: Joint, name: str, comm: int, mapping: int,
+                  eds: PdoReading) -> PdoReading:
+        """A PDO as the drive holds it (the entries past the EDS's count are not read:
+        a longer mapping differs anyway)."""
+        count = self._read(joint, mapping, 0, f"{name} number of mapped objects")
+        entries = tuple(self._read(joint, mapping, k, f"{name} mapped object {k}")
+                        for k in range(1, min(count, len(eds.mapped)) + 1))
+        return PdoReading(name, self._read(joint, comm, 1, f"{name} COB-ID"),
+                          self._read(joint, comm, 2, f"{name} transmission type"),
+                          entries if count <= len(eds.mapped) else (*entries, count))
+
+    def _declared_pdo(self, joint: Joint, name: str, comm: int, mapping: int) -> PdoReading:
+        od = self._nodes[joint].object_dictionary
+
+        def eds(index: int, subindex: int) -> int:
+            default = od_variable(od, index, subindex).default
+            if not isinstance(default, int):
+                raise ConfigError(f"{EDS_FILES[joint]}: 0x{index:04X}:{subindex} has no "
+                                  "integer default")
+            return default
+
+        return PdoReading(name, eds(comm, 1), eds(comm, 2),
+                          tuple(eds(mapping, k) for k in range(1, eds(mapping, 0) + 1)))
+
+    def _remap(self, joint: Joint, comm: int, mapping: int, eds: PdoReading) -> None:
+        """The EDS's PDO written in CiA 301's order: COB-ID not valid (bit 31), the
+        transmission type, sub 0 = 0, the entries, sub 0 = n, the COB-ID as declared."""
+        name, why = eds.name, "the EDS's PDO mapping"
+        steps = [(comm, 1, "COB-ID", eds.cob_id | PDO_NOT_VALID),
+                 (comm, 2, "transmission type", eds.transmission_type),
+                 (mapping, 0, "number of mapped objects", 0),
+                 *((mapping, k, f"mapped object {k}", entry)
+                   for k, entry in enumerate(eds.mapped, start=1)),
+                 (mapping, 0, "number of mapped objects", len(eds.mapped)),
+                 (comm, 1, "COB-ID", eds.cob_id)]
+        for index, subindex, what, value in steps:
+            self._write(joint, Parameter(index, subindex, f"{name} {what}", "", value, why))
 
     def _expect(self, joint: Joint, index: int, subindex: int, name: str) -> int:
         """An object read back that must hold its EDS default."""
@@ -241,9 +294,9 @@ class BringUp:
         declared = od_variable(self._nodes[joint].object_dictionary, index, subindex).default
         if value != declared:
             raise DriveFault(f"{self._label(joint)}: 0x{index:04X}:{subindex} {name} is "
-                             f"0x{value:X}, {EDS_FILES[joint]} declares 0x{declared:X}: the "
-                             "hot path decodes the EDS's PDO layout (reset the drive's stored "
-                             "communication parameters to the EDS's)")
+                             f"0x{value:X}, {EDS_FILES[joint]} declares 0x{declared:X}, and "
+                             "the drive kept it when the EDS's mapping was written: the hot "
+                             "path decodes the EDS's PDO layout")
         return value
 
     def _read_text(self, joint: Joint, index: int, subindex: int, name: str) -> str:

@@ -717,20 +717,46 @@ def test_a_read_back_mismatch_names_object_written_and_read(
                                  "timeout: wrote 3 ms, read 15 ms")
 
 
-def test_a_pdo_mapping_other_than_the_eds_is_refused_naming_the_entry(
+def test_a_stored_pdo_mapping_is_written_back_to_the_eds_in_cia301_order(
     network: LoopbackNetwork, fake_drives: tuple[FakeDrive, FakeDrive]
 ) -> None:
-    """A drive whose stored TPDO1 maps the velocity as 32 bits (another tool saved it):
-    the hot path would misread every feedback frame, so bring-up refuses it."""
+    """A drive whose stored TPDO1 maps the velocity as 32 bits and the position alone
+    (another tool saved it; reset communication restores it): bring-up writes the EDS's
+    TPDO1 back in CiA 301's order, reads it back, and goes on."""
+    r_drive = fake_drives[0]
+    r_drive.node.set_data(0x1A00, 0, b"\x01")  # type: ignore[no-untyped-call]
+    r_drive.node.set_data(0x1A00, 1, (0x606C0020).to_bytes(4, "little"))  # type: ignore[no-untyped-call]
+    writes: list[tuple[int, int, int]] = []
+
+    def record(index: int, subindex: int, od: Any, data: bytes) -> None:
+        if index in (0x1800, 0x1A00):
+            writes.append((index, subindex, int.from_bytes(data, "little")))
+
+    r_drive.node.add_write_callback(record)  # type: ignore[no-untyped-call]
+    r_info, _ = _announce_and_run(make_bring_up(network), fake_drives)
+    assert writes == [(0x1800, 1, 0x80000181), (0x1800, 2, 1), (0x1A00, 0, 0),
+                      (0x1A00, 1, 0x60640020), (0x1A00, 2, 0x606C0010),
+                      (0x1A00, 3, 0x21000010), (0x1A00, 0, 3), (0x1800, 1, 0x181)]
+    assert r_info.pdos[1].mapped == (0x60640020, 0x606C0010, 0x21000010)
+    assert [r_drive.value(0x1A00, k) for k in range(4)] == [3, 0x60640020, 0x606C0010,
+                                                            0x21000010]
+
+
+def test_a_pdo_mapping_the_drive_keeps_is_refused_naming_the_entry(
+    network: LoopbackNetwork, fake_drives: tuple[FakeDrive, FakeDrive]
+) -> None:
+    """A drive whose TPDO1 keeps mapping the velocity as 32 bits whatever is written: the
+    hot path would misread every feedback frame, so bring-up refuses it."""
     def velocity_32_bits(index: int, subindex: int, od: Any) -> int | None:
         return 0x606C0020 if (index, subindex) == (0x1A00, 2) else None
 
     fake_drives[0].node.add_read_callback(velocity_32_bits)  # type: ignore[no-untyped-call]
     with pytest.raises(DriveFault) as raised:
         _announce_and_run(make_bring_up(network), fake_drives)
-    assert str(raised.value).startswith(
+    assert str(raised.value) == (
         "r drive (node 1): 0x1A00:2 TPDO1 mapped object 2 is 0x606C0020, "
-        "dc_servo_drive.eds declares 0x606C0010")
+        "dc_servo_drive.eds declares 0x606C0010, and the drive kept it when the EDS's "
+        "mapping was written: the hot path decodes the EDS's PDO layout")
 
 
 def test_bring_up_reads_the_pdo_layout_and_the_dry_run_the_device_name_back(
