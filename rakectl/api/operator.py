@@ -23,6 +23,8 @@ from rakectl.errors import ApiError
 POLL_S = 0.2
 CLEAR_TO_END = "\x1b[K"  # ANSI: erase from the cursor to the end of the line
 CHECK_TIMEOUT_S = 120.0  # the weight check takes about 3 s, the press up to a minute
+CHECKS = (("weight_check", "weight check: lifting the tip and lowering it back"),
+          ("mount_check", "tine-mount check: pressing the tines on the anvil"))
 RESET_TIMEOUT_S = 2.0  # the daemon gives the drives 1 s to clear
 DUMP_TIMEOUT_S = 30.0
 MAX_JOG_S = 600.0  # a dump is written in the loop's slack, a few hundred ms
@@ -49,27 +51,27 @@ def simple(cmd: str) -> Ops:
 
 
 def arm(args: argparse.Namespace) -> int:
-    """Arm; the first time after start-up, wait for the checks and print their verdicts."""
+    """Arm; the first time after start-up, wait for the checks, printing each as it starts
+    and its verdict (a check that faults is named in the final line too)."""
     path = _path(args)
     reply = call(path, {"cmd": "arm"})
     if reply.get("state") == "checking":
-        print("arm: weight check: lifting the tip and lowering it back", file=sys.stderr)
         deadline = time.monotonic() + CHECK_TIMEOUT_S
-        announced = False
+        started: set[str] = set()
         with Client(path) as client:
-            while reply.get("state") == "checking" and time.monotonic() < deadline:
-                time.sleep(POLL_S)
+            while True:
                 reply = client.request({"cmd": "status"})
-                if not announced and (reply.get("weight_check") or {}).get("passed"):
-                    announced = True
-                    print(reply["weight_check"]["message"], file=sys.stderr)
-                    if (reply.get("mount_check") or {}).get("message") == "not run":
-                        print("arm: tine-mount check: pressing the tines on the anvil",
-                              file=sys.stderr)
-        for name in ("weight_check", "mount_check")[1 if announced else 0:]:
-            message = (reply.get(name) or {}).get("message", "")
-            if message and not message.startswith(("not run", "disabled")):
-                print(message, file=sys.stderr)
+                for name, what in CHECKS:
+                    check = reply.get(name) or {}
+                    if check.get("message") == "running" and name not in started:
+                        started.add(name)
+                        print(f"arm: {what}", file=sys.stderr)
+                    elif name in started and check.get("passed") is not None:
+                        started.discard(name)
+                        print(check["message"], file=sys.stderr)
+                if reply.get("state") != "checking" or time.monotonic() >= deadline:
+                    break
+                time.sleep(POLL_S)
     _print(args, reply, f"arm: {reply.get('state', 'ok')}"
            + (f" ({reply['fault']})" if reply.get("fault") else ""))
     return 0 if reply.get("state") == "armed" else 1

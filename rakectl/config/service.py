@@ -107,16 +107,20 @@ class SelfTestSettings:
                                     "known within 5 mm.", unit="m", ge=-0.5, le=1)
     press_force_n: float = setting(
         10.0, "How hard the tines press the anvil, read through the currents above their "
-        "reading in free air. At most half clamp.force_limit_n (the clamp's bound on a push "
-        "at rest); in practice the clamp's worst-case model holds a press near 18 N.",
-        unit="N", ge=5, le=45)
-    press_speed_m_per_s: float = setting(0.005, "Speed of the press.", unit="m/s", gt=0,
+        "reading in free air; the clamp's worst-case model holds a press near 18 N at best "
+        "(a press it holds short fails, naming it).", unit="N", ge=5, le=20)
+    press_speed_m_per_s: float = setting(0.005, "Speed of the press.", unit="m/s", ge=0.001,
                                          le=0.02)
     travel_speed_m_per_s: float = setting(0.05, "Speed to the anvil and back.", unit="m/s",
-                                          gt=0, le=0.1)
-    mount_tolerance: float = setting(
-        0.5, "Largest relative difference between the measured and the configured mount "
-        "stiffness (a blocked mount is many times stiffer).", gt=0, lt=1)
+                                          ge=0.01, le=0.1)
+    mount_stiffer_tolerance: float = setting(
+        0.2, "How much stiffer than clamp.contact_stiffness_n_per_m the measured mount may be "
+        "(the clamp takes that stiffness as the stiffest contact: 20 % stiffer raises the "
+        "spring part of an impact's bound √1.2 ≈ 1.1 times, inside clamp.model_margin).",
+        gt=0, le=0.2)
+    mount_softer_tolerance: float = setting(
+        0.5, "How much softer than clamp.contact_stiffness_n_per_m the measured mount may be "
+        "(softer is safe for the clamp; much softer is another mount).", gt=0, lt=1)
 
 
 @dataclass(frozen=True)

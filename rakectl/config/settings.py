@@ -360,13 +360,27 @@ def cross_checks(s: Settings) -> list[tuple[str, str]]:
     if d.heartbeat_timeout_ms <= d.heartbeat_period_ms:
         errors.append(("drives.heartbeat_timeout_ms",
                        f"must be > drives.heartbeat_period_ms ({d.heartbeat_period_ms})"))
-    errors.extend(_press_checks(s))
+    if not errors:  # the press is checked against a valid geometry
+        errors.extend(_press_checks(s))
     delay_ticks = s.estimator.delay_s * s.rate_hz
     if not math.isclose(delay_ticks, round(delay_ticks), abs_tol=1e-6):
         errors.append(
             ("estimator.delay_s", f"must be a whole number of loop periods (1/{s.rate_hz:g} s)")
         )
     return errors
+
+
+PRESS_HEIGHT_TOLERANCE_M = 0.005  # how well the anvil's height must be known
+PRESS_MAX_DEPTH_M = 0.02
+
+
+def press_depth_m(selftest: SelfTestSettings, clamp: ClampSettings) -> float:
+    """How far below the anvil's configured top the tine-mount check's press may go: the
+    height's tolerance plus 2.5 times the configured mount's compression at the press's
+    force, at most ``PRESS_MAX_DEPTH_M`` (with no anvil there, what lies below is pressed
+    no deeper)."""
+    compression_m = selftest.press_force_n / clamp.contact_stiffness_n_per_m
+    return min(PRESS_MAX_DEPTH_M, PRESS_HEIGHT_TOLERANCE_M + 2.5 * compression_m)
 
 
 def _press_checks(s: Settings) -> list[tuple[str, str]]:
@@ -383,9 +397,9 @@ def _press_checks(s: Settings) -> list[tuple[str, str]]:
     try:  # from below the anvil's top (the press's deepest) to above it (the approach)
         workspace = Workspace(g.pivot_height_m, g.r_min_m, g.r_max_m, g.theta_min_rad,
                               g.theta_max_rad)
-        for height_m in (t.anvil_height_m - 0.02, t.anvil_height_m + 0.03):
+        for height_m in (t.anvil_height_m - press_depth_m(t, s.clamp), t.anvil_height_m + 0.02):
             inverse(workspace, t.anvil_reach_m, height_m)
     except KinematicsError as error:
-        errors.append(("selftest.anvil_reach_m",
-                       f"the press on the anvil leaves the workspace: {error}"))
+        errors.append(("selftest.anvil_reach_m", "the press on the anvil (selftest.anvil_reach_m, "
+                       f"anvil_height_m) leaves the workspace: {error}"))
     return errors

@@ -39,8 +39,9 @@ fault. Braking while moving is not a fault: 0 V would let the rake fall.
 What it does not cover: the current's electrical transient after a command drops
 (L/R ≈ 0.3 ms), which the margin absorbs; a mount stiffer than configured (the
 clamp is only as true as ``contact_stiffness_n_per_m`` and
-``side_contact_stiffness_n_per_m``, and of the counterweight: nothing on the
-robot measures them yet, they are hardware requirements to verify at assembly); the
+``side_contact_stiffness_n_per_m``, and of the counterweight: hardware requirements,
+the vertical mount and the weight checked before arming, rakectl.core.mount_check and
+rakectl.core.selftest, the sideways mount at assembly); the
 tines' own mass below the mount (its impulse is ignored). A non-finite input
 gives 0 V and sets ``non_finite`` (the caller must fault): it is never silently
 replaced.

@@ -47,6 +47,33 @@ def _finite(value: float) -> float | None:
     return value if math.isfinite(value) else None
 
 
+def _checks(daemon: Daemon) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The checks before arming: running (this arming's), the last verdict, or why none."""
+    selftest = daemon.settings.selftest
+    weight, mount = daemon.weight_result, daemon.mount_result
+    if daemon.weight_check is not None:
+        weight_reply: dict[str, Any] = {"passed": None, "message": "running"}
+    elif weight is not None:
+        weight_reply = {"passed": weight.passed, "weight_n": _finite(weight.weight_n),
+                        "expected_n": weight.expected_n, "message": weight.message}
+    else:
+        weight_reply = {"passed": None, "message": "not run" if selftest.enabled
+                        else "disabled (selftest.enabled: false)"}
+    if daemon.mount_check is not None:
+        mount_reply: dict[str, Any] = {"passed": None, "message": "running" if
+                                       daemon.weight_check is None else "after the weight check"}
+    elif mount is not None:
+        mount_reply = {"passed": mount.passed,
+                       "stiffness_n_per_m": _finite(mount.stiffness_n_per_m),
+                       "expected_n_per_m": mount.expected_n_per_m, "at_least": mount.at_least,
+                       "message": mount.message}
+    else:
+        mount_reply = {"passed": None, "message": "not run" if selftest.enabled and selftest.press
+                       else "disabled (selftest.press: false)" if selftest.enabled
+                       else "disabled (selftest.enabled: false)"}
+    return weight_reply, mount_reply
+
+
 def _tip(daemon: Daemon) -> dict[str, float | None]:
     fb = daemon.client.feedback
     if not (math.isfinite(fb.r_m) and math.isfinite(fb.theta_rad)):
@@ -83,20 +110,7 @@ def status(daemon: Daemon) -> dict[str, Any]:
         "timing_reference": daemon.timing_reference,
         "dumps": {"pending": daemon.pending_dumps(), "failed": list(daemon.dump_failures)},
     }
-    check = daemon.weight_result
-    reply["weight_check"] = (
-        {"passed": check.passed, "weight_n": _finite(check.weight_n),
-         "expected_n": check.expected_n, "message": check.message} if check is not None
-        else {"passed": None, "message": "not run" if daemon.settings.selftest.enabled
-              else "disabled (selftest.enabled: false)"})
-    mount, selftest = daemon.mount_result, daemon.settings.selftest
-    reply["mount_check"] = (
-        {"passed": mount.passed, "stiffness_n_per_m": _finite(mount.stiffness_n_per_m),
-         "expected_n_per_m": mount.expected_n_per_m, "at_least": mount.at_least,
-         "message": mount.message} if mount is not None
-        else {"passed": None, "message": "not run" if selftest.enabled and selftest.press
-              else "disabled (selftest.press: false)" if selftest.enabled
-              else "disabled (selftest.enabled: false)"})
+    reply["weight_check"], reply["mount_check"] = _checks(daemon)
     planner = daemon.planner
     if planner is not None:
         reply["excavation"] = {

@@ -293,6 +293,10 @@ class Daemon(SlackWork):
         if self.state is DaemonState.EXCAVATE and self.planner is not None:
             self.planner.force_stop(c.reach_m, c.depth_m)
             return
+        if self.state is DaemonState.CHECKING:  # its reference is the check's: end it
+            self.fault(f"force limit during the checks before arming: F̂ {c.f_hat_n:.1f} N, "
+                       f"from the currents {sup.f_current_n:.1f} N")
+            return
         self.hold = (reach, depth)
         if self.state is DaemonState.JOG:
             self._transition(Event.STOP, "force limit: backing off")
@@ -416,11 +420,12 @@ class Daemon(SlackWork):
         if self.weight_checked and self.mount_checked:
             self._transition(Event.ARM)
             return
-        if self.weight_checked:
-            self._start_mount_check()
-        else:
+        if not self.weight_checked:
             self.weight_check = WeightCheck(s.selftest, s.clamp, s.motors.r, s.motors.theta,
                                             self.dt_s, *self.hold)
+        if not self.mount_checked:  # built here, off the tick; it runs once the weight passed
+            self.mount_check = MountCheck(s.selftest, s.clamp, s.motors.r, s.motors.theta,
+                                          self.workspace, self.dt_s, *self.hold)
         self._transition(Event.CHECK, "weight check first" if self.weight_check is not None
                          else "tine-mount check first")
 
@@ -436,25 +441,19 @@ class Daemon(SlackWork):
         t, result = self.settings.selftest, self.mount_result
         return not (t.enabled and t.press) or (result is not None and result.passed)
 
-    def _start_mount_check(self) -> None:
-        s = self.settings
-        self.mount_check = MountCheck(s.selftest, s.clamp, s.motors.r, s.motors.theta,
-                                      self.workspace, self.dt_s, *self.hold)
-
     def _judge_weight(self, check: WeightCheck) -> None:
         result = check.result
         assert result is not None
         self.weight_result = result  # (_transition ends weight_check on leaving CHECKING)
         self.hold = check.start
-        self.event("weight_check", passed=result.passed, weight_n=result.weight_n,
+        self.event("weight_check", passed=result.passed, weight_n=_json_number(result.weight_n),
                    expected_n=result.expected_n, samples=result.samples)
         if not result.passed:
             self.fault(result.message)
-        elif self.mount_checked:
+        elif self.mount_check is None:
             self._transition(Event.CHECKED, result.message)
         else:
-            self.weight_check = None
-            self._start_mount_check()
+            self.weight_check = None  # the tine-mount check runs from the next tick
 
     def _judge_mount(self, check: MountCheck) -> None:
         result = check.result
@@ -462,7 +461,7 @@ class Daemon(SlackWork):
         self.mount_result = result
         self.hold = check.start
         self.event("mount_check", passed=result.passed,
-                   stiffness_n_per_m=result.stiffness_n_per_m,
+                   stiffness_n_per_m=_json_number(result.stiffness_n_per_m),
                    expected_n_per_m=result.expected_n_per_m, at_least=result.at_least,
                    samples=result.samples, press_n=result.peak_force_n)
         if result.passed:
@@ -502,3 +501,8 @@ class Daemon(SlackWork):
         fb = self.client.feedback
         reach, height = kinematics.forward(self.workspace, fb.r_m, fb.theta_rad)
         return reach, -height
+
+
+def _json_number(value: float) -> float | None:
+    """A figure for the log's JSON: None for nan (no figure: the check could not measure)."""
+    return value if math.isfinite(value) else None

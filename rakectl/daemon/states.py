@@ -37,7 +37,7 @@ class Event(enum.Enum):
     READY = enum.auto()  # bring-up done, first valid feedback
     ARM = enum.auto()
     CHECK = enum.auto()  # arm, with the weight check first
-    CHECKED = enum.auto()  # the weight check passed
+    CHECKED = enum.auto()  # the checks before arming passed (weight, tine mount)
     DISARM = enum.auto()
     JOG = enum.auto()
     EXCAVATE = enum.auto()

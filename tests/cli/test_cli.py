@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import csv
 import json
+import socket
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import pytest
@@ -129,3 +131,79 @@ def test_the_progress_line_clears_what_a_longer_line_left() -> None:
         "\rcycle 2, F̂ max 21.7 N" + CLEAR_TO_END)
     assert progress_line("done", tty=True, finished=True) == "\rdone" + CLEAR_TO_END + "\n"
     assert progress_line("cycle 2", tty=False, finished=False) == "cycle 2\n"
+
+
+class _ScriptedDaemon:
+    """A Unix socket that answers each request line with the next scripted reply (what
+    the daemon's status says as its checks before arming run), and records the requests."""
+
+    def __init__(self, path: Path, replies: list[dict[str, object]]) -> None:
+        self.requests: list[str] = []
+        self._replies = iter(replies)
+        self._server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self._server.bind(str(path))
+        self._server.listen(4)
+        self._server.settimeout(0.05)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._serve, daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        while not self._stop.is_set():
+            try:
+                connection, _ = self._server.accept()
+            except TimeoutError:
+                continue
+            connection.settimeout(5.0)
+            with connection, connection.makefile("rwb") as stream:
+                for line in stream:
+                    self.requests.append(json.loads(line)["cmd"])
+                    stream.write(json.dumps({"ok": True, **next(self._replies)}).encode()
+                                 + b"\n")
+                    stream.flush()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+        self._server.close()
+
+
+_W_RUNNING = {"passed": None, "message": "running"}
+_W_PASSED = {"passed": True, "message": "weight check: unbalanced weight 19.9 N measured "
+                                        "matches 19.6 N configured"}
+_M_AFTER = {"passed": None, "message": "after the weight check"}
+_M_RUNNING = {"passed": None, "message": "running"}
+_M_FAILED = {"passed": False, "message": "tine-mount check: stiffness 63153 N/m measured "
+                                         "does not match 5000 N/m configured"}
+_M_PASSED = {"passed": True, "message": "tine-mount check: stiffness 5057 N/m measured "
+                                        "matches 5000 N/m configured"}
+
+
+@pytest.mark.parametrize(("replies", "lines", "status"), [
+    ([{"state": "checking"},
+      {"state": "checking", "weight_check": _W_RUNNING, "mount_check": _M_AFTER},
+      {"state": "checking", "weight_check": _W_PASSED, "mount_check": _M_RUNNING},
+      {"state": "armed", "weight_check": _W_PASSED, "mount_check": _M_PASSED}],
+     ["arm: weight check: lifting the tip and lowering it back", _W_PASSED["message"],
+      "arm: tine-mount check: pressing the tines on the anvil", _M_PASSED["message"]], 0),
+    ([{"state": "checking"},  # armed again after a failed tine-mount check and a reset
+      {"state": "checking", "weight_check": _W_PASSED, "mount_check": _M_RUNNING},
+      {"state": "fault", "fault": _M_FAILED["message"], "weight_check": _W_PASSED,
+       "mount_check": _M_FAILED}],
+     ["arm: tine-mount check: pressing the tines on the anvil", _M_FAILED["message"]], 1),
+])
+def test_arm_prints_each_check_as_it_starts_and_its_verdict(
+        tmp_path: Path, replies: list[dict[str, object]], lines: list[str], status: int) -> None:
+    """`rakectl arm` against a scripted daemon on a real socket: the checks this arming
+    runs, each announced once and followed by its verdict; a check that passed before
+    (the weight, after a reset) is not announced again."""
+    path = tmp_path / "rakectl.sock"
+    daemon = _ScriptedDaemon(path, replies)
+    try:
+        done = _rakectl("arm", "--socket", str(path))
+    finally:
+        daemon.close()
+    assert done.returncode == status, done.stderr
+    assert done.stderr.splitlines() == lines
+    assert done.stdout.startswith(f"arm: {replies[-1]['state']}")
+    assert daemon.requests == ["arm"] + ["status"] * (len(replies) - 1)

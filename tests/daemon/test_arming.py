@@ -112,7 +112,8 @@ def test_the_first_arming_presses_the_anvil_and_refuses_a_stiffer_mount(
         rig.until(DaemonState.DISARMED, 3000)
         assert _arm(rig)["state"] == "checking"
         status = _call(rig, b'{"cmd": "status"}')
-        assert status["mount_check"] == {"passed": None, "message": "not run"}
+        assert status["weight_check"] == {"passed": None, "message": "running"}
+        assert status["mount_check"] == {"passed": None, "message": "after the weight check"}
         end = DaemonState.ARMED if mount_n_per_m == 5.0e3 else DaemonState.FAULT
         rig.until(end, 30000)
         status = _call(rig, b'{"cmd": "status"}')
@@ -127,6 +128,13 @@ def test_the_first_arming_presses_the_anvil_and_refuses_a_stiffer_mount(
         assert status["fault"] == check["message"]
         assert "does not match 5000 N/m configured (clamp.contact_stiffness_n_per_m" in (
             check["message"])
-        assert rig.emulator.ground.truth.max_force_down_n < 45.0
+        assert rig.emulator.ground.truth.max_force_down_n < 20.0
+        _call(rig, b'{"cmd": "reset"}')
+        rig.until(DaemonState.DISARMED, 3000)
+        assert _arm(rig)["state"] == "checking"  # the weight passed: the press alone
+        status = _call(rig, b'{"cmd": "status"}')
+        assert status["weight_check"]["passed"]
+        assert status["mount_check"] == {"passed": None, "message": "running"}
+        rig.until(DaemonState.FAULT, 30000)
     finally:
         rig.close()
