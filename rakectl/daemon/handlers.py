@@ -49,9 +49,9 @@ def _finite(value: float) -> float | None:
 
 def _checks(daemon: Daemon) -> tuple[dict[str, Any], dict[str, Any]]:
     """The checks before arming: running (this arming's), the last verdict, or why none."""
-    selftest = daemon.settings.selftest
-    weight, mount = daemon.weight_result, daemon.mount_result
-    if daemon.weight_check is not None:
+    selftest, checks = daemon.settings.selftest, daemon.checks
+    weight, mount = checks.weight_result, checks.mount_result
+    if checks.weight_check is not None:
         weight_reply: dict[str, Any] = {"passed": None, "message": "running"}
     elif weight is not None:
         weight_reply = {"passed": weight.passed, "weight_n": _finite(weight.weight_n),
@@ -59,9 +59,9 @@ def _checks(daemon: Daemon) -> tuple[dict[str, Any], dict[str, Any]]:
     else:
         weight_reply = {"passed": None, "message": "not run" if selftest.enabled
                         else "disabled (selftest.enabled: false)"}
-    if daemon.mount_check is not None:
+    if checks.mount_check is not None:
         mount_reply: dict[str, Any] = {"passed": None, "message": "running" if
-                                       daemon.weight_check is None else "after the weight check"}
+                                       checks.weight_check is None else "after the weight check"}
     elif mount is not None:
         mount_reply = {"passed": mount.passed,
                        "stiffness_n_per_m": _finite(mount.stiffness_n_per_m),

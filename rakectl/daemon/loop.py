@@ -35,14 +35,13 @@ from rakectl.core import kinematics
 from rakectl.core.control import TipController
 from rakectl.core.jog import Jog
 from rakectl.core.lane import LanePlanner
-from rakectl.core.mount_check import MountCheck, MountResult
-from rakectl.core.selftest import WeightCheck, WeightResult
 from rakectl.core.supervision import (
     ForceLevel,
     ForceSupervisor,
     implausible_joints,
     plausible_ranges,
 )
+from rakectl.daemon.checks import ArmingChecks, Verdict
 from rakectl.daemon.events import EventLog
 from rakectl.daemon.inputs import InputLog
 from rakectl.daemon.recorder import DumpWriter, FlightRecorder
@@ -94,10 +93,7 @@ class Daemon(SlackWork):
         self.hold = (0.0, 0.0)  # (reach, depth) held in ARMED and HOLD
         self.jog: Jog | None = None
         self.planner: LanePlanner | None = None
-        self.weight_check: WeightCheck | None = None  # running in CHECKING
-        self.weight_result: WeightResult | None = None  # the last check's
-        self.mount_check: MountCheck | None = None  # running in CHECKING, after the weight's
-        self.mount_result: MountResult | None = None  # the last check's
+        self.checks = ArmingChecks(settings, self.workspace, self.dt_s)  # in CHECKING
         self._plausible = plausible_ranges(settings.geometry)
         self.f_hat_max_n = 0.0
         self.voltages = (0.0, 0.0)  # sent on the last tick (after the clamp)
@@ -307,24 +303,12 @@ class Daemon(SlackWork):
         At the caution level the reference holds still (jog and lane do not advance).
         """
         state = self.state
-        check = self.weight_check
-        if state is DaemonState.CHECKING and check is not None:
-            fb = self.client.feedback
-            check.observe(fb.r_m, fb.theta_rad, fb.r_vel_m_per_s, fb.theta_vel_rad_per_s,
-                          fb.current_r_a, fb.current_theta_a)
-            check.step()
-            if check.done:
-                self._judge_weight(check)
-            return check.reach_m, check.depth_m, False
-        mount = self.mount_check
-        if state is DaemonState.CHECKING and mount is not None:
-            fb, c = self.client.feedback, self.controller
-            mount.observe(fb.r_m, fb.theta_rad, fb.r_vel_m_per_s, fb.theta_vel_rad_per_s,
-                          fb.current_r_a, fb.current_theta_a)
-            mount.step(c.reach_m, c.depth_m)
-            if mount.done:
-                self._judge_mount(mount)
-            return mount.reach_m, mount.depth_m, False
+        if state is DaemonState.CHECKING:
+            c = self.controller
+            reach, depth, verdict = self.checks.step(self.client.feedback, c.reach_m, c.depth_m)
+            if verdict is not None:
+                self._judge(verdict)
+            return reach, depth, False
         moving = state in (DaemonState.JOG, DaemonState.EXCAVATE)
         if self.supervisor.level is ForceLevel.CAUTION and moving:
             return self._ref[0], self._ref[1], True
@@ -384,7 +368,7 @@ class Daemon(SlackWork):
             return False
         old, self.state = self.state, new
         if old is DaemonState.CHECKING:  # passed, or left unfinished (judged again next arm)
-            self.weight_check = self.mount_check = None
+            self.checks.stop()
         if old in ARMED_STATES and new not in ARMED_STATES:
             self._enabled = False
             self.client.command(None, DriveCommand.QUICK_STOP if new is DaemonState.ESTOP
@@ -408,7 +392,7 @@ class Daemon(SlackWork):
 
     def arm(self) -> None:
         """Hold the present pose and step the drives to OPERATION ENABLED; the first time
-        after start-up, through the weight check (CHECKING)."""
+        after start-up, through the checks before arming (CHECKING: rakectl.daemon.checks)."""
         fb, s = self.client.feedback, self.settings
         self.controller.reset(fb.r_m, fb.theta_rad)
         self.controller.clamp.clear_latched()  # a fault it raised before was reset
@@ -417,57 +401,19 @@ class Daemon(SlackWork):
         self._ref = self.hold
         self._enabled = False
         self._enable_deadline = self.ticks + round(s.daemon.enable_timeout_s * s.rate_hz)
-        if self.weight_checked and self.mount_checked:
+        if self.checks.passed:
             self._transition(Event.ARM)
             return
-        if not self.weight_checked:
-            self.weight_check = WeightCheck(s.selftest, s.clamp, s.motors.r, s.motors.theta,
-                                            self.dt_s, *self.hold)
-        if not self.mount_checked:  # built here, off the tick; it runs once the weight passed
-            self.mount_check = MountCheck(s.selftest, s.clamp, s.motors.r, s.motors.theta,
-                                          self.workspace, self.dt_s, *self.hold)
-        self._transition(Event.CHECK, "weight check first" if self.weight_check is not None
-                         else "tine-mount check first")
+        self._transition(Event.CHECK, self.checks.start(*self.hold))  # off the tick
 
-    @property
-    def weight_checked(self) -> bool:
-        """The weight check passed since start-up (or is disabled)."""
-        result = self.weight_result
-        return not self.settings.selftest.enabled or (result is not None and result.passed)
-
-    @property
-    def mount_checked(self) -> bool:
-        """The tine-mount check passed since start-up (or is not configured)."""
-        t, result = self.settings.selftest, self.mount_result
-        return not (t.enabled and t.press) or (result is not None and result.passed)
-
-    def _judge_weight(self, check: WeightCheck) -> None:
-        result = check.result
-        assert result is not None
-        self.weight_result = result  # (_transition ends weight_check on leaving CHECKING)
-        self.hold = check.start
-        self.event("weight_check", passed=result.passed, weight_n=_json_number(result.weight_n),
-                   expected_n=result.expected_n, samples=result.samples)
-        if not result.passed:
-            self.fault(result.message)
-        elif self.mount_check is None:
-            self._transition(Event.CHECKED, result.message)
-        else:
-            self.weight_check = None  # the tine-mount check runs from the next tick
-
-    def _judge_mount(self, check: MountCheck) -> None:
-        result = check.result
-        assert result is not None
-        self.mount_result = result
-        self.hold = check.start
-        self.event("mount_check", passed=result.passed,
-                   stiffness_n_per_m=_json_number(result.stiffness_n_per_m),
-                   expected_n_per_m=result.expected_n_per_m, at_least=result.at_least,
-                   samples=result.samples, press_n=result.peak_force_n)
-        if result.passed:
-            self._transition(Event.CHECKED, result.message)
-        else:
-            self.fault(result.message)
+    def _judge(self, verdict: Verdict) -> None:
+        """A check ended: log it, then fault, run the next check, or arm."""
+        self.hold = verdict.start
+        self.event(verdict.event, **verdict.fields)
+        if not verdict.passed:
+            self.fault(verdict.message)
+        elif self.checks.mount_check is None:
+            self._transition(Event.CHECKED, verdict.message)
 
     def start_reset(self) -> None:
         """Fault-reset the drives; FAULT/ESTOP → DISARMED once no problem is left (≤ 1 s)."""
@@ -501,8 +447,3 @@ class Daemon(SlackWork):
         fb = self.client.feedback
         reach, height = kinematics.forward(self.workspace, fb.r_m, fb.theta_rad)
         return reach, -height
-
-
-def _json_number(value: float) -> float | None:
-    """A figure for the log's JSON: None for nan (no figure: the check could not measure)."""
-    return value if math.isfinite(value) else None
