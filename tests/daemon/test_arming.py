@@ -124,7 +124,7 @@ def test_the_first_arming_presses_the_anvil_and_refuses_a_stiffer_mount(
             tip = status["tip"]  # back where the check started
             assert (tip["reach_m"], tip["depth_m"]) == pytest.approx((1.05, -0.06), abs=0.003)
             return
-        assert not check["passed"] and check["stiffness_n_per_m"] > 2.5e4
+        assert not check["passed"] and check["stiffness_n_per_m"] > 1.2 * 5e3
         assert status["fault"] == check["message"]
         assert "does not match 5000 N/m configured (clamp.contact_stiffness_n_per_m" in (
             check["message"])
