@@ -27,7 +27,7 @@ from collections.abc import Callable, Sequence
 from typing import Final
 
 from drivers.dictionary import DriveSpec, Frame
-from drivers.pdo_map import Pdo, PdoCodec
+from drivers.pdo_map import Entry, Pdo, PdoCodec
 from drivers.power_stage import EMCY_STATES, NO_FRAMES, REGISTER, PowerStage
 from drivers.stats import BadInput
 from rakectl.errors import FrameError
@@ -79,10 +79,10 @@ class DriveNode(PowerStage):
                            self._ids[FunctionCode.SDO_REQUEST]: self._on_sdo}
         self._writers[(0x2000, 0)] = self._write_voltage
         self.nmt = NmtState.BOOT_UP
+        self._pdo_layouts: dict[Pdo, tuple[bool, tuple[Entry, ...]]] = {}
+        self._pdo_revision = -1
         self._power_on_application()
         self._power_on_communication(0.0)
-        self._pdo_revision = -1
-        self._sync_pdos()
 
     # ------------------------------------------------------------------- public
 
@@ -166,8 +166,6 @@ class DriveNode(PowerStage):
         if self._last_counter and counter:
             stats.lost_syncs += lost_syncs(self._last_counter, counter, overflow)
         self._last_counter = counter
-        if self._pdo_revision != self.pdos.revision:
-            self._sync_pdos()
         out = [self._sample()] if self._tpdo1_on else []
         self._check_watchdog(now_s, out)
         self._last_sync_s = now_s
@@ -195,14 +193,12 @@ class DriveNode(PowerStage):
                  encode_emcy(code, self._register() | REGISTER[code]))]
 
     def _on_rpdo(self, can_id: int, data: bytes | bytearray, now_s: float) -> Sequence[Frame]:
-        if self._pdo_revision != self.pdos.revision:
-            self._sync_pdos()
+        if self.nmt is not NmtState.OPERATIONAL or not self._rpdo1_on:
+            self.stats.rpdos_ignored += 1  # (not valid: as if not received)
+            return NO_FRAMES
         codec = self._rpdo1_codec
         if len(data) != (RPDO1_SIZE if codec is None else codec.size):
             return self._bad(BadInput.WRONG_LENGTH, can_id, data)
-        if self.nmt is not NmtState.OPERATIONAL or not self._rpdo1_on:
-            self.stats.rpdos_ignored += 1
-            return NO_FRAMES
         if codec is None:  # the EDS's layout
             self._rx_voltage_mv, self._rx_controlword = decode_rpdo(data)
             self._fresh_voltage = self._fresh_controlword = True
@@ -210,7 +206,7 @@ class DriveNode(PowerStage):
             for (index, _), value in zip(codec.entries, codec.unpack(data), strict=True):
                 if index == 0x2000:
                     self._rx_voltage_mv, self._fresh_voltage = value, True
-                else:
+                elif index == 0x6040:
                     self._rx_controlword, self._fresh_controlword = value, True
         self._last_rpdo_s = now_s
         self.stats.rpdos += 1
@@ -255,6 +251,8 @@ class DriveNode(PowerStage):
         out: list[Frame] = []
         if not self._serve_sdo(can_id, data, now_s, out):
             self.stats.bad.count(BadInput.BAD_VALUE, can_id, data)
+        if self._pdo_revision != self.pdos.revision:
+            self._sync_pdos()
         self._emit_status(out)
         return out
 
@@ -283,9 +281,24 @@ class DriveNode(PowerStage):
         return reader() if reader is not None else self._eds_default(index, subindex)
 
     def _sync_pdos(self) -> None:
-        """The PDOs' layouts and validity, compiled again after their parameters changed
-        over SDO (:mod:`drivers.pdo_map`); the EDS's layouts keep the codec module's."""
+        """The PDOs' layouts and validity compiled again, after an SDO write changed them or
+        a reset restored them (:mod:`drivers.pdo_map`); the EDS's layouts keep the codec
+        module's. A TPDO2 changed goes out at its next chance (as CANopenNode sends a TPDO
+        that became valid); an RPDO1 changed drops the voltage it carried to 0 V (nothing
+        in the new layout has set one)."""
         pdos, od = self.pdos, self._od.object_dictionary
+        self._pdo_revision = pdos.revision
+        layouts = {pdo: (pdos.valid(pdo), pdos.layout(pdo)) for pdo in Pdo}
+        old, self._pdo_layouts = self._pdo_layouts, layouts
+        if layouts == old:
+            return
+        if old and layouts[Pdo.TPDO2] != old[Pdo.TPDO2]:
+            self._statusword = -1
+        if old and layouts[Pdo.RPDO1] != old[Pdo.RPDO1]:
+            self._rx_voltage_mv, self._fresh_voltage = 0, False
+            if self._latched_mv:
+                self._latched_mv = 0
+                self._update_output()
         codecs = {pdo: None if pdos.is_default(pdo) or not pdos.layout(pdo)
                   else PdoCodec(od, pdos.layout(pdo)) for pdo in Pdo}
         self._tpdo1_codec, self._tpdo2_codec = codecs[Pdo.TPDO1], codecs[Pdo.TPDO2]
@@ -297,9 +310,8 @@ class DriveNode(PowerStage):
                 self._tpdo1 = bytearray(TPDO1_SIZE)
             else:
                 self._tpdo2 = bytearray(TPDO2_SIZE)
-        on = {pdo: pdos.valid(pdo) and bool(pdos.layout(pdo)) for pdo in Pdo}
+        on = {pdo: valid and bool(layout) for pdo, (valid, layout) in layouts.items()}
         self._tpdo1_on, self._tpdo2_on, self._rpdo1_on = on[Pdo.TPDO1], on[Pdo.TPDO2], on[Pdo.RPDO1]
-        self._pdo_revision = pdos.revision
 
     def _set_nmt(self, state: NmtState) -> None:
         if state is self.nmt:
@@ -329,6 +341,7 @@ class DriveNode(PowerStage):
     def _power_on_communication(self, now_s: float) -> None:
         self._restore_communication(now_s)
         self._last_counter, self._sync_length_error = 0, False
+        self._sync_pdos()
 
     def _write_voltage(self, value: int) -> None:
         self._rx_voltage_mv, self._fresh_voltage = value, True  # latched at the next SYNC

@@ -14,19 +14,20 @@ subindex << 8 | length in bits). A master remaps it in CiA 301's order:
 
 Refused, with the abort codes CANopenNode answers (the object keeps its value):
 
-* a COB-ID whose CAN-ID or bit 30 differs from the EDS's: 0x06090030 (value range:
-  this drive keeps the pre-defined connection set, so its frames are routed by ID);
+* a COB-ID whose CAN-ID differs from the EDS's, or with any of bits 11–29 set:
+  0x06090030 (value range: this drive keeps the pre-defined connection set, so its
+  frames are routed by ID; bit 30, no RTR, is kept as written: it answers no RTR);
+* a COB-ID made valid over an empty mapping: 0x06090030;
 * sub 0 or an entry written while the PDO is valid, or an entry while sub 0 ≠ 0:
   0x06010000 (unsupported access);
-* an entry naming an object the EDS does not have: 0x06020000;
+* an entry naming an object the EDS does not have: 0x06020000; a subindex it does not
+  have: 0x06090011 (dummy entries, index < 0x20, are not taken: 0x06020000);
 * an object that is not mappable, not in this direction (a TPDO maps what the drive
   reports, an RPDO what it acts on: 0x2000 and 0x6040), or with another length than its
   type's: 0x06040041;
 * sub 0 above the entries the EDS gives the mapping, or more than 64 bits: 0x06040042
   (an entry keeps its value when sub 0 is set to 0, and only a mappable object can be
-  written into one, so the first n entries always name objects);
-* a COB-ID made valid over an empty mapping: 0x06040043 (general parameter
-  incompatibility).
+  written into one, so the first n entries always name objects).
 
 NMT reset communication restores the EDS's values (the drive stores nothing: no 0x1010).
 A PDO that is not valid is not sent (a TPDO) or not taken (an RPDO, counted as ignored).
@@ -43,6 +44,8 @@ from canopen import SdoAbortedError
 from canopen.objectdictionary import ObjectDictionary, ODVariable
 
 COB_ID_INVALID: Final = 1 << 31
+COB_ID_RESERVED: Final = 0x3FFFF800  # bits 11–29: 0 with 11-bit identifiers
+CAN_ID_MASK: Final = 0x7FF
 MAX_PDO_BITS: Final = 64
 RX_OBJECTS: Final = frozenset({(0x2000, 0), (0x6040, 0)})  # what the drive acts on
 
@@ -54,7 +57,7 @@ class PdoAbort(enum.IntEnum):
     NO_OBJECT = 0x06020000
     NOT_MAPPABLE = 0x06040041
     TOO_LONG = 0x06040042
-    INCOMPATIBLE = 0x06040043
+    NO_SUB_INDEX = 0x06090011
     VALUE_RANGE = 0x06090030
 
 
@@ -165,12 +168,11 @@ class PdoMaps:
         return False
 
     def _write_cob_id(self, pdo: Pdo, state: _PdoState, value: int) -> None:
-        own = state.defaults[0] & ~COB_ID_INVALID  # the EDS's CAN-ID and bit 30
-        if value & ~COB_ID_INVALID != own:
-            raise SdoAbortedError(PdoAbort.VALUE_RANGE)
+        if value & COB_ID_RESERVED or value & CAN_ID_MASK != state.defaults[0] & CAN_ID_MASK:
+            raise SdoAbortedError(PdoAbort.VALUE_RANGE)  # the pre-defined connection set's ID
         if not value & COB_ID_INVALID and not state.count:
-            raise SdoAbortedError(PdoAbort.INCOMPATIBLE)
-        state.cob_id = value
+            raise SdoAbortedError(PdoAbort.VALUE_RANGE)  # valid over an empty mapping
+        state.cob_id = value  # bit 30 (no RTR) kept as written: this drive answers no RTR
         self.revision += 1
 
     def _write_count(self, pdo: Pdo, state: _PdoState, value: int) -> None:
@@ -185,16 +187,14 @@ class PdoMaps:
     def _write_entry(self, pdo: Pdo, state: _PdoState, subindex: int, value: int) -> None:
         if not state.cob_id & COB_ID_INVALID or state.count:
             raise SdoAbortedError(PdoAbort.UNSUPPORTED_ACCESS)
-        if subindex > len(state.raw):
-            raise SdoAbortedError(PdoAbort.NO_OBJECT)
         index, sub, bits = value >> 16, (value >> 8) & 0xFF, value & 0xFF
-        try:
-            entry: Any = self._od[index]
-            var: Any = entry if isinstance(entry, ODVariable) else entry[sub]
-        except KeyError:
-            raise SdoAbortedError(PdoAbort.NO_OBJECT) from None
-        if isinstance(entry, ODVariable) and sub != 0:
+        if index not in self._od:
             raise SdoAbortedError(PdoAbort.NO_OBJECT)
+        entry: Any = self._od[index]
+        var: Any = (entry if sub == 0 else None) if isinstance(entry, ODVariable) else (
+            entry.get(sub) if hasattr(entry, "get") else None)
+        if var is None:
+            raise SdoAbortedError(PdoAbort.NO_SUB_INDEX)
         transmit = bool(pdo.value[2])
         allowed = var.pdo_mappable and (
             var.access_type in ("ro", "rw", "const") if transmit else (index, sub) in RX_OBJECTS)

@@ -84,6 +84,10 @@ def report(info: Any, parameters: Any) -> dict[str, Any]:
                   "transmission_type": pdo.transmission_type,
                   "mapped": [{"index": i, "subindex": s, "bits": b} for i, s, b in pdo.entries()]}
                  for pdo in info.pdos],
+        "rewritten": [{"name": pdo.name, "cob_id": pdo.cob_id,
+                       "transmission_type": pdo.transmission_type,
+                       "mapped": [m for m in pdo.mapped if m >= 0],
+                       "longer": any(m < 0 for m in pdo.mapped)} for pdo in info.rewritten],
     }
 
 
@@ -111,4 +115,12 @@ def text(r: dict[str, Any]) -> str:
         mapped = ", ".join(f"0x{m['index']:04X}:{m['subindex']} ({m['bits']} bit)"
                            for m in pdo["mapped"])
         lines.append(f"    {pdo['name']:<6} COB-ID 0x{pdo['cob_id']:03X}, {when}: {mapped}")
+    if r["rewritten"]:
+        lines.append("  held otherwise by the drive, the EDS's written back (not stored: at "
+                     "every bring-up):")
+    for pdo in r["rewritten"]:
+        mapped = ", ".join(f"0x{m:08X}" for m in pdo["mapped"]) + (", …" if pdo["longer"]
+                                                                   else "")
+        lines.append(f"    {pdo['name']:<6} COB-ID 0x{pdo['cob_id']:X}, transmission type "
+                     f"{pdo['transmission_type']}, mapped [{mapped}]")
     return "\n".join(lines)

@@ -41,9 +41,9 @@ On the emulated arm (tests/core/test_mount_check.py) the press of 10 N reads the
 5000 N/m mount as 4951 N/m (5181 N/m at the robot's anvil, config/rakectl.yaml), 4000 as
 3993, 2000 as 1978, 6500 as 6386, and the stiffest, whose press lasts a few filter
 times, lower than they are but far above the tolerance: 50 000 as 31 000 and 10⁶ as
-58 000; the true force on the anvil stayed under 19 N. The push is the clamp's to bound, whatever the mount: a press asked for
-15 N at that pose was held near 13 N (and asked for 30 N, near 18 N true) by the
-clamp's worst-case model. The press is slow: met at
+58 000; the true force on the anvil stayed under 19 N. The push is the clamp's to
+bound, whatever the mount: a press asked for 15 N at that pose was held near 13 N (and
+asked for 30 N, near 18 N true) by the clamp's worst-case model. The press is slow: met at
 5 mm/s by a 10⁶ N/m mount and about 2 kg of arm, its kinetic energy adds v·√(k m) ≈ 7 N.
 """
 

@@ -104,6 +104,7 @@ SDO_TOGGLE_BIT_ABORT = 0x05030000  # a segment lost or repeated
 SDO_LATE_ANSWER_RETRIES = 2  # a transfer that met a late answer is made again this often
 PDO_SLOTS = 512  # CiA 301: RPDO and TPDO communication parameters 0x1400/0x1800 + 0 … 511
 PDO_NOT_VALID = 1 << 31  # bit 31 of a PDO's COB-ID
+MORE_ENTRIES = -1  # a read-back mapping longer than the EDS's ends in this
 
 
 class BringUp:
@@ -163,8 +164,8 @@ class BringUp:
                 self._nmt(joint, NmtCommand.START)
         r_info, theta_info = (
             DriveInfo(joint, self._node_id[joint], identity, limits, statusword,
-                      self._state_of(joint, statusword), code, name, pdos)
-            for joint, (identity, limits, pdos), name, statusword, code in zip(
+                      self._state_of(joint, statusword), code, name, pdos, rewritten)
+            for joint, (identity, limits, pdos, rewritten), name, statusword, code in zip(
                 JOINTS, configured, names, statuswords, cleared, strict=True))
         return r_info, theta_info
 
@@ -195,7 +196,8 @@ class BringUp:
         except FrameError as error:
             raise DriveFault(f"{self._label(joint)}: {error}") from error
 
-    def _configure(self, joint: Joint) -> tuple[Identity, DriveLimits, tuple[PdoReading, ...]]:
+    def _configure(self, joint: Joint) -> tuple[Identity, DriveLimits, tuple[PdoReading, ...],
+                                                 tuple[PdoReading, ...]]:
         self._wait(self._heard[joint], joint, "no heartbeat or boot-up")
         for attempt in range(1, RESET_ATTEMPTS + 1):  # a lossy bus may lose either frame
             self._booted[joint].clear()
@@ -218,9 +220,9 @@ class BringUp:
                 unit = f" {p.unit}" if p.unit else ""
                 raise DriveFault(f"{self._label(joint)}: read-back mismatch: {p.where()} {p.name}: "
                                  f"wrote {p.value}{unit}, read {value}{unit}")
-        return identity, DriveLimits(*read_back), self._check_pdos(joint)
+        return identity, DriveLimits(*read_back), *self._check_pdos(joint)
 
-    def _check_pdos(self, joint: Joint) -> tuple[PdoReading, ...]:
+    def _check_pdos(self, joint: Joint) -> tuple[tuple[PdoReading, ...], tuple[PdoReading, ...]]:
         """Every PDO the EDS declares, read back. One that differs from the EDS (another
         tool stored its own mapping, which reset communication restores) is written back
         to the EDS's in CiA 301's order (:meth:`_remap`) and read again; DriveFault naming
@@ -230,17 +232,18 @@ class BringUp:
         readings = [self._read_pdo(joint, *slot, eds)
                     for slot, eds in zip(slots, declared, strict=True)]
         if readings == declared:
-            return tuple(readings)
+            return tuple(readings), ()
         for (_, comm, mapping), reading, eds in zip(slots, readings, declared, strict=True):
             if reading != eds:
-                self._remap(joint, comm, mapping, eds)
+                self._remap(joint, comm, mapping, reading, eds)
         for (name, comm, mapping), eds in zip(slots, declared, strict=True):
             self._expect(joint, comm, 1, f"{name} COB-ID")
             self._expect(joint, comm, 2, f"{name} transmission type")
             self._expect(joint, mapping, 0, f"{name} number of mapped objects")
             for k in range(1, len(eds.mapped) + 1):
                 self._expect(joint, mapping, k, f"{name} mapped object {k}")
-        return tuple(declared)
+        return tuple(declared), tuple(r for r, e in zip(readings, declared, strict=True)
+                                      if r != e)
 
     def _pdo_slots(self, joint: Joint) -> list[tuple[str, int, int]]:
         """(name, communication index, mapping index) of each PDO the EDS declares."""
@@ -253,13 +256,13 @@ class BringUp:
     def _read_pdo(self, joint: Joint, name: str, comm: int, mapping: int,
                   eds: PdoReading) -> PdoReading:
         """A PDO as the drive holds it (the entries past the EDS's count are not read:
-        a longer mapping differs anyway)."""
+        a longer mapping differs anyway, and ends in ``MORE_ENTRIES``)."""
         count = self._read(joint, mapping, 0, f"{name} number of mapped objects")
         entries = tuple(self._read(joint, mapping, k, f"{name} mapped object {k}")
                         for k in range(1, min(count, len(eds.mapped)) + 1))
         return PdoReading(name, self._read(joint, comm, 1, f"{name} COB-ID"),
                           self._read(joint, comm, 2, f"{name} transmission type"),
-                          entries if count <= len(eds.mapped) else (*entries, count))
+                          entries if count <= len(eds.mapped) else (*entries, MORE_ENTRIES))
 
     def _declared_pdo(self, joint: Joint, name: str, comm: int, mapping: int) -> PdoReading:
         od = self._nodes[joint].object_dictionary
@@ -274,19 +277,29 @@ class BringUp:
         return PdoReading(name, eds(comm, 1), eds(comm, 2),
                           tuple(eds(mapping, k) for k in range(1, eds(mapping, 0) + 1)))
 
-    def _remap(self, joint: Joint, comm: int, mapping: int, eds: PdoReading) -> None:
-        """The EDS's PDO written in CiA 301's order: COB-ID not valid (bit 31), the
-        transmission type, sub 0 = 0, the entries, sub 0 = n, the COB-ID as declared."""
+    def _remap(self, joint: Joint, comm: int, mapping: int, held: PdoReading,
+               eds: PdoReading) -> None:
+        """The EDS's PDO written in CiA 301's order: the COB-ID the drive holds made not
+        valid (bit 31), then the EDS's CAN-ID if it differs (still not valid), the
+        transmission type, sub 0 = 0, the entries, sub 0 = n, the COB-ID as declared. A
+        step the drive refuses is one DriveFault naming the PDO, what the drive held and
+        the step."""
         name, why = eds.name, "the EDS's PDO mapping"
-        steps = [(comm, 1, "COB-ID", eds.cob_id | PDO_NOT_VALID),
-                 (comm, 2, "transmission type", eds.transmission_type),
-                 (mapping, 0, "number of mapped objects", 0),
-                 *((mapping, k, f"mapped object {k}", entry)
-                   for k, entry in enumerate(eds.mapped, start=1)),
-                 (mapping, 0, "number of mapped objects", len(eds.mapped)),
-                 (comm, 1, "COB-ID", eds.cob_id)]
+        steps = [(comm, 1, "COB-ID", held.cob_id | PDO_NOT_VALID)]
+        if held.cob_id & 0x7FF != eds.cob_id & 0x7FF:
+            steps.append((comm, 1, "COB-ID", eds.cob_id | PDO_NOT_VALID))
+        steps += [(comm, 2, "transmission type", eds.transmission_type),
+                  (mapping, 0, "number of mapped objects", 0),
+                  *((mapping, k, f"mapped object {k}", entry)
+                    for k, entry in enumerate(eds.mapped, start=1)),
+                  (mapping, 0, "number of mapped objects", len(eds.mapped)),
+                  (comm, 1, "COB-ID", eds.cob_id)]
         for index, subindex, what, value in steps:
-            self._write(joint, Parameter(index, subindex, f"{name} {what}", "", value, why))
+            try:
+                self._write(joint, Parameter(index, subindex, f"{name} {what}", "", value, why))
+            except DriveFault as error:
+                raise DriveFault(f"{error} (writing {EDS_FILES[joint]}'s {name} back over the "
+                                 f"drive's: {_describe(held)})") from error
 
     def _expect(self, joint: Joint, index: int, subindex: int, name: str) -> int:
         """An object read back that must hold its EDS default."""
@@ -440,3 +453,10 @@ def run_bring_up(bus: can.BusABC, drives: DrivesSettings, motors: MotorsSettings
         notifier.stop(NOTIFIER_JOIN_S)
         sequence.close()
     return infos
+
+
+def _describe(pdo: PdoReading) -> str:
+    """A PDO's parameters as a drive holds them, in one phrase."""
+    mapped = ", ".join(f"0x{m:08X}" if m >= 0 else "..." for m in pdo.mapped)
+    return (f"COB-ID 0x{pdo.cob_id:X}, transmission type {pdo.transmission_type}, "
+            f"mapped [{mapped}]")

@@ -114,6 +114,7 @@ class DriveInfo:
     cleared_fault: int = 0  # 0x603F of a fault the previous run left, reset at bring-up
     device_name: str = ""  # 0x1008
     pdos: tuple[PdoReading, ...] = ()  # as read back, equal to the EDS's
+    rewritten: tuple[PdoReading, ...] = ()  # what the drive held of the PDOs written back
 
 
 @dataclass(frozen=True)

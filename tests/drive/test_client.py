@@ -738,8 +738,44 @@ def test_a_stored_pdo_mapping_is_written_back_to_the_eds_in_cia301_order(
                       (0x1A00, 1, 0x60640020), (0x1A00, 2, 0x606C0010),
                       (0x1A00, 3, 0x21000010), (0x1A00, 0, 3), (0x1800, 1, 0x181)]
     assert r_info.pdos[1].mapped == (0x60640020, 0x606C0010, 0x21000010)
+    assert [(p.name, p.mapped) for p in r_info.rewritten] == [("TPDO1", (0x606C0020,))]
     assert [r_drive.value(0x1A00, k) for k in range(4)] == [3, 0x60640020, 0x606C0010,
                                                             0x21000010]
+
+
+def test_a_bring_up_of_drives_that_hold_the_eds_mapping_writes_no_pdo(
+    network: LoopbackNetwork, fake_drives: tuple[FakeDrive, FakeDrive]
+) -> None:
+    writes: list[tuple[int, int]] = []
+
+    def record(index: int, subindex: int, od: Any, data: bytes) -> None:
+        if 0x1400 <= index < 0x1C00:
+            writes.append((index, subindex))
+
+    for drive in fake_drives:
+        drive.node.add_write_callback(record)  # type: ignore[no-untyped-call]
+    infos = _announce_and_run(make_bring_up(network), fake_drives)
+    assert writes == [] and [i.rewritten for i in infos] == [(), ()]
+
+
+def test_a_drive_that_refuses_the_write_back_is_refused_naming_what_it_held(
+    network: LoopbackNetwork, fake_drives: tuple[FakeDrive, FakeDrive]
+) -> None:
+    r_drive = fake_drives[0]
+    r_drive.node.set_data(0x1A00, 0, b"\x01")  # type: ignore[no-untyped-call]
+
+    def read_only_count(index: int, subindex: int, od: Any, data: bytes) -> None:
+        if (index, subindex) == (0x1A00, 0):
+            raise SdoAbortedError(0x06010002)
+
+    r_drive.node.add_write_callback(read_only_count)  # type: ignore[no-untyped-call]
+    with pytest.raises(DriveFault) as raised:
+        _announce_and_run(make_bring_up(network), fake_drives)
+    assert str(raised.value) == (
+        "r drive (node 1): SDO abort 0x06010002 writing 0x1A00 TPDO1 number of mapped "
+        "objects = 0: Attempt to write a read only object (writing dc_servo_drive.eds's "
+        "TPDO1 back over the drive's: COB-ID 0x181, transmission type 1, mapped "
+        "[0x60640020])")
 
 
 def test_a_pdo_mapping_the_drive_keeps_is_refused_naming_the_entry(

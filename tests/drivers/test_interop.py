@@ -202,7 +202,7 @@ def test_a_remap_out_of_order_or_beyond_the_pdo_is_refused_with_cia301_aborts(
     cob_id.raw = 0x80000181  # not valid
     _abort(0x06010000, write(mapping[1], 0x60410010))  # sub 0 is not 0 yet
     mapping[0].raw = 0
-    _abort(0x06040043, write(cob_id, 0x181))  # valid over an empty mapping
+    _abort(0x06090030, write(cob_id, 0x181))  # valid over an empty mapping
     _abort(0x06020000, write(mapping[1], 0x70000010))  # no such object
     _abort(0x06040041, write(mapping[1], 0x10080000))  # the device name: not mappable
     _abort(0x06040041, write(mapping[1], 0x60640010))  # a 32-bit object as 16 bits
