@@ -9,8 +9,7 @@ Under software emulation Python runs ~50x slower, so the bench runs at 50 Hz
 (config/rakectl-vcan.yaml) with the emulator lock-stepped to the SYNCs
 (config/emulator-vcan.yaml): behaviour is asserted, never timing. Each bench
 start costs two Python processes, so one bench covers bring-up, jog,
-excavation, e-stop and the traces; SIGKILL, a silent drive and the drives played
-by canopen's LocalNode need their own.
+excavation, e-stop and the traces; SIGKILL and a silent drive need their own.
 """
 
 from __future__ import annotations
@@ -292,34 +291,3 @@ def test_a_drive_that_goes_silent_faults_the_controller(tmp_path: Path) -> None:
     bus = final["bus"]
     assert isinstance(bus, dict)
     assert bus["tpdo_received_r"] > bus["tpdo_received_theta"]  # r kept answering
-
-
-def test_the_daemon_brings_up_arms_and_jogs_a_localnode_slave_on_the_wire(tmp_path: Path
-                                                                          ) -> None:
-    """The drives played by canopen's LocalNode (tests/drivers/localnode_drives.py: its SDO
-    server, NMT and heartbeat, PDO packing; the project's code only for CiA 402, SYNC and
-    physics) on real SocketCAN: bring-up, the weight check, a jog, e-stop and reset."""
-    with vcan_bench(tmp_path, EMULATOR, DAEMON,
-                    emulator_module="tests.drivers.localnode_drives") as bench:
-        _armed(bench)
-        before = bench.request("status")["tip"]
-        assert isinstance(before, dict)
-        for _ in range(10):  # 1 s of jog down at 3 cm/s
-            bench.request("jog", space="task", height_m_per_s=-0.03)
-            time.sleep(0.1)
-        after = bench.wait_for_state(["hold"], 30.0)["tip"]
-        assert isinstance(after, dict) and after["depth_m"] > before["depth_m"] + 0.01
-        drives = bench.request("status")["drives"]
-        assert isinstance(drives, list)
-        assert [d["state"] for d in drives] == ["operation_enabled"] * 2, drives
-        bench.request("estop")
-        bench.wait_for_state(["estop"], 30.0)
-        bench.request("reset")
-        bench.wait_for_state(["disarmed"], 30.0)
-    assert bench.process.returncode == 0
-    states = [e["new"] for e in _events(tmp_path, "daemon.log", "state")]
-    assert states == ["DISARMED", "CHECKING", "ARMED", "JOG", "HOLD", "ESTOP", "DISARMED"]
-    truth = _truth(tmp_path)
-    heights = [float(row["tip_height_m"]) for row in truth]
-    assert min(heights) < heights[0] - 0.01  # the slave's physics moved under the commands
-    assert float(truth[-1]["voltage_r_v"]) == float(truth[-1]["voltage_theta_v"]) == 0.0

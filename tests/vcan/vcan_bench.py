@@ -117,13 +117,8 @@ def _start(args: Sequence[str], log: Path, nice: int = 0, **env: str
 @contextlib.contextmanager
 def vcan_bench(out: Path, emulator_config: Path, daemon_config: Path,
                emulator_args: Sequence[str] = (), daemon_args: Sequence[str] = (),
-               emulator_at_bring_up: bool = False,
-               emulator_module: str = "drivers") -> Iterator[VcanBench]:
+               emulator_at_bring_up: bool = False) -> Iterator[VcanBench]:
     """Start the emulator and the daemon on vcan0; stop both on exit.
-
-    ``emulator_module`` is run as ``python -m MODULE --config FILE --truth CSV ARGS``: the
-    emulator by default, or another slave that takes its command line
-    (tests/drivers/localnode_drives.py).
 
     Both start at once (their imports take many seconds under emulation; the
     daemon's bring-up waits ``daemon.boot_timeout_s`` for the drives' first
@@ -146,7 +141,7 @@ def vcan_bench(out: Path, emulator_config: Path, daemon_config: Path,
     daemon_cmd = ["-m", "rakectl", "run", "--config", str(daemon_config),
                   "--set", f"daemon.socket_path={socket_path}",
                   "--set", f"daemon.dump_dir={out}", *daemon_args]
-    emulator_cmd = ["-m", emulator_module, "--config", str(emulator_config),
+    emulator_cmd = ["-m", "drivers", "--config", str(emulator_config),
                     "--truth", str(out / "truth.csv"), *emulator_args]
     with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as notify:
         env = {}
