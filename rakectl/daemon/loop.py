@@ -404,7 +404,9 @@ class Daemon(SlackWork):
         if self.checks.passed:
             self._transition(Event.ARM)
             return
-        self._transition(Event.CHECK, self.checks.start(*self.hold))  # off the tick
+        reason = self.checks.start(*self.hold)  # built here, off the tick
+        if not self._transition(Event.CHECK, reason):
+            self.checks.stop()
 
     def _judge(self, verdict: Verdict) -> None:
         """A check ended: log it, then fault, run the next check, or arm."""
