@@ -32,7 +32,7 @@ in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.settings.Driv
    changed and saved is found here: that PDO is written back to the EDS's in
    CiA 301's order (COB-ID not valid, sub 0 = 0, the entries, sub 0 = n, the
    COB-ID valid) and read again; a drive that refuses it or keeps its own is
-   refused, naming the object and both values.
+   refused, naming the object and both values (:mod:`rakectl.drive.pdos`).
    The dry run (``start=False``) also reads the device name 0x1008.
 
 Then a drive still in FAULT from the previous run (it lost that run's
@@ -89,6 +89,7 @@ from rakectl.drive.joints import (
     od_variable,
     own_ids,
 )
+from rakectl.drive.pdos import PdoCheck
 from rakectl.errors import CommsTimeout, ConfigError, DriveFault, FrameError
 from rakectl.protocol.cia402 import DriveState, decode_statusword
 from rakectl.protocol.codec import NMT_COB_ID, FunctionCode, cob_id
@@ -102,9 +103,6 @@ SDO_RETRIES = 3  # canopen repeats an unanswered SDO request this often at bring
 RESET_ATTEMPTS = 3  # NMT reset communication sent this often before a drive is silent
 SDO_TOGGLE_BIT_ABORT = 0x05030000  # a segment lost or repeated
 SDO_LATE_ANSWER_RETRIES = 2  # a transfer that met a late answer is made again this often
-PDO_SLOTS = 512  # CiA 301: RPDO and TPDO communication parameters 0x1400/0x1800 + 0 … 511
-PDO_NOT_VALID = 1 << 31  # bit 31 of a PDO's COB-ID
-MORE_ENTRIES = -1  # a read-back mapping longer than the EDS's ends in this
 
 
 class BringUp:
@@ -136,6 +134,8 @@ class BringUp:
             network.add_node(node)
             network.subscribe(cob_id(FunctionCode.HEARTBEAT, node_id), self._on_heartbeat)
             self._nodes[joint] = node
+        self._pdos = PdoCheck(self._read, self._write, self._label,
+                              lambda joint: self._nodes[joint].object_dictionary)
 
     def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
         joint = self._joint_of_node[can_id & 0x7F]
@@ -220,97 +220,7 @@ class BringUp:
                 unit = f" {p.unit}" if p.unit else ""
                 raise DriveFault(f"{self._label(joint)}: read-back mismatch: {p.where()} {p.name}: "
                                  f"wrote {p.value}{unit}, read {value}{unit}")
-        return identity, DriveLimits(*read_back), *self._check_pdos(joint)
-
-    def _check_pdos(self, joint: Joint) -> tuple[tuple[PdoReading, ...], tuple[PdoReading, ...]]:
-        """Every PDO the EDS declares, read back. One that differs from the EDS (another
-        tool stored its own mapping, which reset communication restores) is written back
-        to the EDS's in CiA 301's order (:meth:`_remap`) and read again; DriveFault naming
-        the first object that still differs."""
-        slots = self._pdo_slots(joint)
-        declared = [self._declared_pdo(joint, *slot) for slot in slots]
-        readings = [self._read_pdo(joint, *slot, eds)
-                    for slot, eds in zip(slots, declared, strict=True)]
-        if readings == declared:
-            return tuple(readings), ()
-        for (_, comm, mapping), reading, eds in zip(slots, readings, declared, strict=True):
-            if reading != eds:
-                self._remap(joint, comm, mapping, reading, eds)
-        for (name, comm, mapping), eds in zip(slots, declared, strict=True):
-            self._expect(joint, comm, 1, f"{name} COB-ID")
-            self._expect(joint, comm, 2, f"{name} transmission type")
-            self._expect(joint, mapping, 0, f"{name} number of mapped objects")
-            for k in range(1, len(eds.mapped) + 1):
-                self._expect(joint, mapping, k, f"{name} mapped object {k}")
-        return tuple(declared), tuple(r for r, e in zip(readings, declared, strict=True)
-                                      if r != e)
-
-    def _pdo_slots(self, joint: Joint) -> list[tuple[str, int, int]]:
-        """(name, communication index, mapping index) of each PDO the EDS declares."""
-        od = self._nodes[joint].object_dictionary
-        return [(f"{kind}{n + 1}", comm_base + n, map_base + n)
-                for kind, comm_base, map_base in (("RPDO", 0x1400, 0x1600),
-                                                  ("TPDO", 0x1800, 0x1A00))
-                for n in range(PDO_SLOTS) if comm_base + n in od]
-
-    def _read_pdo(self, joint: Joint, name: str, comm: int, mapping: int,
-                  eds: PdoReading) -> PdoReading:
-        """A PDO as the drive holds it (the entries past the EDS's count are not read:
-        a longer mapping differs anyway, and ends in ``MORE_ENTRIES``)."""
-        count = self._read(joint, mapping, 0, f"{name} number of mapped objects")
-        entries = tuple(self._read(joint, mapping, k, f"{name} mapped object {k}")
-                        for k in range(1, min(count, len(eds.mapped)) + 1))
-        return PdoReading(name, self._read(joint, comm, 1, f"{name} COB-ID"),
-                          self._read(joint, comm, 2, f"{name} transmission type"),
-                          entries if count <= len(eds.mapped) else (*entries, MORE_ENTRIES))
-
-    def _declared_pdo(self, joint: Joint, name: str, comm: int, mapping: int) -> PdoReading:
-        od = self._nodes[joint].object_dictionary
-
-        def eds(index: int, subindex: int) -> int:
-            default = od_variable(od, index, subindex).default
-            if not isinstance(default, int):
-                raise ConfigError(f"{EDS_FILES[joint]}: 0x{index:04X}:{subindex} has no "
-                                  "integer default")
-            return default
-
-        return PdoReading(name, eds(comm, 1), eds(comm, 2),
-                          tuple(eds(mapping, k) for k in range(1, eds(mapping, 0) + 1)))
-
-    def _remap(self, joint: Joint, comm: int, mapping: int, held: PdoReading,
-               eds: PdoReading) -> None:
-        """The EDS's PDO written in CiA 301's order: the COB-ID the drive holds made not
-        valid (bit 31), then the EDS's CAN-ID if it differs (still not valid), the
-        transmission type, sub 0 = 0, the entries, sub 0 = n, the COB-ID as declared. A
-        step the drive refuses is one DriveFault naming the PDO, what the drive held and
-        the step."""
-        name, why = eds.name, "the EDS's PDO mapping"
-        steps = [(comm, 1, "COB-ID", held.cob_id | PDO_NOT_VALID)]
-        if held.cob_id & 0x7FF != eds.cob_id & 0x7FF:
-            steps.append((comm, 1, "COB-ID", eds.cob_id | PDO_NOT_VALID))
-        steps += [(comm, 2, "transmission type", eds.transmission_type),
-                  (mapping, 0, "number of mapped objects", 0),
-                  *((mapping, k, f"mapped object {k}", entry)
-                    for k, entry in enumerate(eds.mapped, start=1)),
-                  (mapping, 0, "number of mapped objects", len(eds.mapped)),
-                  (comm, 1, "COB-ID", eds.cob_id)]
-        for index, subindex, what, value in steps:
-            try:
-                self._write(joint, Parameter(index, subindex, f"{name} {what}", "", value, why))
-            except DriveFault as error:
-                raise DriveFault(f"{error} (writing {EDS_FILES[joint]}'s {name} back over the "
-                                 f"drive's: {_describe(held)})") from error
-
-    def _expect(self, joint: Joint, index: int, subindex: int, name: str) -> int:
-        """An object read back that must hold its EDS default."""
-        value = self._read(joint, index, subindex, name)
-        declared = od_variable(self._nodes[joint].object_dictionary, index, subindex).default
-        if value != declared:
-            raise DriveFault(f"{self._label(joint)}: 0x{index:04X}:{subindex} {name} is "
-                             f"0x{value:X}, {EDS_FILES[joint]} declares 0x{declared:X}, and "
-                             "the drive kept it when the EDS's mapping was written: the hot "
-                             "path decodes the EDS's PDO layout")
-        return value
+        return identity, DriveLimits(*read_back), *self._pdos.check(joint)
 
     def _read_text(self, joint: Joint, index: int, subindex: int, name: str) -> str:
         """A segmented upload, started again when a segment was lost (``_repeatable``)."""
@@ -454,9 +364,3 @@ def run_bring_up(bus: can.BusABC, drives: DrivesSettings, motors: MotorsSettings
         sequence.close()
     return infos
 
-
-def _describe(pdo: PdoReading) -> str:
-    """A PDO's parameters as a drive holds them, in one phrase."""
-    mapped = ", ".join(f"0x{m:08X}" if m >= 0 else "..." for m in pdo.mapped)
-    return (f"COB-ID 0x{pdo.cob_id:X}, transmission type {pdo.transmission_type}, "
-            f"mapped [{mapped}]")
