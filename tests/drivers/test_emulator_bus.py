@@ -213,17 +213,20 @@ def test_silence_faults_both_drives_within_the_watchdog_and_the_arm_brakes(rig: 
     print(f"\nwatchdog 50 ms: both EMCYs after {latency_s * 1e3:.1f} ms")
     assert emcy_codes(frames) == {1: [EmcyCode.COMMAND_WATCHDOG_TIMEOUT],
                                   2: [EmcyCode.COMMAND_WATCHDOG_TIMEOUT]}
-    assert latency_s < 0.050 + 0.050  # the watchdog, plus scheduling slack on a shared VM
+    # The watchdog's 50 ms, plus the slack of a shared, loaded machine; the heartbeat's
+    # timeout is not what fired (the codes above say so).
+    assert latency_s < 0.050 + 0.200
     for node in emulator.nodes:
         assert node.state is DriveState.FAULT and node.output_voltage_v == 0.0
         (tpdo2,) = of(frames, 0x280 + node.node_id)
         assert decode_statusword(codec.decode_tpdo2(tpdo2)[0]) is DriveState.FAULT
-    # LOCKSTEP, no SYNC, communication lost: the physics follows the wall clock at 0 V.
+    # LOCKSTEP, no SYNC, communication lost: the physics runs on by the wall clock at 0 V
+    # (as fast as the machine lets it: a loaded one drops the periods it cannot keep up with).
     theta_before = emulator.plant.theta_rad
-    until_s = time.monotonic() + 0.3
-    while time.monotonic() < until_s:
+    give_up_s = time.monotonic() + 10.0
+    while emulator.time_s - time_before_s <= 0.3 and time.monotonic() < give_up_s:
         ctl.exchange(timeout_s=0.01)
-    assert emulator.time_s - time_before_s > 0.2
+    assert emulator.time_s - time_before_s > 0.3
     assert abs(emulator.plant.theta_vel_rad_per_s) < 0.1  # shorted motor: it brakes
     assert abs(emulator.plant.theta_rad - theta_before) < 0.03
 
