@@ -40,6 +40,7 @@ from rakectl.config.service import BusInterface, BusSettings
 from rakectl.errors import ConfigError
 from rakectl.protocol import codec, nmt
 from rakectl.protocol.cia402 import DriveCommand
+from rakectl.protocol.files import DriveProfile
 
 UDP_MULTICAST_OPTIONS = {"fd": False}  # CAN 2.0 frames; the IPv4 group is given as channel
 
@@ -134,6 +135,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
+_ROBOTEQ_ZERO_COMMAND = bytes(4)  # RPDO1 of roboteq_class_drive.eds: 0x2000:01 = 0 ‰
+
+
 def bench(config: EmulatorConfig, cycles: int) -> None:
     """Drive the emulator from a scripted controller on a private virtual channel."""
     config = replace(config, drives=replace(config.drives, timing=TimingMode.LOCKSTEP))
@@ -144,6 +148,7 @@ def bench(config: EmulatorConfig, cycles: int) -> None:
         emulator = Emulator(config, emulator_bus, log=structlog.get_logger("bench"))
         emulator.start()
         ids = [n.node_id for n in emulator.nodes]
+        roboteq = config.drives.profile is DriveProfile.ROBOTEQ
 
         def send(can_id: int, data: bytes) -> None:
             controller.send(can.Message(arbitration_id=can_id, data=data, is_extended_id=False))
@@ -159,8 +164,10 @@ def bench(config: EmulatorConfig, cycles: int) -> None:
                 emulator.stats.protocol_s = emulator.stats.physics_s = 0.0
             counter = codec.next_sync_counter(counter)
             send(codec.SYNC_COB_ID, codec.encode_sync(counter))
+            rpdo = (_ROBOTEQ_ZERO_COMMAND if roboteq  # no CiA 402: 0 ‰, driven as is
+                    else codec.encode_rpdo(0, command.value))
             for node_id in ids:
-                send(0x200 + node_id, codec.encode_rpdo(0, command.value))
+                send(0x200 + node_id, rpdo)
             emulator.service(0.0)
             while controller.recv(0.0) is not None:
                 pass

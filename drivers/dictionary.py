@@ -58,15 +58,50 @@ _COMM_RANGE: Final = range(0x1000, 0x2000)
 _SDO_ABORT: Final = struct.Struct("<BHBL")  # command 0x80, index, subindex, abort code
 
 
+Object = tuple[int, int]  # index, subindex
+
+
+@dataclass(frozen=True)
+class ParameterObjects:
+    """Where a drive type keeps the parameters the emulated drive acts on, and their units.
+
+    ``max_voltage`` None: the drive has no voltage limit of its own (it commands a share of
+    its supply). ``current_unit_ma``: the current limit's unit (1 mA, or 100 mA = 0.1 A).
+    ``rx``: the objects an RPDO may map (what the drive acts on)."""
+
+    max_voltage: Object | None
+    current_limit: Object
+    current_unit_ma: int
+    watchdog: Object
+    counts_per_rev: Object
+    tpdo2_refresh: Object
+    rx: frozenset[Object]
+
+
+OWN_PROFILE: Final = ParameterObjects(
+    max_voltage=(0x2001, 0), current_limit=(0x2002, 0), current_unit_ma=1,
+    watchdog=(0x2003, 0), counts_per_rev=(0x2004, 0), tpdo2_refresh=(0x2005, 0),
+    rx=frozenset({(0x2000, 0), (0x6040, 0)}))
+ROBOTEQ_CLASS: Final = ParameterObjects(
+    max_voltage=None, current_limit=(0x3002, 0), current_unit_ma=100,
+    watchdog=(0x3001, 0), counts_per_rev=(0x3003, 0), tpdo2_refresh=(0x3004, 0),
+    rx=frozenset({(0x2000, 1)}))
+
+
 class DriveKind(enum.Enum):
     """A drive type and its EDS (object dictionary, product code)."""
 
     DC_SERVO = "dc_servo_drive.eds"
     GEARED_MOTOR = "geared_motor_drive.eds"
+    ROBOTEQ_CLASS = "roboteq_class_drive.eds"  # a manufacturer profile, no CiA 402
 
     @property
     def eds_path(self) -> Path:
         return EDS_DIR / self.value
+
+    @property
+    def parameters(self) -> ParameterObjects:
+        return ROBOTEQ_CLASS if self is DriveKind.ROBOTEQ_CLASS else OWN_PROFILE
 
 
 class SdoAbort(enum.IntEnum):
@@ -136,7 +171,7 @@ class DriveObjects:
         self._network = _Outbox()
         self._od = _SdoServerNode(spec.node_id, str(spec.kind.eds_path))
         self._network.add_node(self._od)
-        self.pdos = PdoMaps(self._od.object_dictionary)
+        self.pdos = PdoMaps(self._od.object_dictionary, spec.kind.parameters.rx)
         self._od.add_read_callback(self._od_read)  # type: ignore[no-untyped-call]
         self._od.add_write_callback(self._od_write)
         self._sdo_response_id = cob_id(FunctionCode.SDO_RESPONSE, spec.node_id)
@@ -168,16 +203,20 @@ class DriveObjects:
         entry: Any = self._od.object_dictionary[index]
         return int((entry[subindex] if subindex else entry).default)
 
-    def _power_on_values(self) -> dict[int, int]:
-        """Power-on values of the objects the drive acts on, bounded by its hardware."""
-        motor, default = self.spec.motor, self._eds_default
+    def _power_on_values(self) -> dict[str, int]:
+        """Power-on values of the objects the drive acts on, bounded by its hardware (the
+        current limit in mA, whatever the drive type's unit)."""
+        motor, default, at = self.spec.motor, self._eds_default, self.spec.kind.parameters
+        supply_mv = round(motor.supply_voltage_v * 1000)
         return {
-            0x1016: default(0x1016, 1) & 0xFFFF | self.spec.controller_node_id << 16,
-            0x1017: default(0x1017), 0x1019: default(0x1019),
-            0x2001: min(default(0x2001), round(motor.supply_voltage_v * 1000)),
-            0x2002: min(default(0x2002), self._hardware_limit_ma()),
-            0x2003: default(0x2003), 0x2004: motor.encoder_counts_per_rev,
-            0x2005: default(0x2005),
+            "consumer": default(0x1016, 1) & 0xFFFF | self.spec.controller_node_id << 16,
+            "heartbeat_ms": default(0x1017), "sync_overflow": default(0x1019),
+            "max_voltage_mv": supply_mv if at.max_voltage is None
+            else min(default(*at.max_voltage), supply_mv),
+            "current_limit_ma": min(default(*at.current_limit) * at.current_unit_ma,
+                                    self._hardware_limit_ma()),
+            "watchdog_ms": default(*at.watchdog), "counts_per_rev": motor.encoder_counts_per_rev,
+            "tpdo2_refresh": default(*at.tpdo2_refresh),
         }
 
     def _hardware_limit_ma(self) -> int:
@@ -187,17 +226,18 @@ class DriveObjects:
         """Every object to its power-on value (NMT reset node)."""
         values = self._power_on
         self._od.data_store.clear()
-        self._max_voltage_mv, self._watchdog_ms = values[0x2001], values[0x2003]
-        self._tpdo2_refresh = values[0x2005]
-        self._set_current_limit_ma(values[0x2002])
-        self._set_counts_per_rev(values[0x2004])
+        self._max_voltage_mv, self._watchdog_ms = values["max_voltage_mv"], values["watchdog_ms"]
+        self._tpdo2_refresh = values["tpdo2_refresh"]
+        self._set_current_limit_ma(values["current_limit_ma"])
+        self._set_counts_per_rev(values["counts_per_rev"])
 
     def _restore_communication(self, now_s: float) -> None:
         """0x1000–0x1FFF to their power-on values (NMT reset communication)."""
         for index in [i for i in self._od.data_store if i in _COMM_RANGE]:
             del self._od.data_store[index]
-        self._heartbeat_ms, self._consumer = self._power_on[0x1017], self._power_on[0x1016]
-        self._sync_overflow = self._power_on[0x1019]
+        power_on = self._power_on
+        self._heartbeat_ms, self._consumer = power_on["heartbeat_ms"], power_on["consumer"]
+        self._sync_overflow = power_on["sync_overflow"]
         self._errors = []
         self.pdos.restore()
         self._next_heartbeat_s = now_s + self._heartbeat_ms * 0.001
@@ -218,6 +258,7 @@ class DriveObjects:
 
     def _parameter_objects(self) -> tuple[dict[tuple[int, int], Reader],
                                           dict[tuple[int, int], Writer]]:
+        at = self.spec.kind.parameters
         readers: dict[tuple[int, int], Reader] = {
             (0x1016, 1): lambda: self._consumer,
             (0x1017, 0): lambda: self._heartbeat_ms,
@@ -225,12 +266,13 @@ class DriveObjects:
             (0x1003, 0): lambda: len(self._errors),
             **{(0x1003, k): self._error_entry(k) for k in range(1, ERROR_HISTORY + 1)},
             (0x1018, 4): lambda: self.spec.serial_number,
-            (0x2001, 0): lambda: self._max_voltage_mv,
-            (0x2002, 0): lambda: self._current_limit_ma,
-            (0x2003, 0): lambda: self._watchdog_ms,
-            (0x2004, 0): lambda: self._counts_per_rev,
-            (0x2005, 0): lambda: self._tpdo2_refresh,
+            at.current_limit: lambda: self._current_limit_ma // at.current_unit_ma,
+            at.watchdog: lambda: self._watchdog_ms,
+            at.counts_per_rev: lambda: self._counts_per_rev,
+            at.tpdo2_refresh: lambda: self._tpdo2_refresh,
         }
+        if at.max_voltage is not None:
+            readers[at.max_voltage] = lambda: self._max_voltage_mv
         writers: dict[tuple[int, int], Writer] = {
             (0x1006, 0): lambda value: None,  # communication cycle period: informative
             (0x6060, 0): lambda value: None,  # the EDS limits it to −1
@@ -238,10 +280,10 @@ class DriveObjects:
             (0x1017, 0): self._write_heartbeat_period,
             (0x1019, 0): self._write_sync_overflow,
             (0x1003, 0): self._clear_errors,
-            (0x2002, 0): self._write_current_limit,
-            (0x2003, 0): self._write_watchdog,
-            (0x2004, 0): self._write_counts_per_rev,
-            (0x2005, 0): self._write_tpdo2_refresh,
+            at.current_limit: lambda value: self._write_current_limit(value * at.current_unit_ma),
+            at.watchdog: self._write_watchdog,
+            at.counts_per_rev: self._write_counts_per_rev,
+            at.tpdo2_refresh: self._write_tpdo2_refresh,
         }
         return readers, writers
 

@@ -51,11 +51,13 @@ from drivers.arm import ArmPlant
 from drivers.dictionary import DriveKind, DriveSpec, Frame
 from drivers.node import DriveNode
 from drivers.objects import Contact, Ground
+from drivers.roboteq import RoboteqNode
 from drivers.settings import EmulatorConfig, TimingMode
 from drivers.stats import BadInput, InputStats
 from rakectl.core.kinematics import Workspace
 from rakectl.core.motor_model import MotorParams, joint_per_motor_rad
 from rakectl.protocol.codec import SYNC_COB_ID
+from rakectl.protocol.files import DriveProfile
 from rakectl.protocol.nmt import EmcyCode
 
 REPORT_INTERVAL_S: Final = 0.25  # how often counters are checked for the rate-limited log
@@ -136,12 +138,19 @@ def workspace(config: EmulatorConfig) -> Workspace:
 def drive_specs(config: EmulatorConfig) -> tuple[DriveSpec, DriveSpec]:
     """(r drive, θ drive) as the configuration describes them."""
     d, p = config.drives, config.physics
+    roboteq = d.profile is DriveProfile.ROBOTEQ
     return (
-        DriveSpec(d.r_node_id, DriveKind.DC_SERVO, p.motor_r, d.r_serial_number,
-                  d.controller_node_id, d.overcurrent_time_s),
-        DriveSpec(d.theta_node_id, DriveKind.GEARED_MOTOR, p.motor_theta,
-                  d.theta_serial_number, d.controller_node_id, d.overcurrent_time_s),
+        DriveSpec(d.r_node_id, DriveKind.ROBOTEQ_CLASS if roboteq else DriveKind.DC_SERVO,
+                  p.motor_r, d.r_serial_number, d.controller_node_id, d.overcurrent_time_s),
+        DriveSpec(d.theta_node_id, DriveKind.ROBOTEQ_CLASS if roboteq else DriveKind.GEARED_MOTOR,
+                  p.motor_theta, d.theta_serial_number, d.controller_node_id,
+                  d.overcurrent_time_s),
     )
+
+
+def drive_node(spec: DriveSpec) -> DriveNode:
+    """The emulated drive its type calls for."""
+    return RoboteqNode(spec) if spec.kind is DriveKind.ROBOTEQ_CLASS else DriveNode(spec)
 
 
 class Emulator:
@@ -154,7 +163,7 @@ class Emulator:
         self._log = log if log is not None else structlog.get_logger("drivers.emulator")
         self._limited = RateLimitedLog(self._log)
         self.stats = EmulatorStats()
-        self.r_node, self.theta_node = (DriveNode(spec) for spec in drive_specs(config))
+        self.r_node, self.theta_node = (drive_node(spec) for spec in drive_specs(config))
         self.nodes = (self.r_node, self.theta_node)
         self._routes: dict[int, tuple[DriveNode, ...]] = {}
         for node in self.nodes:

@@ -62,6 +62,8 @@ _NMT_TARGET: Final = {NmtCommand.START: NmtState.OPERATIONAL, NmtCommand.STOP: N
 class DriveNode(PowerStage):
     """One drive's CiA 301 communication over its power stage; see the module docstring."""
 
+    FAST_PATH = True  # the EDS's PDO layouts packed by rakectl.protocol.codec's structs
+
     _rx_voltage_mv: int  # latest RPDO1, applied at the next SYNC if fresh
     _rx_controlword: int
     _fresh_voltage: bool
@@ -203,14 +205,18 @@ class DriveNode(PowerStage):
             self._rx_voltage_mv, self._rx_controlword = decode_rpdo(data)
             self._fresh_voltage = self._fresh_controlword = True
         else:
-            for (index, _), value in zip(codec.entries, codec.unpack(data), strict=True):
-                if index == 0x2000:
-                    self._rx_voltage_mv, self._fresh_voltage = value, True
-                elif index == 0x6040:
-                    self._rx_controlword, self._fresh_controlword = value, True
+            for (index, subindex), value in zip(codec.entries, codec.unpack(data), strict=True):
+                self._take_rpdo(index, subindex, value)
         self._last_rpdo_s = now_s
         self.stats.rpdos += 1
         return NO_FRAMES
+
+    def _take_rpdo(self, index: int, subindex: int, value: int) -> None:
+        """One object of a remapped RPDO1 (its mapping admits only what the drive acts on)."""
+        if index == 0x2000:
+            self._rx_voltage_mv, self._fresh_voltage = value, True
+        elif index == 0x6040:
+            self._rx_controlword, self._fresh_controlword = value, True
 
     def _on_nmt(self, can_id: int, data: bytes | bytearray, now_s: float) -> Sequence[Frame]:
         if len(data) != 2:
@@ -299,7 +305,8 @@ class DriveNode(PowerStage):
             if self._latched_mv:
                 self._latched_mv = 0
                 self._update_output()
-        codecs = {pdo: None if pdos.is_default(pdo) or not pdos.layout(pdo)
+        fast = self.FAST_PATH
+        codecs = {pdo: None if (fast and pdos.is_default(pdo)) or not pdos.layout(pdo)
                   else PdoCodec(od, pdos.layout(pdo)) for pdo in Pdo}
         self._tpdo1_codec, self._tpdo2_codec = codecs[Pdo.TPDO1], codecs[Pdo.TPDO2]
         self._rpdo1_codec = codecs[Pdo.RPDO1]

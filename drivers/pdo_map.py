@@ -23,8 +23,8 @@ Refused, with the abort codes CANopenNode answers (the object keeps its value):
 * an entry naming an object the EDS does not have: 0x06020000; a subindex it does not
   have: 0x06090011 (dummy entries, index < 0x20, are not taken: 0x06020000);
 * an object that is not mappable, not in this direction (a TPDO maps what the drive
-  reports, an RPDO what it acts on: 0x2000 and 0x6040), or with another length than its
-  type's: 0x06040041;
+  reports, an RPDO what it acts on: 0x2000 and 0x6040, a Roboteq-class drive's
+  0x2000:01), or with another length than its type's: 0x06040041;
 * sub 0 above the entries the EDS gives the mapping, or more than 64 bits: 0x06040042
   (an entry keeps its value when sub 0 is set to 0, and only a mappable object can be
   written into one, so the first n entries always name objects).
@@ -47,7 +47,6 @@ COB_ID_INVALID: Final = 1 << 31
 COB_ID_RESERVED: Final = 0x3FFFF800  # bits 11–29: 0 with 11-bit identifiers
 CAN_ID_MASK: Final = 0x7FF
 MAX_PDO_BITS: Final = 64
-RX_OBJECTS: Final = frozenset({(0x2000, 0), (0x6040, 0)})  # what the drive acts on
 
 
 class PdoAbort(enum.IntEnum):
@@ -103,8 +102,9 @@ def entry_format(var: Any) -> str:
 class PdoMaps:
     """The three PDOs' parameters; :meth:`read` and :meth:`write` serve them over SDO."""
 
-    def __init__(self, od: ObjectDictionary) -> None:
-        self._od = od
+    def __init__(self, od: ObjectDictionary, rx_objects: frozenset[tuple[int, int]]) -> None:
+        """``rx_objects``: what an RPDO may map (the objects the drive acts on)."""
+        self._od, self._rx_objects = od, rx_objects
         self._pdos: dict[Pdo, _PdoState] = {}
         for pdo in Pdo:
             mapping: Any = od[pdo.map_index]
@@ -196,8 +196,8 @@ class PdoMaps:
         if var is None:
             raise SdoAbortedError(PdoAbort.NO_SUB_INDEX)
         transmit = bool(pdo.value[2])
-        allowed = var.pdo_mappable and (
-            var.access_type in ("ro", "rw", "const") if transmit else (index, sub) in RX_OBJECTS)
+        readable = var.access_type in ("ro", "rw", "const")
+        allowed = var.pdo_mappable and (readable if transmit else (index, sub) in self._rx_objects)
         coded = var.STRUCT_TYPES.get(var.data_type)
         if not allowed or coded is None or bits != coded.size * 8:
             raise SdoAbortedError(PdoAbort.NOT_MAPPABLE)

@@ -59,8 +59,9 @@ class PowerStage(DriveObjects):
         self._tpdo2_on = True  # TPDO2 valid and mapped (drivers.pdo_map)
         self._ids = {f: cob_id(f, spec.node_id) for f in FunctionCode}
         self._readers |= self._live_objects()
-        self._writers |= {(0x2001, 0): self._write_max_voltage,
-                          (0x6040, 0): self._write_controlword}
+        self._writers[(0x6040, 0)] = self._write_controlword
+        if spec.kind.parameters.max_voltage is not None:
+            self._writers[spec.kind.parameters.max_voltage] = self._write_max_voltage
         self._position, self._motor_vel, self._current_a, self._at_stop = 0.0, 0.0, 0.0, False
 
     @property

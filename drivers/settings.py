@@ -12,6 +12,7 @@ from rakectl.config.declare import section, setting
 from rakectl.config.service import BusSettings
 from rakectl.config.settings import GeometrySettings
 from rakectl.core.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, MotorParams
+from rakectl.protocol.files import DriveProfile
 
 
 @dataclass(frozen=True)
@@ -52,6 +53,11 @@ class EmulatedDrivesSettings:
                                    ge=0, le=2**32 - 1)
     theta_serial_number: int = setting(2001, "Serial number of the θ drive (0x1018 sub 4).",
                                        ge=0, le=2**32 - 1)
+    profile: DriveProfile = setting(
+        DriveProfile.CIA402, "Which drives the emulator plays: cia402, the project's own "
+        "(dc_servo_drive.eds and geared_motor_drive.eds: CiA 402, voltage in mV); roboteq, "
+        "two Roboteq-class motor controllers (roboteq_class_drive.eds: motor command in ‰ "
+        "of the supply, no CiA 402; drivers/roboteq.py).")
     timing: TimingMode = setting(TimingMode.LOCKSTEP, "lockstep: one control period of "
                                  "physics per SYNC; wallclock: physics follows the wall clock.")
     control_period_s: float = setting(0.001, "Physics advanced per SYNC (lockstep) and the "

@@ -116,8 +116,10 @@ def emcy_codes(frames: Frames) -> dict[int, list[int]]:
     return {n: [decode_emcy(d).code for d in of(frames, 0x80 + n)] for n in NODES}
 
 
-def bring_up(ctl: Controller, watchdog_ms: int = 50) -> None:
-    """Identity by SDO, the watchdog set, NMT start, CiA 402 bring-up by RPDO1."""
+def bring_up(ctl: Controller, watchdog_ms: int = 1000) -> None:
+    """Identity by SDO, the watchdog set, NMT start, CiA 402 bring-up by RPDO1. The
+    watchdog runs on the wall clock: this scripted controller is not real-time, so only a
+    test of the watchdog sets it short."""
     for node_id in NODES:
         assert ctl.sdo(node_id, sdo_download(0x2003, 0, watchdog_ms, 2)) == ("ok", 0)
     assert of(ctl.nmt(NmtCommand.START), 0x281)  # TPDO2 on entering OPERATIONAL

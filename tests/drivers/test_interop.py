@@ -220,14 +220,15 @@ def test_a_remap_out_of_order_or_beyond_the_pdo_is_refused_with_cia301_aborts(
 
 
 @contextlib.contextmanager
-def emulated_drives(receive_own: bool = False) -> Iterator[tuple[Emulator, can.BusABC]]:
+def emulated_drives(receive_own: bool = False, config: EmulatorConfig | None = None
+                    ) -> Iterator[tuple[Emulator, can.BusABC]]:
     """The emulator serviced in a thread on one virtual channel, and the controller's bus
     on the same channel (``receive_own``: it echoes what it sends, as udp_multicast does)."""
     channel = f"test-interop-{os.getpid()}-{next(_channels)}"
     emulator_bus = can.Bus(interface="virtual", channel=channel)
     controller_bus = can.Bus(interface="virtual", channel=channel,
                              receive_own_messages=receive_own)
-    emulator = Emulator(EmulatorConfig(), emulator_bus, log=RecordingLog())
+    emulator = Emulator(config or EmulatorConfig(), emulator_bus, log=RecordingLog())
     stop = threading.Event()
     thread = threading.Thread(target=emulator.run, args=(stop.is_set, 0.005), daemon=True)
     try:
@@ -262,6 +263,9 @@ def test_the_controller_runs_the_drives_on_sync_without_counter() -> None:
         assert min(client.stats.tpdo_received) >= 40  # a few may land after the next SYNC
         assert not client.drive_faults()
         assert [node.stats.bad.total for node in emulator.nodes] == [0, 0]
+        deadline_s = time.monotonic() + TIMEOUT_S  # the emulator's thread takes the last
+        while emulator.stats.syncs < 50 and time.monotonic() < deadline_s:
+            time.sleep(0.001)
         assert emulator.stats.syncs == 50
         client.shutdown()
 
