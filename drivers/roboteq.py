@@ -22,9 +22,10 @@ order) and the same power stage behind it, but the object dictionary of
   applies 0 V and latches until *release shutdown* 0x200D is written (refused while
   the cause lasts, as the CiA 402 drive's fault reset is); then the drive drives
   again, from 0 V.
-* **Feedback** on every SYNC (TPDO1): encoder counter 0x2104:01 (i32 counts), encoder
-  motor speed 0x2103:01 (i16 rpm), motor amps 0x2100:01 (i16, 0.1 A). TPDO2: fault
-  flags 0x2112 and status flags 0x2111 (u16 each) on change and every 0x3004-th SYNC.
+* **Feedback** (the layouts of :mod:`rakectl.protocol.roboteq`) on every SYNC (TPDO1):
+  encoder counter 0x2104:01 (i32 counts), encoder motor speed 0x2103:01 (i16 rpm),
+  motor amps 0x2100:01 (i16, 0.1 A). TPDO2: fault flags 0x2112 and status flags 0x2111
+  (u16 each) on change and every 0x3004-th SYNC.
   Status flags: bit 0 serial mode (commands come from the bus), bit 3 power stage off,
   bit 5 command watchdog expired, bit 6 amps limit active. 0x210D:01/02: the supply
   (0.1 V).
@@ -50,25 +51,21 @@ from drivers.power_stage import NO_FRAMES, OVERCURRENT_SHARE
 from rakectl.protocol.cia402 import DriveState
 from rakectl.protocol.codec import INT32_LIMIT, rad_per_s_to_rpm
 from rakectl.protocol.nmt import EmcyCode, NmtState
+from rakectl.protocol.roboteq import (
+    FAULT_EMERGENCY_STOP,
+    FAULT_SENSOR,
+    FAULT_SHORT_CIRCUIT,
+    PER_MILLE,
+    STATUS_AMPS_LIMIT,
+    STATUS_POWER_STAGE_OFF,
+    STATUS_SERIAL_MODE,
+    STATUS_WATCHDOG_EXPIRED,
+    per_mille_to_mv,
+)
 
-PER_MILLE: Final = 1000  # the motor command's full scale
-FAULT_SHORT_CIRCUIT: Final = 1 << 3
-FAULT_EMERGENCY_STOP: Final = 1 << 4
-FAULT_SENSOR: Final = 1 << 5
-STATUS_SERIAL_MODE: Final = 1 << 0
-STATUS_POWER_STAGE_OFF: Final = 1 << 3
-STATUS_WATCHDOG_EXPIRED: Final = 1 << 5
-STATUS_AMPS_LIMIT: Final = 1 << 6
 FAULT_FLAG: Final = {EmcyCode.OVER_CURRENT: FAULT_SHORT_CIRCUIT,
                      EmcyCode.HARD_STOP_HIT: FAULT_SENSOR,
                      EmcyCode.HEARTBEAT_LOST: FAULT_EMERGENCY_STOP}
-
-
-def per_mille_to_mv(command: int, supply_mv: int) -> int:
-    """A motor command (‰ of the supply) in mV, rounded half away from zero."""
-    scaled = abs(command) * supply_mv
-    mv = (scaled + PER_MILLE // 2) // PER_MILLE
-    return mv if command >= 0 else -mv
 
 
 class RoboteqNode(DriveNode):

@@ -19,9 +19,10 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "rakectl": (),  # the package's own __init__, and any subpackage not listed below
     "rakectl.errors": (),
     "rakectl.limits": (),
-    # the motor model's declarations; the geometry that checks a configured pose (pure)
+    # the motor model's declarations; the geometry that checks a configured pose (pure);
+    # the drive profiles' names (a leaf: the protocol's data files)
     "rakectl.config": (*BASE, "rakectl.config", "rakectl.core.motor_model",
-                       "rakectl.core.kinematics"),
+                       "rakectl.core.kinematics", "rakectl.protocol.files"),
     "rakectl.core": (*BASE, "rakectl.config", "rakectl.core"),
     "rakectl.protocol": (*BASE, "rakectl.protocol"),
     "rakectl.drive": (*BASE, "rakectl.config", "rakectl.core", "rakectl.protocol",
@@ -45,7 +46,7 @@ ALLOWED: dict[str, tuple[str, ...]] = {
 # The pure core: numbers in, numbers out (no I/O, no clock, no logging).
 IMPURE = ("can", "canopen", "yaml", "structlog", "time", "socket", "threading", "subprocess")
 PURE = ("rakectl.core", "rakectl.protocol.codec", "rakectl.protocol.nmt",
-        "rakectl.protocol.cia402")
+        "rakectl.protocol.cia402", "rakectl.protocol.roboteq")
 
 
 def _module_name(path: Path) -> str:

@@ -36,7 +36,8 @@ def cmd_drives(args: argparse.Namespace) -> int:
     from rakectl.config.settings import Settings
     from rakectl.drive.bringup import run_bring_up
     from rakectl.drive.canbus import open_bus
-    from rakectl.drive.joints import drive_parameters, receive_ids
+    from rakectl.drive.joints import receive_ids
+    from rakectl.drive.profiles import drive_parameters, eds_file
 
     settings = load_settings(args.config, args.overrides, root=Settings)
     _refuse_if_the_daemon_runs(settings.daemon.socket_path)
@@ -46,7 +47,8 @@ def cmd_drives(args: argparse.Namespace) -> int:
                              settings.daemon.boot_timeout_s, start=False)
     finally:
         bus.shutdown()
-    reports = [report(info, drive_parameters(info.joint, settings.drives, settings.motors))
+    reports = [report(info, drive_parameters(info.joint, settings.drives, settings.motors),
+                      eds_file(settings.drives, info.joint), settings.drives.profile.value)
                for info in infos]
     if args.json:
         print(json.dumps({"drives": reports, "started": False}))
@@ -68,18 +70,20 @@ def _refuse_if_the_daemon_runs(configured: str) -> None:
                     "it first (systemctl stop rakectl); a bring-up now would reset its drives")
 
 
-def report(info: Any, parameters: Any) -> dict[str, Any]:
-    """A DriveInfo (rakectl.drive.joints) and what bring-up wrote, as plain data."""
-    from rakectl.drive.joints import EDS_FILES, drive_label
+def report(info: Any, parameters: Any, eds: str, profile: str) -> dict[str, Any]:
+    """A DriveInfo (rakectl.drive.joints) and what bring-up wrote (each value read back, in
+    the drive's unit), as plain data."""
+    from rakectl.drive.joints import drive_label
 
-    limits = list(vars(info.limits).values())
     return {
         "drive": drive_label(info.joint, info.node_id), "node_id": info.node_id,
-        "eds": EDS_FILES[info.joint], "device_name": info.device_name,
+        "eds": eds, "profile": profile, "device_name": info.device_name,
         "identity": vars(info.identity), "state": info.state.name,
         "statusword": info.statusword, "cleared_fault": info.cleared_fault,
-        "limits": [{"object": p.where(), "name": p.name, "value": value, "unit": p.unit,
-                    "setting": p.setting} for p, value in zip(parameters, limits, strict=True)],
+        "max_voltage_mv": info.limits.max_voltage_mv,
+        "limits": [{"object": p.where(), "name": p.name,
+                    "value": getattr(info.limits, p.limit) // p.limit_scale, "unit": p.unit,
+                    "setting": p.setting} for p in parameters],
         "pdos": [{"name": pdo.name, "cob_id": pdo.cob_id,
                   "transmission_type": pdo.transmission_type,
                   "mapped": [{"index": i, "subindex": s, "bits": b} for i, s, b in pdo.entries()]}
@@ -97,7 +101,11 @@ def text(r: dict[str, Any]) -> str:
     lines = [f"{r['drive']}: {r['device_name']!r} ({r['eds']}): vendor-ID "
              f"0x{ident['vendor_id']:08X}, product code {ident['product_code']}, revision "
              f"0x{ident['revision']:08X}, serial {ident['serial']}",
-             f"  CiA 402 state {r['state']} (statusword 0x{r['statusword']:04X})"
+             (f"  CiA 402 state {r['state']} (statusword 0x{r['statusword']:04X})"
+              if r["profile"] == "cia402" else
+              f"  profile {r['profile']}: reads as CiA 402 state {r['state']} (fault flags "
+              f"0x{r['statusword'] >> 16:04X}, status flags 0x{r['statusword'] & 0xFFFF:04X}); "
+              f"commands scaled by {r['max_voltage_mv'] / 1000:g} V")
              + (f"; a fault left by a previous run, 0x{r['cleared_fault']:04X}, was reset"
                 if r["cleared_fault"] else ""),
              "  written and read back:"]

@@ -66,6 +66,10 @@ def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], i
     demo = sub.add_parser("demo", help="the whole system on an emulated bench: find a mine")
     demo.add_argument("--out", type=Path, default=Path("out/demo"), help="logs, truth, plot")
     demo.add_argument("--json", action="store_true", help="the summary as JSON on the last line")
+    demo.add_argument("--drive-profile", choices=("cia402", "roboteq"), default="cia402",
+                      help="the drives the emulator plays and the daemon drives "
+                      "(drives.profile of both): the project's own (cia402, default) or "
+                      "Roboteq-class motor controllers (roboteq)")
     files = sub.add_parser("files", help="where the example configurations and systemd "
                            "files are (installed with the package), or copy them")
     files.add_argument("--copy", type=Path, metavar="DIR", help="copy config/ and systemd/ "
@@ -242,7 +246,7 @@ def _cmd_fuzz(args: argparse.Namespace) -> int:
 def _cmd_demo(args: argparse.Namespace) -> int:
     from rakectl.sim.demo import run_demo
 
-    return run_demo(args.out, args.json)
+    return run_demo(args.out, args.json, args.drive_profile)
 
 
 def _cmd_files(args: argparse.Namespace) -> int:

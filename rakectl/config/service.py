@@ -10,6 +10,7 @@ import zlib
 from dataclasses import dataclass
 
 from rakectl.config.declare import setting
+from rakectl.protocol.files import DriveProfile
 
 UDP_PORT_BASE = 43113  # python-can's default udp_multicast port
 UDP_PORT_SPAN = 1000
@@ -56,6 +57,11 @@ class BusSettings:
 class DrivesSettings:
     """The two CANopen drives: node-IDs, limits written at bring-up, supervision."""
 
+    profile: DriveProfile = setting(
+        DriveProfile.CIA402, "The drives' object layout (rakectl.drive.profiles): cia402, the "
+        "project's own (dc_servo_drive.eds, geared_motor_drive.eds: CiA 402, voltage in mV); "
+        "roboteq, Roboteq-class motor controllers (roboteq_class_drive.eds: motor command in "
+        "‰ of motors.<joint>.supply_voltage_v, no CiA 402).")
     r_node_id: int = setting(1, "Node-ID of the r (DC-servo) drive.", ge=1, le=127)
     theta_node_id: int = setting(2, "Node-ID of the θ (geared-motor) drive.", ge=1, le=127)
     controller_node_id: int = setting(10, "Node-ID of the controller's heartbeat.", ge=1, le=127)

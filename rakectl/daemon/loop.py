@@ -53,7 +53,7 @@ from rakectl.drive.canbus import TraceRecorder
 from rakectl.drive.client import DriveClient
 from rakectl.drive.joints import Joint
 from rakectl.errors import CommsTimeout
-from rakectl.protocol.cia402 import DriveCommand, DriveState, path_to_enabled
+from rakectl.protocol.cia402 import DriveCommand, DriveState
 from rakectl.protocol.nmt import NmtState
 
 RECORDER_COLUMNS = (
@@ -345,7 +345,7 @@ class Daemon(SlackWork):
         for joint in (Joint.R, Joint.THETA):
             state = states[joint]
             if state is not None and state is not DriveState.OPERATION_ENABLED:
-                steps = path_to_enabled(state)
+                steps = self.client.path_to_enabled(state)
                 if steps:
                     self.client.command(joint, steps[0])
         return False

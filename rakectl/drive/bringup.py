@@ -16,7 +16,10 @@ in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.settings.Driv
 3. SDO read the identity 0x1018: vendor-ID and product code must be those of
    the drive type's EDS (``rakectl/protocol/eds/*.eds``, read with ``importlib.resources``),
    revision and serial number are recorded;
-4. SDO write the limits: 0x2001 max voltage [mV] (``motors.<joint>.supply_voltage_v``),
+4. SDO write the limits (those of ``drives.profile``, :mod:`rakectl.drive.profiles`: a
+   Roboteq-class drive's in its own objects and units, after its supply is read and
+   checked against the configured one): 0x2001 max voltage [mV]
+   (``motors.<joint>.supply_voltage_v``),
    0x2002 current limit [mA] (``motors.<joint>.current_limit_a``), 0x2003 command
    watchdog [ms] (``drives.watchdog_timeout_ms``), 0x2004 encoder counts per turn,
    0x1017 producer heartbeat [ms] (``drives.heartbeat_period_ms``) and 0x1016:1
@@ -73,7 +76,6 @@ from rakectl.config.service import DrivesSettings
 from rakectl.config.settings import MotorsSettings
 from rakectl.drive.canbus import BusError, TraceRecorder
 from rakectl.drive.joints import (
-    EDS_FILES,
     JOINTS,
     DriveInfo,
     DriveLimits,
@@ -83,16 +85,25 @@ from rakectl.drive.joints import (
     PdoReading,
     allowed_range,
     drive_label,
-    drive_parameters,
     load_drive_od,
+    motor_of,
     node_ids,
     od_variable,
     own_ids,
 )
 from rakectl.drive.pdos import PdoCheck
+from rakectl.drive.profiles import (
+    SUPPLY_OBJECT,
+    drive_parameters,
+    eds_file,
+    state_of,
+    supply_problem,
+)
 from rakectl.errors import CommsTimeout, ConfigError, DriveFault, FrameError
-from rakectl.protocol.cia402 import DriveState, decode_statusword
+from rakectl.protocol import roboteq
+from rakectl.protocol.cia402 import DriveState
 from rakectl.protocol.codec import NMT_COB_ID, FunctionCode, cob_id
+from rakectl.protocol.files import DriveProfile
 from rakectl.protocol.nmt import NmtCommand, NmtState, encode_nmt
 
 NOTIFIER_POLL_S = 0.02  # bring-up Notifier's recv timeout: how fast it stops
@@ -128,14 +139,16 @@ class BringUp:
         self._nodes: dict[Joint, canopen.RemoteNode] = {}
         self._node_id = dict(zip(JOINTS, node_ids(drives), strict=True))
         for joint, node_id in self._node_id.items():
-            node = canopen.RemoteNode(node_id, load_drive_od(joint, node_id))
+            node = canopen.RemoteNode(node_id, load_drive_od(eds_file(drives, joint), node_id))
             node.sdo.RESPONSE_TIMEOUT = drives.sdo_timeout_s
             node.sdo.MAX_RETRIES = SDO_RETRIES  # a lossy bus loses the odd request
             network.add_node(node)
             network.subscribe(cob_id(FunctionCode.HEARTBEAT, node_id), self._on_heartbeat)
             self._nodes[joint] = node
+        self._roboteq = drives.profile is DriveProfile.ROBOTEQ
         self._pdos = PdoCheck(self._read, self._write, self._label,
-                              lambda joint: self._nodes[joint].object_dictionary)
+                              lambda joint: self._nodes[joint].object_dictionary,
+                              lambda joint: eds_file(drives, joint))
 
     def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
         joint = self._joint_of_node[can_id & 0x7F]
@@ -158,7 +171,7 @@ class BringUp:
         names = ["" if start else self._read_text(joint, 0x1008, 0, "device name")
                  for joint in JOINTS]
         cleared = [self._clear_old_fault(joint) for joint in JOINTS]
-        statuswords = [self._read(joint, 0x6041, 0, "statusword") for joint in JOINTS]
+        statuswords = [self._status(joint) for joint in JOINTS]
         if start:
             for joint in JOINTS:
                 self._nmt(joint, NmtCommand.START)
@@ -169,11 +182,25 @@ class BringUp:
                 JOINTS, configured, names, statuswords, cleared, strict=True))
         return r_info, theta_info
 
+    def _status(self, joint: Joint) -> int:
+        """The status the hot path starts from: the statusword 0x6041 of a CiA 402 drive; a
+        Roboteq-class drive's fault and status flags, once its power stage is switched off
+        by an emergency shutdown (0x200C), as a CiA 402 drive starts switched off."""
+        if not self._roboteq:
+            return self._read(joint, 0x6041, 0, "statusword")
+        self._write(joint, Parameter(0x200C, 0, "emergency shutdown", "", 1,
+                                     "bring-up: the power stage off until armed"))
+        return (self._read(joint, 0x2112, 0, "fault flags") << 16
+                | self._read(joint, 0x2111, 0, "status flags"))
+
     def _clear_old_fault(self, joint: Joint) -> int:
         """A drive still in FAULT from the previous run (its controller's heartbeat was
         lost when that run ended) is fault-reset here, now that reset communication has
-        cleared the cause: a rising edge of controlword bit 7 over SDO. Returns the code
-        cleared (0x603F), 0 if none; DriveFault if the fault stays."""
+        cleared the cause: a rising edge of controlword bit 7 over SDO (a Roboteq-class
+        drive: release shutdown 0x200D). Returns the code cleared (0x603F; the fault flags
+        0x2112), 0 if none; DriveFault if the fault stays."""
+        if self._roboteq:
+            return self._release_old_fault(joint)
         state = self._state_of(joint, self._read(joint, 0x6041, 0, "statusword"))
         if state not in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
             return 0
@@ -187,12 +214,28 @@ class BringUp:
                              "before bring-up, and a fault reset does not clear it")
         return code
 
+    def _release_old_fault(self, joint: Joint) -> int:
+        """A Roboteq-class drive faulted (its error register 0x1001 set, or a fault flag
+        but the emergency stop's: a power stage merely switched off is no fault) is
+        released (0x200D); DriveFault if its fault stays."""
+        flags = self._read(joint, 0x2112, 0, "fault flags")
+        register = self._read(joint, 0x1001, 0, "error register")
+        if not register and not flags & ~roboteq.FAULT_EMERGENCY_STOP:
+            return 0
+        self._write(joint, Parameter(0x200D, 0, "release shutdown", "", 1,
+                                     "bring-up fault reset"))
+        after = self._read(joint, 0x2112, 0, "fault flags")
+        if after & ~roboteq.FAULT_EMERGENCY_STOP or self._read(joint, 0x1001, 0, "error register"):
+            raise DriveFault(f"{self._label(joint)}: fault flags 0x{flags:04X} (0x2112) since "
+                             "before bring-up, and a release shutdown does not clear them")
+        return flags
+
     def _label(self, joint: Joint) -> str:
         return drive_label(joint, self._node_id[joint])
 
-    def _state_of(self, joint: Joint, statusword: int) -> DriveState:
+    def _state_of(self, joint: Joint, status: int) -> DriveState:
         try:
-            return decode_statusword(statusword)
+            return state_of(self._drives.profile, status)
         except FrameError as error:
             raise DriveFault(f"{self._label(joint)}: {error}") from error
 
@@ -209,6 +252,9 @@ class BringUp:
                                    f"communication within {self._boot_timeout_s:g} s, "
                                    f"{RESET_ATTEMPTS} times")
         identity = self._check_identity(joint)
+        supply_mv = round(motor_of(self._motors, joint).supply_voltage_v * 1000)
+        if self._roboteq:
+            self._check_supply(joint)
         parameters = drive_parameters(joint, self._drives, self._motors)
         for p in parameters:
             self._check_range(joint, p)
@@ -220,7 +266,20 @@ class BringUp:
                 unit = f" {p.unit}" if p.unit else ""
                 raise DriveFault(f"{self._label(joint)}: read-back mismatch: {p.where()} {p.name}: "
                                  f"wrote {p.value}{unit}, read {value}{unit}")
-        return identity, DriveLimits(*read_back), *self._pdos.check(joint)
+        limits = {p.limit: value * p.limit_scale for p, value in zip(parameters, read_back,
+                                                                     strict=True)}
+        limits.setdefault("max_voltage_mv", supply_mv)  # a drive with no limit of its own
+        return identity, DriveLimits(**limits), *self._pdos.check(joint)
+
+    def _check_supply(self, joint: Joint) -> None:
+        """A Roboteq-class drive's command is a share of its supply, scaled by the
+        configured one: refused if its supply reads higher (rakectl.drive.profiles)."""
+        index, subindex, name = SUPPLY_OBJECT
+        problem = supply_problem(self._read(joint, index, subindex, name),
+                                 motor_of(self._motors, joint).supply_voltage_v)
+        if problem is not None:
+            raise DriveFault(f"{self._label(joint)}: {problem}".replace(
+                "<joint>", joint.name.lower()))
 
     def _read_text(self, joint: Joint, index: int, subindex: int, name: str) -> str:
         """A segmented upload, started again when a segment was lost (``_repeatable``)."""
@@ -248,7 +307,8 @@ class BringUp:
         for name, value in found.items():
             if expected[name] is not None and value != expected[name]:
                 raise DriveFault(f"{self._label(joint)}: wrong identity: {name} {value}, "
-                                 f"expected {expected[name]} ({EDS_FILES[joint]})")
+                                 f"expected {expected[name]} "
+                                 f"({eds_file(self._drives, joint)})")
         return identity
 
     def _check_range(self, joint: Joint, p: Parameter) -> None:
@@ -256,7 +316,8 @@ class BringUp:
         low, high = allowed_range(var)
         if not low <= p.value <= high:
             raise ConfigError(f"{p.setting}: {self._label(joint)} {p.where()} {p.name} = "
-                              f"{p.value} {p.unit} is outside {low}..{high} of {EDS_FILES[joint]}")
+                              f"{p.value} {p.unit} is outside {low}..{high} of "
+                              f"{eds_file(self._drives, joint)}")
 
     def _read(self, joint: Joint, index: int, subindex: int, name: str) -> int:
         node = self._nodes[joint]

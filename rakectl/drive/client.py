@@ -1,7 +1,11 @@
 """The controller's client of the two CANopen drives: bring-up (see rakectl.drive.bringup), then
 a 1 kHz hot path.
 
-The protocol is the one of :mod:`rakectl.protocol.codec`; the bus is injected (only
+The protocol is the one of :mod:`rakectl.protocol.codec` (``drives.profile: cia402``) or
+of :mod:`rakectl.protocol.roboteq` (``roboteq``: the command in ‰ of the configured supply,
+the current in 0.1 A, the flags read as CiA 402 states, and instead of the controlword
+the power requests of :meth:`DriveClient.command`; :mod:`rakectl.drive.profiles`); the
+bus is injected (only
 :func:`rakectl.drive.canbus.open_bus` calls ``can.Bus``), and
 :func:`rakectl.drive.joints.receive_ids` names the frames the controller listens to.
 
@@ -79,8 +83,18 @@ from rakectl.drive.joints import (
     node_ids,
     own_ids,
 )
+from rakectl.drive.power import PowerRequests
+from rakectl.drive.power import path_to_enabled as power_path
+from rakectl.drive.profiles import state_of
 from rakectl.errors import FrameError
-from rakectl.protocol.cia402 import FAULT_RESET_BIT, DriveCommand, DriveState, decode_statusword
+from rakectl.protocol import roboteq
+from rakectl.protocol.cia402 import (
+    FAULT_RESET_BIT,
+    DriveCommand,
+    DriveState,
+    decode_statusword,
+    path_to_enabled,
+)
 from rakectl.protocol.codec import (
     NMT_COB_ID,
     RPDO1_SIZE,
@@ -90,7 +104,6 @@ from rakectl.protocol.codec import (
     TPDO2_SIZE,
     FunctionCode,
     cob_id,
-    current_ma_to_a,
     decode_tpdo1,
     decode_tpdo2,
     next_sync_counter,
@@ -98,6 +111,7 @@ from rakectl.protocol.codec import (
     rpm_to_rad_per_s,
     voltage_v_to_mv,
 )
+from rakectl.protocol.files import DriveProfile
 from rakectl.protocol.nmt import (
     EMCY_SIZE,
     EmcyCode,
@@ -108,6 +122,7 @@ from rakectl.protocol.nmt import (
     encode_heartbeat,
     encode_nmt,
 )
+from rakectl.protocol.roboteq import pack_command_into, volts_to_per_mille
 
 CAN_ERR_BUSOFF = 0x040  # error class of a socketcan error frame (linux/can/error.h)
 LATENCY_RING = 65536  # SYNC → TPDO1 latencies kept for the benchmark
@@ -116,7 +131,7 @@ LATENCY_RING = 65536  # SYNC → TPDO1 latencies kept for the benchmark
 # =========================================================================== hot path
 
 
-_TPDO1, _TPDO2, _EMCY, _HEARTBEAT, _OWN = range(5)
+_TPDO1, _TPDO2, _EMCY, _HEARTBEAT, _OWN, _SDO = range(6)
 
 
 def _new_message(can_id: int, size: int) -> can.Message:
@@ -144,6 +159,14 @@ class DriveClient(DriveSupervision):
         self.last_receive_error: can.CanError | None = None
         self.infos: tuple[DriveInfo, DriveInfo] | None = None
         nodes = node_ids(drives)
+        # The profile's codecs (rakectl.drive.profiles), chosen here: the CiA 402 path is the
+        # codec module's as it was; a Roboteq-class drive's TPDO1 has the same layout with
+        # the current in 0.1 A, its RPDO1 the command in ‰ and its TPDO2 the flags.
+        self._roboteq = drives.profile is DriveProfile.ROBOTEQ
+        self._units_per_amp = 1.0 / roboteq.CURRENT_A_PER_UNIT if self._roboteq else 1000.0
+        self._tpdo2_size = roboteq.TPDO2_SIZE if self._roboteq else TPDO2_SIZE
+        self._supply_v = [motor_of(motors, j).supply_voltage_v for j in JOINTS]
+        self._power = PowerRequests(nodes, self._transmit)  # Roboteq-class: no controlword
         self._position_per_count = [joint_resolution(motor_of(motors, j)) for j in JOINTS]
         self._velocity_per_rpm = [rpm_to_rad_per_s(1.0) * joint_per_motor_rad(motor_of(motors, j))
                                   for j in JOINTS]
@@ -152,7 +175,8 @@ class DriveClient(DriveSupervision):
             self._route |= {cob_id(FunctionCode.TPDO1, node): (_TPDO1, j),
                             cob_id(FunctionCode.TPDO2, node): (_TPDO2, j),
                             cob_id(FunctionCode.EMCY, node): (_EMCY, j),
-                            cob_id(FunctionCode.HEARTBEAT, node): (_HEARTBEAT, j)}
+                            cob_id(FunctionCode.HEARTBEAT, node): (_HEARTBEAT, j),
+                            cob_id(FunctionCode.SDO_RESPONSE, node): (_SDO, j)}
         self._rpdo = [_new_message(cob_id(FunctionCode.RPDO1, node), RPDO1_SIZE) for node in nodes]
         self._sync_counted = drives.sync_counter_overflow > 0  # else SYNC has no data
         self._sync_top = drives.sync_counter_overflow or SYNC_COUNTER_MAX  # counted here
@@ -200,7 +224,7 @@ class DriveClient(DriveSupervision):
         self._rebooted = [False, False]
         for joint in JOINTS:
             statusword = statuswords[joint]
-            state = decode_statusword(statusword)
+            state = state_of(self._drives.profile, statusword)
             self.feedback.statusword[joint] = statusword
             self.feedback.state[joint] = state
             self._state_fault[joint] = state in (DriveState.FAULT,
@@ -250,6 +274,8 @@ class DriveClient(DriveSupervision):
                     self._on_emcy(j, msg.data)
                 elif kind == _HEARTBEAT:
                     self._on_heartbeat(j, msg.data)
+                elif kind == _SDO:
+                    stats.sdo_answers += 1  # to a Roboteq-class power request: the flags tell
                 else:
                     stats.frames_own += 1
             except FrameError:
@@ -284,20 +310,25 @@ class DriveClient(DriveSupervision):
         velocity = rpm * self._velocity_per_rpm[j]
         if j == 0:
             fb.r_m, fb.r_vel_m_per_s = position, velocity
-            fb.current_r_a = current_ma_to_a(current_ma)
+            fb.current_r_a = current_ma / self._units_per_amp
         else:
             fb.theta_rad, fb.theta_vel_rad_per_s = position, velocity
-            fb.current_theta_a = current_ma_to_a(current_ma)
+            fb.current_theta_a = current_ma / self._units_per_amp
         fb.sync_counter[j] = self._sync_counter
         self._fresh[j] += 1
         self.stats.tpdo_received[j] += 1
 
     def _on_tpdo2(self, j: int, data: bytearray) -> None:
-        if len(data) != TPDO2_SIZE:
+        if len(data) != self._tpdo2_size:
             self.stats.frames_bad_length += 1
             return
-        statusword, error_register = decode_tpdo2(data)
-        state = decode_statusword(statusword)
+        if self._roboteq:
+            statusword = roboteq.flags_image(*roboteq.decode_flags(data))
+            state = roboteq.state_of(statusword)
+            error_register = 1 if state is DriveState.FAULT else 0  # bit 0: generic error
+        else:
+            statusword, error_register = decode_tpdo2(data)
+            state = decode_statusword(statusword)
         fb = self.feedback
         fb.statusword[j], fb.error_register[j], fb.state[j] = statusword, error_register, state
         self._state_fault[j] = state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
@@ -346,11 +377,19 @@ class DriveClient(DriveSupervision):
         0x80 (held); asked again once 0x80 went out, it makes a new edge.
         """
         for j in JOINTS if joint is None else (joint,):
-            if command is DriveCommand.FAULT_RESET:
+            if self._roboteq:
+                self._power.command(j, command)
+            elif command is DriveCommand.FAULT_RESET:
                 self._fault_reset(j)
             elif command is not self._command[j]:
                 self._controlword[j] = self._controlword_after[j] = command.value
             self._command[j] = command
+
+    def path_to_enabled(self, state: DriveState) -> list[DriveCommand]:
+        """The commands that bring a drive from ``state`` to OPERATION_ENABLED
+        (:func:`rakectl.protocol.cia402.path_to_enabled`; a Roboteq-class drive switched off
+        needs one, ENABLE_OPERATION, and one in FAULT a fault reset first)."""
+        return power_path(state) if self._roboteq else path_to_enabled(state)
 
     def _fault_reset(self, j: int) -> None:
         in_progress = (self._command[j] is DriveCommand.FAULT_RESET
@@ -363,14 +402,22 @@ class DriveClient(DriveSupervision):
 
         NonFiniteError for a NaN or infinite voltage, before anything is sent.
         """
-        voltage_r_mv = voltage_v_to_mv(voltage_r_v)
-        voltage_theta_mv = voltage_v_to_mv(voltage_theta_v)
         rpdo, controlword, sent = self._rpdo, self._controlword, self._controlword_sent
-        pack_rpdo_into(rpdo[0].data, voltage_r_mv, controlword[0])
-        pack_rpdo_into(rpdo[1].data, voltage_theta_mv, controlword[1])
+        if self._roboteq:
+            r_per_mille = volts_to_per_mille(voltage_r_v, self._supply_v[0])
+            theta_per_mille = volts_to_per_mille(voltage_theta_v, self._supply_v[1])
+            pack_command_into(rpdo[0].data, r_per_mille)
+            pack_command_into(rpdo[1].data, theta_per_mille)
+        else:
+            voltage_r_mv = voltage_v_to_mv(voltage_r_v)
+            voltage_theta_mv = voltage_v_to_mv(voltage_theta_v)
+            pack_rpdo_into(rpdo[0].data, voltage_r_mv, controlword[0])
+            pack_rpdo_into(rpdo[1].data, voltage_theta_mv, controlword[1])
         self._send_failed = False
         self._transmit(rpdo[0])
         self._transmit(rpdo[1])
+        if self._roboteq:
+            self._power.send(self.feedback.state)
         sent[0], sent[1] = controlword
         controlword[0], controlword[1] = self._controlword_after
 

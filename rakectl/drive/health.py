@@ -56,7 +56,8 @@ class Stats:
 
     __slots__ = ("bus_off_frames", "emcy_received", "error_frames", "frames_bad_length",
                  "frames_invalid", "frames_own", "frames_unknown", "heartbeats_received",
-                 "receive_errors", "send_errors", "sends", "syncs", "ticks", "tpdo2_received",
+                 "receive_errors", "sdo_answers", "send_errors", "sends", "syncs", "ticks",
+                 "tpdo2_received",
                  "tpdo_late", "tpdo_missed", "tpdo_received")
 
     def __init__(self) -> None:
@@ -75,6 +76,7 @@ class Stats:
         self.emcy_received = 0
         self.heartbeats_received = 0
         self.receive_errors = 0
+        self.sdo_answers = 0  # a Roboteq-class drive's answers to power requests
         self.sends = 0  # frames sent successfully
         self.send_errors = 0
 

@@ -31,7 +31,6 @@ class Joint(enum.IntEnum):
 
 
 JOINTS = (Joint.R, Joint.THETA)
-EDS_FILES = {Joint.R: "dc_servo_drive.eds", Joint.THETA: "geared_motor_drive.eds"}
 _LABEL = {Joint.R: "r", Joint.THETA: "θ"}
 
 
@@ -119,7 +118,9 @@ class DriveInfo:
 
 @dataclass(frozen=True)
 class Parameter:
-    """One object written at bring-up, with the setting it comes from."""
+    """One object written at bring-up, with the setting it comes from; ``limit`` is the
+    :class:`DriveLimits` field its read-back fills (times ``limit_scale``: the drive's
+    unit in the field's)."""
 
     index: int
     subindex: int
@@ -127,6 +128,8 @@ class Parameter:
     unit: str
     value: int
     setting: str
+    limit: str = ""
+    limit_scale: int = 1
 
     def where(self) -> str:
         return f"0x{self.index:04X}" + (f":{self.subindex}" if self.subindex else "")
@@ -136,32 +139,9 @@ def motor_of(motors: MotorsSettings, joint: Joint) -> MotorParams:
     return motors.r if joint is Joint.R else motors.theta
 
 
-def drive_parameters(joint: Joint, drives: DrivesSettings,
-                     motors: MotorsSettings) -> tuple[Parameter, ...]:
-    """What bring-up writes to the drive of ``joint``, in :class:`DriveLimits` order."""
-    motor, key = motor_of(motors, joint), f"motors.{joint.name.lower()}"
-    consumer = drives.controller_node_id << 16 | drives.heartbeat_timeout_ms
-    return (
-        Parameter(0x2001, 0, "max voltage", "mV", round(motor.supply_voltage_v * 1000),
-                  f"{key}.supply_voltage_v"),
-        Parameter(0x2002, 0, "current limit", "mA", round(motor.current_limit_a * 1000),
-                  f"{key}.current_limit_a"),
-        Parameter(0x2003, 0, "watchdog timeout", "ms", drives.watchdog_timeout_ms,
-                  "drives.watchdog_timeout_ms"),
-        Parameter(0x2004, 0, "encoder counts/rev", "", motor.encoder_counts_per_rev,
-                  f"{key}.encoder_counts_per_rev"),
-        Parameter(0x1017, 0, "producer heartbeat", "ms", drives.heartbeat_period_ms,
-                  "drives.heartbeat_period_ms"),
-        Parameter(0x1016, 1, "consumer heartbeat", "", consumer,
-                  "drives.controller_node_id/heartbeat_timeout_ms"),
-        Parameter(0x1019, 0, "SYNC counter overflow", "", drives.sync_counter_overflow,
-                  "drives.sync_counter_overflow"),
-    )
-
-
-def load_drive_od(joint: Joint, node_id: int) -> ObjectDictionary:
-    """The object dictionary of the drive type of ``joint``, from its EDS file."""
-    return canopen.import_od(str(EDS_DIR / EDS_FILES[joint]), node_id)
+def load_drive_od(eds_file: str, node_id: int) -> ObjectDictionary:
+    """The object dictionary of a drive type, from its EDS file."""
+    return canopen.import_od(str(EDS_DIR / eds_file), node_id)
 
 
 def od_variable(od: ObjectDictionary, index: int, subindex: int) -> ODVariable:

@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 from canopen.objectdictionary import ObjectDictionary
 
-from rakectl.drive.joints import EDS_FILES, Joint, Parameter, PdoReading, od_variable
+from rakectl.drive.joints import Joint, Parameter, PdoReading, od_variable
 from rakectl.errors import ConfigError, DriveFault
 
 PDO_SLOTS = 512  # CiA 301: RPDO and TPDO communication parameters 0x1400/0x1800 + 0 … 511
@@ -26,8 +26,10 @@ class PdoCheck:
 
     def __init__(self, read: Callable[[Joint, int, int, str], int],
                  write: Callable[[Joint, Parameter], None], label: Callable[[Joint], str],
-                 od: Callable[[Joint], ObjectDictionary]) -> None:
+                 od: Callable[[Joint], ObjectDictionary], eds: Callable[[Joint], str]) -> None:
+        """``eds``: the name of a drive's EDS file, for the messages."""
         self._read, self._write, self._label, self._od = read, write, label, od
+        self._eds = eds
 
     def check(self, joint: Joint) -> tuple[tuple[PdoReading, ...], tuple[PdoReading, ...]]:
         """Every PDO the EDS declares, read back. One that differs from the EDS (another
@@ -77,7 +79,7 @@ class PdoCheck:
         def eds(index: int, subindex: int) -> int:
             default = od_variable(od, index, subindex).default
             if not isinstance(default, int):
-                raise ConfigError(f"{EDS_FILES[joint]}: 0x{index:04X}:{subindex} has no "
+                raise ConfigError(f"{self._eds(joint)}: 0x{index:04X}:{subindex} has no "
                                   "integer default")
             return default
 
@@ -105,7 +107,7 @@ class PdoCheck:
             try:
                 self._write(joint, Parameter(index, subindex, f"{name} {what}", "", value, why))
             except DriveFault as error:
-                raise DriveFault(f"{error} (writing {EDS_FILES[joint]}'s {name} back over the "
+                raise DriveFault(f"{error} (writing {self._eds(joint)}'s {name} back over the "
                                  f"drive's: {_describe(held)})") from error
 
     def _expect(self, joint: Joint, index: int, subindex: int, name: str) -> int:
@@ -114,7 +116,7 @@ class PdoCheck:
         declared = od_variable(self._od(joint), index, subindex).default
         if value != declared:
             raise DriveFault(f"{self._label(joint)}: 0x{index:04X}:{subindex} {name} is "
-                             f"0x{value:X}, {EDS_FILES[joint]} declares 0x{declared:X}, and "
+                             f"0x{value:X}, {self._eds(joint)} declares 0x{declared:X}, and "
                              "the drive kept it when the EDS's mapping was written: the hot "
                              "path decodes the EDS's PDO layout")
         return value

@@ -59,16 +59,19 @@ def truth_figures(truth_csv: Path) -> dict[str, Any]:
             "f_mine_side_max_n": side_n, "mine_activated": activated, "truth_rows": rows}
 
 
-def run_demo(out: Path, as_json: bool) -> int:
+def run_demo(out: Path, as_json: bool, drive_profile: str = "cia402") -> int:
+    """``drive_profile``: ``drives.profile`` of the emulator and the daemon alike."""
     reason = namespaces_unavailable()
     if reason:
         raise RakeError(f"the demo needs a private network namespace for its bus: {reason}")
     status_out = sys.stderr
+    profile = [f"--set drives.profile={drive_profile}"]
     with recording(out / "demo.mcap") as pub:
         with emulated_bench(out, _config("emulator-demo.yaml"),
-                            _config("rakectl-emulated.yaml")) as bench:
-            print(f"demo: starting the emulated drives and the daemon (logs in {out})",
-                  file=status_out)
+                            _config("rakectl-emulated.yaml"), emulator_args=profile,
+                            daemon_args=profile) as bench:
+            print(f"demo: starting the emulated drives ({drive_profile}) and the daemon "
+                  f"(logs in {out})", file=status_out)
             bench.wait_for_state(["disarmed"], 60.0)
             with _streaming(bench.socket, pub):
                 bench.request("arm")
@@ -82,6 +85,7 @@ def run_demo(out: Path, as_json: bool) -> int:
                 bench.request("disarm")
         truth_rows_to(pub, out / "truth.csv", every=10, objects=[Box(*MINE)])
     summary = _summary(final, truth_figures(out / "truth.csv"))
+    summary["drive_profile"] = drive_profile
     _plot(out)
     _report(summary, out, as_json)
     return 0 if summary["object_found"] and not summary["mine_activated"] else 1
@@ -145,6 +149,7 @@ def _report(summary: dict[str, Any], out: Path, as_json: bool) -> None:
     where = (f"at reach {found['reach_m']:.3f} m, depth {1e3 * found['depth_m']:.0f} mm"
              if found else "no")
     lines = [
+        f"drives             {summary.get('drive_profile', 'cia402')} (drives.profile)",
         f"depth reached      {1e3 * summary['depth_reached_m']:.0f} mm in {summary['cycles']} "
         f"cycle(s)",
         f"object found       {where}",

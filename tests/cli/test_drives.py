@@ -24,17 +24,17 @@ DAEMON = ROOT / "config" / "rakectl-emulated.yaml"
 _SCRIPT = """\
 set -u
 {setup}
-"$PY" -m drivers --config "$EMU_CONFIG" > "$OUT/emulator.log" 2>&1 &
+"$PY" -m drivers --config "$EMU_CONFIG" $PROFILE > "$OUT/emulator.log" 2>&1 &
 EMU=$!
 for _ in $(seq 200); do
     grep -q "emulator: ready" "$OUT/emulator.log" 2>/dev/null && break
     sleep 0.1
 done
 "$PY" -m rakectl drives --config "$DAEMON_CONFIG" --set daemon.socket_path="$OUT/none.sock" \\
-    > "$OUT/check.txt" 2> "$OUT/check.err"
+    $PROFILE > "$OUT/check.txt" 2> "$OUT/check.err"
 echo $? > "$OUT/check.rc"
 "$PY" -m rakectl drives --config "$DAEMON_CONFIG" --set daemon.socket_path="$OUT/none.sock" \\
-    --json > "$OUT/check.json" 2>> "$OUT/check.err"
+    $PROFILE --json > "$OUT/check.json" 2>> "$OUT/check.err"
 echo $? >> "$OUT/check.rc"
 "$PY" -m rakectl drives --config "$DAEMON_CONFIG" --set daemon.socket_path="$OUT/none.sock" \\
     --set drives.r_node_id=5 --set daemon.boot_timeout_s=1 > /dev/null 2> "$OUT/absent.err"
@@ -48,10 +48,7 @@ wait $EMU
 def test_the_dry_run_reads_both_emulated_drives_back_and_leaves_them_stopped(
         tmp_path: Path) -> None:
     script = _SCRIPT.format(setup=NAMESPACE_SETUP)
-    env = {"PY": sys.executable, "OUT": str(tmp_path), "EMU_CONFIG": str(EMULATOR),
-           "DAEMON_CONFIG": str(DAEMON), "PATH": "/usr/sbin:/usr/bin:/sbin:/bin"}
-    subprocess.run([*unshare_command(), "sh", "-c", script], env=env, timeout=120,
-                   check=True)
+    _run(script, tmp_path, "")
     err = (tmp_path / "check.err").read_text()
     assert (tmp_path / "check.rc").read_text().split() == ["0", "0", "1"], err
     text = (tmp_path / "check.txt").read_text()
@@ -103,3 +100,35 @@ def test_the_dry_run_is_refused_while_a_daemon_answers(
     err = capsys.readouterr().err
     assert err.startswith(f"rakectl: error: the daemon answers on {path} (state armed): "
                           "stop it first"), err
+
+
+def _run(script: str, out: Path, profile: str) -> None:
+    env = {"PY": sys.executable, "OUT": str(out), "EMU_CONFIG": str(EMULATOR),
+           "DAEMON_CONFIG": str(DAEMON), "PATH": "/usr/sbin:/usr/bin:/sbin:/bin",
+           "PROFILE": profile}
+    subprocess.run([*unshare_command(), "sh", "-c", script], env=env, timeout=120,
+                   check=True)
+
+
+@pytest.mark.skipif(namespaces_unavailable() is not None, reason="no network namespace")
+def test_the_dry_run_reads_roboteq_class_drives_in_their_own_units(tmp_path: Path) -> None:
+    """drives.profile: roboteq on both sides: the identity, the limits written in the
+    drive's units (0x3002 in 0.1 A), the supply the commands are scaled by, and the drives
+    left switched off (their emergency stop flag)."""
+    _run(_SCRIPT.format(setup=NAMESPACE_SETUP), tmp_path, "--set drives.profile=roboteq")
+    err = (tmp_path / "check.err").read_text()
+    assert (tmp_path / "check.rc").read_text().split() == ["0", "0", "1"], err
+    text = (tmp_path / "check.txt").read_text()
+    print("\n" + text)
+    assert ("r drive (node 1): 'Roboteq-class motor controller' (roboteq_class_drive.eds)"
+            in text)
+    assert "profile roboteq: reads as CiA 402 state SWITCH_ON_DISABLED (fault flags 0x0010" in text
+    assert "commands scaled by 24 V" in text
+    assert "0x3001    command watchdog" in text
+    report = json.loads((tmp_path / "check.json").read_text())
+    r, theta = report["drives"]
+    assert r["eds"] == theta["eds"] == "roboteq_class_drive.eds"
+    limits = {limit["object"]: limit["value"] for limit in theta["limits"]}
+    assert (limits["0x3002"], limits["0x3001"]) == (100, 100)  # 10 A in 0.1 A; 100 ms
+    assert [p["name"] for p in r["pdos"]] == ["RPDO1", "TPDO1", "TPDO2"]
+    assert r["pdos"][0]["mapped"] == [{"index": 0x2000, "subindex": 1, "bits": 32}]

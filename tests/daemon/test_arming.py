@@ -24,6 +24,7 @@ from rakectl.core.kinematics import inverse
 from rakectl.daemon.handlers import make_handler
 from rakectl.daemon.states import DaemonState
 from rakectl.errors import CommandRejected
+from rakectl.protocol.files import DriveProfile
 
 
 def _enforcing(watchdog_ms: int) -> Settings:
@@ -99,13 +100,20 @@ def _with_anvil(mount_n_per_m: float) -> tuple[Settings, EmulatorConfig]:
     return dataclasses.replace(s, selftest=selftest), emulator
 
 
-@pytest.mark.parametrize("mount_n_per_m", [5.0e3, 5.0e4])
+@pytest.mark.parametrize(("mount_n_per_m", "profile"), [
+    (5.0e3, DriveProfile.CIA402), (5.0e4, DriveProfile.CIA402), (5.0e3, DriveProfile.ROBOTEQ)])
 def test_the_first_arming_presses_the_anvil_and_refuses_a_stiffer_mount(
-        tmp_path: Path, mount_n_per_m: float) -> None:
+        tmp_path: Path, mount_n_per_m: float, profile: DriveProfile) -> None:
     """selftest.press: the first arming runs the weight check, then the press on the
     anvil; the mount the clamp is configured for arms, one ten times stiffer faults naming
-    both stiffnesses, and the status says why; the second arming checks again."""
+    both stiffnesses, and the status says why; the second arming checks again. On
+    Roboteq-class drives (drives.profile: roboteq) the force is read through currents in
+    0.1 A, and the mount still reads within 20 %."""
     settings, emulator = _with_anvil(mount_n_per_m)
+    settings = dataclasses.replace(settings, drives=dataclasses.replace(
+        settings.drives, profile=profile))
+    emulator = dataclasses.replace(emulator, drives=dataclasses.replace(
+        emulator.drives, profile=profile))
     rig = LockstepRig(tmp_path, settings, emulator)
     try:
         rig.bring_up()

@@ -13,12 +13,16 @@ from pathlib import Path
 import pytest
 
 from drivers.cli import load_config
+from drivers.roboteq import RoboteqNode
 from drivers.settings import EmulatorConfig
 from rakectl.api.schema import decode_request
 from rakectl.bench.tick import LockstepRig
 from rakectl.config.settings import Settings
 from rakectl.daemon.handlers import make_handler
 from rakectl.daemon.states import DaemonState
+from rakectl.protocol.cia402 import DriveState
+from rakectl.protocol.files import DriveProfile
+from rakectl.protocol.roboteq import FAULT_EMERGENCY_STOP
 
 LANE = (b'{"cmd": "excavate", "reach_far_m": 1.25, "reach_near_m": 1.15, '
         b'"target_depth_m": 0.01, "depth_step_m": 0.01}')
@@ -105,3 +109,37 @@ def test_a_plunge_onto_a_stone_ends_the_lane_with_the_object_found(tmp_path: Pat
     assert found["reach_m"] == pytest.approx(1.25, abs=0.01)
     assert 0.0 <= found["depth_m"] < 0.03  # the arm's depth: the stone's top and the mount's
     assert force_max_n < 90.0
+
+
+def test_on_roboteq_class_drives_the_daemon_arms_rakes_and_switches_them_off(
+        tmp_path: Path) -> None:
+    """drives.profile: roboteq on both sides (the emulator plays Roboteq-class drives): the
+    weight check passes through their 0.1 A currents, the lane is raked to its depth on
+    commands in ‰ of the supply, and disarming switches their power stages off (emergency
+    shutdown) so that a command would not drive them."""
+    defaults = Settings()
+    defaults = dataclasses.replace(defaults, drives=dataclasses.replace(
+        defaults.drives, profile=DriveProfile.ROBOTEQ))
+    emulator = load_config(None, ["drives.profile=roboteq"])
+    with _raking(tmp_path, LANE, defaults, emulator) as rig:
+        daemon, truth = rig.daemon, rig.emulator.ground.truth
+        assert all(isinstance(node, RoboteqNode) for node in rig.emulator.nodes)
+        force_max_n = 0.0
+        for _ in range(30_000):
+            if daemon.state is not DaemonState.EXCAVATE:
+                break
+            rig.tick()
+            force_max_n = max(force_max_n, truth.force_down_n)
+        status = _command(rig, b'{"cmd": "status"}')
+        assert daemon.state is DaemonState.HOLD, daemon.fault_reason
+        excavation = status["excavation"]
+        assert isinstance(excavation, dict)
+        assert excavation["done"] and excavation["depth_m"] == 0.01, excavation
+        assert force_max_n < 90.0
+        _command(rig, b'{"cmd": "disarm"}')
+        for _ in range(200):
+            rig.tick()
+        assert daemon.state is DaemonState.DISARMED
+        for node in rig.emulator.nodes:
+            assert node.fault_flags == FAULT_EMERGENCY_STOP and node.output_voltage_v == 0.0
+        assert daemon.client.feedback.state == [DriveState.SWITCH_ON_DISABLED] * 2

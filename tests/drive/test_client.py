@@ -38,11 +38,13 @@ from rakectl.drive import canbus
 from rakectl.drive.bringup import BringUp
 from rakectl.drive.canbus import BusError, TraceRecorder
 from rakectl.drive.client import DriveClient
-from rakectl.drive.joints import Joint, drive_parameters, load_drive_od, own_ids, receive_ids
+from rakectl.drive.joints import Joint, load_drive_od, own_ids, receive_ids
+from rakectl.drive.profiles import EDS_FILES, drive_parameters
 from rakectl.errors import CommsTimeout, ConfigError, DriveFault, NonFiniteError
 from rakectl.protocol import cia402, codec
 from rakectl.protocol.cia402 import DriveCommand, DriveState
 from rakectl.protocol.codec import FunctionCode, cob_id
+from rakectl.protocol.files import DriveProfile
 from rakectl.protocol.nmt import (
     EMCY_ERROR_REGISTER,
     EmcyCode,
@@ -583,7 +585,8 @@ class FakeDrive:
                  resets_lost: int = 0) -> None:
         self.node_id = node_id
         self.network = network
-        self.node = canopen.LocalNode(node_id, load_drive_od(eds_of or joint, node_id))
+        eds = EDS_FILES[DriveProfile.CIA402][eds_of or joint]
+        self.node = canopen.LocalNode(node_id, load_drive_od(eds, node_id))
         self.node.associate_network(network)
         self.answers_reset = answers_reset
         self.resets_lost = resets_lost  # the first ones never reach it (a lossy bus)

@@ -19,19 +19,19 @@ import pytest
 from drivers.dictionary import DriveKind, DriveSpec
 from drivers.emulator import Emulator, drive_specs
 from drivers.node import DriveNode
-from drivers.roboteq import (
+from drivers.roboteq import RoboteqNode
+from drivers.settings import EmulatorConfig
+from rakectl.core.motor_model import R_MOTOR_DEFAULT, joint_resolution
+from rakectl.protocol.files import DriveProfile
+from rakectl.protocol.nmt import EmcyCode, NmtCommand
+from rakectl.protocol.roboteq import (
     FAULT_EMERGENCY_STOP,
     FAULT_SENSOR,
     STATUS_POWER_STAGE_OFF,
     STATUS_SERIAL_MODE,
     STATUS_WATCHDOG_EXPIRED,
-    RoboteqNode,
     per_mille_to_mv,
 )
-from drivers.settings import EmulatorConfig
-from rakectl.core.motor_model import R_MOTOR_DEFAULT, joint_resolution
-from rakectl.protocol.files import DriveProfile
-from rakectl.protocol.nmt import EmcyCode, NmtCommand
 from tests.drivers.test_interop import TIMEOUT_S, emulated_drives
 from tests.drivers.test_node import (
     CONTROLLER,
