@@ -1,7 +1,8 @@
 """Benchmark of the drive client's hot path on python-can's ``virtual`` bus (prints, never asserts).
 
 One tick = ``receive()`` (decode two TPDO1s) + ``send()`` (pack and send two
-RPDO1s) + ``sync()`` (SYNC, and a heartbeat every 100th tick). A scripted
+RPDO1s) + ``sync()`` (SYNC, and a heartbeat every 100th tick), for each drive profile
+(``drives.profile``: the codecs the client chose at start-up). A scripted
 drive side on a second virtual bus answers each SYNC with both TPDO1s outside
 the timed section. ``VirtualBus.send`` deep-copies each frame per receiver
 (several µs, measured by this benchmark's bus-only phase), so most of a tick
@@ -10,6 +11,7 @@ is the bus, not the client.
 
 from __future__ import annotations
 
+import dataclasses
 import gc
 import os
 import statistics
@@ -25,6 +27,7 @@ from rakectl.drive.canbus import TraceRecorder, open_bus
 from rakectl.drive.client import DriveClient
 from rakectl.drive.joints import node_ids, receive_ids
 from rakectl.protocol.codec import FunctionCode, cob_id, pack_tpdo1_into
+from rakectl.protocol.files import DriveProfile
 
 _WARM_UP_TICKS = 200
 
@@ -103,16 +106,25 @@ def bench_hot_path(ticks: int) -> str:
     gc.disable()
     try:
         drives = _ScriptedDrives(drive_bus, drives_settings)
-        client = DriveClient(controller_bus, drives_settings, MotorsSettings(), rate_hz=1000.0)
-        lines = [f"drive client hot path on virtual, {ticks} ticks (gc off):",
-                 _summary("tick = receive + send + sync", _run(client, drives, ticks, _tick))]
+        lines = [f"drive client hot path on virtual, {ticks} ticks (gc off):"]
         parts: dict[str, Callable[[DriveClient, int], object]] = {
             "receive (2 TPDO1)": lambda c, k: c.receive(),
             "send (2 RPDO1)": lambda c, k: c.send(1.0, -1.0),
             "sync (SYNC, heartbeat 1/100)": lambda c, k: c.sync(),
         }
-        for name, part in parts.items():
-            lines.append(_summary(name, _run(client, drives, ticks, part)))
+        clients = {profile: DriveClient(controller_bus, dataclasses.replace(
+            drives_settings, profile=profile), MotorsSettings(), rate_hz=1000.0)
+            for profile in DriveProfile}  # the TPDO1 layout is the same: one drive side
+        ticks_ns: dict[DriveProfile, list[float]] = {profile: [] for profile in DriveProfile}
+        for _ in range(2):  # alternated, so that neither profile has the quieter moment
+            for profile, client in clients.items():
+                ticks_ns[profile] += _run(client, drives, ticks, _tick)
+        for profile, client in clients.items():
+            lines.append(f" drives.profile {profile.value}:")
+            lines.append(_summary("tick = receive + send + sync", ticks_ns[profile]))
+            for name, part in parts.items():
+                lines.append(_summary(name, _run(client, drives, ticks, part)))
+        client = DriveClient(controller_bus, drives_settings, MotorsSettings(), rate_hz=1000.0)
         bare = [can.Message(arbitration_id=can_id, is_extended_id=False, data=bytearray(size))
                 for can_id, size in ((0x201, 4), (0x202, 4), (0x080, 1))]
 

@@ -97,6 +97,8 @@ def _add_bench(sub: argparse._SubParsersAction[_Parser]) -> None:
     what.add_argument("--tick", action="store_true", help="the daemon's tick, stage by stage")
     what.add_argument("--excavation", action="store_true", help="time to rake a lane to "
                       "depth in three soils: adaptive vs position control vs fixed speed")
+    what.add_argument("--profiles", action="store_true", help="the drive client's hot path "
+                      "per drive profile; rewrites its section of REPORT/BENCHMARKS.md alone")
     bench.add_argument("--ticks", type=int, default=200_000,
                        help="ticks to time (the tick stages use a tenth)")
     bench.add_argument("--seconds", type=float, default=60.0,
@@ -107,8 +109,9 @@ def _add_bench(sub: argparse._SubParsersAction[_Parser]) -> None:
     bench.add_argument("--out", type=Path, default=Path("out/bench-loop"),
                        help="scratch: the loop benchmark's logs")
     bench.add_argument("--report", type=Path, default=None, help="where --all writes "
-                       "BENCHMARKS.md and --all/--excavation the plots (default: bench for "
-                       "--all, out/bench otherwise and with --quick)")
+                       "BENCHMARKS.md (--profiles its section (e)) and --all/--excavation the "
+                       "plots (default: bench for --all and --profiles, out/bench otherwise "
+                       "and with --quick)")
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -174,6 +177,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     report = args.report or Path("bench" if args.all and not args.quick else "out/bench")
     if args.all or args.excavation or args.tick:
         return _cmd_bench_parts(args, report)
+    if args.profiles:
+        return _cmd_bench_profiles(args, Path(args.report or "bench"))
     if args.loop:
         from rakectl.bench.loop import run_bench
 
@@ -188,6 +193,24 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     print(bench_controller_step(args.ticks))
     print(bench_emulator_step(max(1000, args.ticks // 50)))
     print(bench_hot_path(max(1000, args.ticks // 10)))
+    return 0
+
+
+def _cmd_bench_profiles(args: argparse.Namespace, report: Path) -> int:
+    import time
+
+    from rakectl.bench.hot_path import bench_hot_path
+    from rakectl.bench.report import BENCHMARKS_FILE, hot_path_section, write_hot_path_section
+
+    if args.ticks < 1000:
+        raise ConfigError("bench: --ticks must be >= 1000")
+    text = bench_hot_path(args.ticks // 10)
+    print(text)
+    path = report / BENCHMARKS_FILE
+    started = time.strftime("%Y-%m-%d %H:%M %Z")
+    write_hot_path_section(path, hot_path_section("rakectl " + " ".join(args.argv), started,
+                                                  text))
+    print(f"written: section (e) of {path}")
     return 0
 
 

@@ -437,7 +437,13 @@ def test_stats_flatten_for_a_summary(client: DriveClient) -> None:
     assert flat["tpdo_missed_r"] == flat["tpdo_missed_theta"] == flat["send_errors"] == 0
 
 
-def test_hot_path_leaves_no_tracked_objects_behind(bus: FakeBus, client: DriveClient) -> None:
+@pytest.mark.parametrize("profile", list(DriveProfile))
+def test_hot_path_leaves_no_tracked_objects_behind(bus: FakeBus, clock: FakeClock,
+                                                   profile: DriveProfile) -> None:
+    """Either profile's codecs (a Roboteq-class drive's with its power requests, here
+    asking for the power stage on every tick of the run)."""
+    client = DriveClient(bus, replace(DRIVES, profile=profile), MOTORS, 1000.0, clock=clock)
+    client.command(None, DriveCommand.ENABLE_OPERATION)
     ticks = 2000
     frames = [frame(*tpdo1(node, k)) for k in range(ticks) for node in (R_NODE, THETA_NODE)]
     bus.keep_sent = False
