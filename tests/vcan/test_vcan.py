@@ -291,3 +291,51 @@ def test_a_drive_that_goes_silent_faults_the_controller(tmp_path: Path) -> None:
     bus = final["bus"]
     assert isinstance(bus, dict)
     assert bus["tpdo_received_r"] > bus["tpdo_received_theta"]  # r kept answering
+
+
+def test_roboteq_class_drives_on_the_wire(tmp_path: Path) -> None:
+    """drives.profile: roboteq on both processes: bring-up writes the Roboteq-class limits
+    (0x3001-0x3003) and reads them back, the daemon arms through the weight check by
+    releasing the power stages (0x200D), jogs on commands in ‰ of the supply, and the
+    e-stop switches them off (0x200C): 0 V in the ground truth from then on."""
+    profile = ["--set", "drives.profile=roboteq"]
+    wire = tmp_path / "wire.log"
+    with WireRecorder(wire) as recorder, vcan_bench(
+            tmp_path, EMULATOR, DAEMON, daemon_args=profile, emulator_args=profile) as bench:
+        _armed(bench)
+        recorder.close()
+        before = bench.request("status")["tip"]
+        assert isinstance(before, dict)
+        for _ in range(10):
+            bench.request("jog", space="task", height_m_per_s=-0.03)
+            time.sleep(0.1)
+        tip = bench.wait_for_state(["hold"], 30.0)["tip"]
+        assert isinstance(tip, dict) and tip["depth_m"] > before["depth_m"] + 0.01
+        bench.request("estop")
+        bench.wait_for_state(["estop"], 30.0)
+        deadline = time.monotonic() + 30.0
+        while any(d["state"] != "switch_on_disabled" for d in _drives(bench)):
+            assert time.monotonic() < deadline, f"drives not switched off: {_drives(bench)}"
+            time.sleep(0.1)
+    assert bench.process.returncode == 0
+    frames = read_trace(wire)
+    exchanges = sdo_exchanges(frames)
+    assert exchanges and all(e.abort_code is None for e in exchanges), exchanges
+    for node in NODES:
+        written = {(e.index, e.subindex): e.value for e in exchanges
+                   if e.node_id == node and e.write}
+        read = {(e.index, e.subindex): e.value for e in exchanges
+                if e.node_id == node and not e.write}
+        assert written[0x3001, 0] == SETTINGS.drives.watchdog_timeout_ms
+        assert {(0x3002, 0), (0x3003, 0)} <= written.keys()
+        assert {k: written[k] for k in ((0x3001, 0), (0x3002, 0), (0x3003, 0))}.items() <= (
+            read.items())
+        assert (0x200C, 0) in written and (0x200D, 0) in written  # off at bring-up, on to arm
+        commands = [int.from_bytes(f.data[:4], "little", signed=True) for f in frames
+                    if f.arbitration_id == 0x200 + node]
+        assert commands and all(abs(c) <= 1000 for c in commands)
+    truth = _truth(tmp_path)
+    stopped = [k for k, row in enumerate(truth) if row["r_state"] == "OPERATION_ENABLED"][-1]
+    assert all(float(row["voltage_r_v"]) == 0.0 and float(row["voltage_theta_v"]) == 0.0
+               for row in truth[stopped + 1:])
+    assert max(float(row["force_down_n"]) for row in truth) < 90.0
