@@ -215,8 +215,9 @@ def read_inputs(path: Path) -> Inputs:
                          f"reads format {FORMAT}")
     words = start.get("statuswords")
     if not (isinstance(words, list) and len(words) == 2
-            and all(isinstance(w, int) and 0 <= w <= 0xFFFF for w in words)):
-        raise TraceError(f"{where}: 'statuswords' must be two 16-bit integers")
+            and all(isinstance(w, int) and 0 <= w <= 0xFFFFFFFF for w in words)):
+        raise TraceError(f"{where}: 'statuswords' must be two integers in 0 … 0xFFFFFFFF "
+                         "(CiA 402 statuswords, or a Roboteq-class drive's flags)")
     settings = start.get("settings")
     if not isinstance(settings, dict):
         raise TraceError(f"{where}: 'settings' must be an object")

@@ -515,3 +515,35 @@ def test_a_trace_the_disk_cannot_take_ends_the_recording_not_the_loop(tmp_path: 
         for recording in (trace, inputs):
             with contextlib.suppress(OSError):
                 recording.close()
+
+
+@pytest.mark.crossprocess
+@needs_namespace
+def test_a_run_on_roboteq_class_drives_is_reproduced_frame_for_frame(tmp_path: Path) -> None:
+    """drives.profile: roboteq on both processes: the trace holds the commands in ‰ and the
+    power requests over SDO the hot path sent (on to arm, off at the e-stop), and the
+    replay with the same profile reproduces every frame of them."""
+    trace = tmp_path / "trace.log"
+    profile = "--set drives.profile=roboteq"
+    with emulated_bench(tmp_path, EMULATOR, DAEMON, emulator_args=[profile],
+                        daemon_args=[f"--set bus.trace_path={trace}", profile]) as bench:
+        bench.wait_for_state(["disarmed"], 60.0)
+        bench.request("arm")
+        assert bench.wait_for_state(["armed", "fault"], 15.0)["state"] == "armed"
+        for _ in range(5):
+            bench.request("jog", space="task", height_m_per_s=-0.03)
+            time.sleep(0.1)
+        bench.request("estop")
+        time.sleep(0.3)
+        _reset_until_disarmed(bench)
+    start = int(json.loads(sidecar_path(trace).read_text().splitlines()[0])["frame"])
+    loop_frames = list(can.CanutilsLogReader(str(trace)))[start:]
+    power = [f for f in loop_frames if not f.is_rx and 0x601 <= f.arbitration_id <= 0x602]
+    assert {(f.arbitration_id, f.data[1]) for f in power} >= {
+        (0x601, 0x0D), (0x601, 0x0C), (0x602, 0x0D), (0x602, 0x0C)}  # 0x200D on, 0x200C off
+    settings = load_settings(DAEMON, ["drives.profile=roboteq"], root=Settings)
+    result = replay(trace, settings)
+    assert result.ok, result.message()
+    assert result.reproduced == _sent_after(trace, start) > 1000
+    for state in ("DISARMED", "CHECKING", "ARMED", "JOG", "ESTOP"):
+        assert state in result.states, result.states
