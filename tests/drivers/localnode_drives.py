@@ -21,6 +21,11 @@ packing and unpacking (``PdoMap``). What LocalNode leaves to the device is here,
 - The command watchdog 0x2003: no RPDO1 for that long while OPERATION ENABLED is FAULT at
   0 V, with an EMCY 0x8250. Leaving OPERATIONAL also puts the output at 0 V.
 
+With ``drives.profile: roboteq`` in the configuration, both are Roboteq-class drives over
+``roboteq_class_drive.eds`` instead (:class:`LocalRoboteqDrive`): no CiA 402, the motor
+command in ‰ of the supply, an emergency shutdown and its release, the command watchdog
+0x3001 that stops the motor until the next command.
+
 Not played: the heartbeat consumer 0x1016 (stored, no reaction), over-current faults, the
 pre-defined error field, a PDO remapped over SDO (the maps are the EDS's, read at power-on).
 The physics is the emulator's (drivers.arm.ArmPlant against drivers.objects.Ground), built
@@ -47,6 +52,7 @@ from drivers.emulator import workspace
 from drivers.objects import Ground
 from drivers.settings import EmulatorConfig
 from rakectl.core.motor_model import MotorParams, joint_per_motor_rad, joint_resolution
+from rakectl.protocol.files import DriveProfile
 
 NMT_RESET_NODE, NMT_RESET_COMMUNICATION, NMT_ENTER_PRE_OPERATIONAL = 0x81, 0x82, 0x80
 EMCY_COMMAND_WATCHDOG = 0x8250
@@ -186,16 +192,87 @@ class LocalDrive:
         tpdo1.transmit()
 
 
+class LocalRoboteqDrive(LocalDrive):
+    """A Roboteq-class drive on LocalNode (``drives.profile: roboteq``): no CiA 402; the
+    motor command 0x2000:01 in ‰ of the supply, driven in OPERATIONAL unless an emergency
+    shutdown (0x200C, until a release 0x200D) holds it off; the command watchdog 0x3001
+    stops it (status flag 5) until the next command; feedback in its own objects and units
+    (TPDO1: counts, rpm, 0.1 A; TPDO2: fault and status flags)."""
+
+    def __init__(self, network: canopen.Network, node_id: int, motor: MotorParams,
+                 serial_number: int) -> None:
+        self.shutdown, self.expired, self.per_mille = False, False, 0
+        super().__init__(network, node_id, DriveKind.ROBOTEQ_CLASS, motor, serial_number)
+
+    def reset(self, node: bool) -> None:
+        if node:
+            self.shutdown = False
+        self.expired, self.per_mille = False, 0
+        super().reset(node)
+        self.node.sdo[0x210D][2].raw = round(self.motor.supply_voltage_v * 10)
+
+    def _on_rpdo1(self, pdo: canopen.pdo.PdoMap) -> None:
+        if self.operational:
+            self.per_mille, self.last_rpdo_s, self.expired = pdo[0].raw, pdo.timestamp, False
+
+    def _on_write(self, index: int, subindex: int, od: object, data: bytes) -> None:
+        if index in (0x200C, 0x200D):
+            self.shutdown = index == 0x200C
+            self._store_status()
+
+    def latch(self, now_s: float) -> float:
+        watchdog_s = self.node.sdo[0x3001].raw / 1000.0
+        if (not self.shutdown and watchdog_s > 0 and self.last_rpdo_s is not None
+                and now_s - self.last_rpdo_s > watchdog_s):
+            self.expired, self.per_mille = True, 0
+        self._store_status()
+        if self.shutdown or self.expired or not self.operational:
+            return 0.0
+        command = max(-1000, min(1000, self.per_mille))
+        return command * self.motor.supply_voltage_v / 1000.0
+
+    def _flags(self) -> tuple[int, int]:
+        status = 0x0001 | (0x0008 if self.shutdown or self.expired else 0) | (
+            0x0020 if self.expired else 0)
+        return (0x0010 if self.shutdown else 0), status
+
+    def _store_status(self) -> None:
+        faults, status = self._flags()
+        self.node.sdo[0x2112].raw, self.node.sdo[0x2111].raw = faults, status
+
+    def send_status(self) -> None:
+        status = self._flags()
+        if status != self._sent_status:
+            tpdo2 = self.node.tpdo[2]
+            tpdo2[0].raw, tpdo2[1].raw = status
+            tpdo2.transmit()
+            self._sent_status = status
+
+    def send_sample(self, position: float, velocity: float, current_a: float) -> None:
+        encoder = dataclasses.replace(self.motor, encoder_counts_per_rev=self.node.sdo[0x3003].raw)
+        tpdo1 = self.node.tpdo[1]
+        tpdo1[0].raw = round(position / joint_resolution(encoder))
+        rpm = round(velocity / joint_per_motor_rad(self.motor) * RPM_PER_RAD_PER_S)
+        tpdo1[1].raw = max(-32767, min(32767, rpm))
+        tpdo1[2].raw = max(-32767, min(32767, round(current_a * 10.0)))
+        tpdo1.transmit()
+
+
 class LocalDrives:
     """Both drives and the physics on one canopen Network."""
 
     def __init__(self, config: EmulatorConfig, network: canopen.Network,
                  truth: TextIO | None) -> None:
         d, p = config.drives, config.physics
-        self.drives = (LocalDrive(network, d.r_node_id, DriveKind.DC_SERVO, p.motor_r,
-                                  d.r_serial_number),
-                       LocalDrive(network, d.theta_node_id, DriveKind.GEARED_MOTOR, p.motor_theta,
-                                  d.theta_serial_number))
+        if d.profile is DriveProfile.ROBOTEQ:
+            self.drives: tuple[LocalDrive, LocalDrive] = (
+                LocalRoboteqDrive(network, d.r_node_id, p.motor_r, d.r_serial_number),
+                LocalRoboteqDrive(network, d.theta_node_id, p.motor_theta, d.theta_serial_number))
+        else:
+            self.drives = (LocalDrive(network, d.r_node_id, DriveKind.DC_SERVO, p.motor_r,
+                                      d.r_serial_number),
+                           LocalDrive(network, d.theta_node_id, DriveKind.GEARED_MOTOR,
+                                      p.motor_theta, d.theta_serial_number))
         self.plant = ArmPlant(p.arm, p.motor_r, p.motor_theta, workspace(config), p.substep_s,
                               p.seed)
         self.plant.set_pose_at_rest(d.start_r_m, d.start_theta_rad)

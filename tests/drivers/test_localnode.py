@@ -4,7 +4,8 @@ tests/drivers/localnode_drives.py plays both drives on canopen's LocalNode (its 
 NMT states, heartbeat producer and PDO packing) with a thin CiA 402 and SYNC layer and the
 emulator's physics. As processes over udp_multicast in a private network namespace (the
 emulated bench): `rakectl drives` reads them back, and the daemon brings them up, passes
-its weight check, jogs, stops and e-stops on them. The pair of configurations is the
+its weight check, jogs, stops and e-stops on them, as the project's own CiA 402 drives and
+as Roboteq-class drives. The pair of configurations is the
 vcan bench's (50 Hz, long timeouts): canopen's stack runs in Python per frame.
 """
 
@@ -96,8 +97,13 @@ def _truth(out: Path) -> list[dict[str, str]]:
 
 
 @needs_namespace
-def test_the_daemon_brings_up_arms_and_jogs_a_localnode_slave(tmp_path: Path) -> None:
-    with emulated_bench(tmp_path, EMULATOR, DAEMON, emulator_args=BUS, daemon_args=BUS,
+@pytest.mark.parametrize("profile", ["cia402", "roboteq"])
+def test_the_daemon_brings_up_arms_and_jogs_a_localnode_slave(tmp_path: Path,
+                                                              profile: str) -> None:
+    """Either drive profile (drives.profile on both sides): the slave's CANopen side is
+    LocalNode's over the profile's EDS."""
+    args = [*BUS, "--set", f"drives.profile={profile}"]
+    with emulated_bench(tmp_path, EMULATOR, DAEMON, emulator_args=args, daemon_args=args,
                         emulator_module=MODULE) as bench:
         bench.wait_for_state(["disarmed"], 60.0)
         bench.request("arm")
