@@ -17,11 +17,11 @@ order) and the same power stage behind it, but the object dictionary of
   Power-on value 1000 ms.
 * **Faults** (fault flags 0x2112): over current for the drive's over-current time
   (bit 3, "short circuit", EMCY 0x2310), the joint's hard stop hit (bit 5, "sensor
-  fault", EMCY 0xFF01), the controller's heartbeat lost (0x1016: bit 4, "emergency
-  stop", EMCY 0x8130), emergency shutdown 0x200C written (bit 4, no EMCY). Each
-  applies 0 V and latches until *release shutdown* 0x200D is written (refused while
-  the cause lasts, as the CiA 402 drive's fault reset is); then the drive drives
-  again, from 0 V.
+  fault", EMCY 0xFF01), the controller's heartbeat lost (0x1016: bit 8, "communication
+  lost", this EDS's, EMCY 0x8130); an emergency shutdown 0x200C written sets bit 4
+  (emergency stop, no EMCY). Each applies 0 V and latches until *release shutdown*
+  0x200D is written (refused while a fault's cause lasts, as the CiA 402 drive's fault
+  reset is); then the drive drives again, from 0 V.
 * **Feedback** (the layouts of :mod:`rakectl.protocol.roboteq`) on every SYNC (TPDO1):
   encoder counter 0x2104:01 (i32 counts), encoder motor speed 0x2103:01 (i16 rpm),
   motor amps 0x2100:01 (i16, 0.1 A). TPDO2: fault flags 0x2112 and status flags 0x2111
@@ -52,7 +52,9 @@ from rakectl.protocol.cia402 import DriveState
 from rakectl.protocol.codec import INT32_LIMIT, rad_per_s_to_rpm
 from rakectl.protocol.nmt import EmcyCode, NmtState
 from rakectl.protocol.roboteq import (
+    FAULT_COMMUNICATION,
     FAULT_EMERGENCY_STOP,
+    FAULT_OTHER,
     FAULT_SENSOR,
     FAULT_SHORT_CIRCUIT,
     PER_MILLE,
@@ -65,7 +67,7 @@ from rakectl.protocol.roboteq import (
 
 FAULT_FLAG: Final = {EmcyCode.OVER_CURRENT: FAULT_SHORT_CIRCUIT,
                      EmcyCode.HARD_STOP_HIT: FAULT_SENSOR,
-                     EmcyCode.HEARTBEAT_LOST: FAULT_EMERGENCY_STOP}
+                     EmcyCode.HEARTBEAT_LOST: FAULT_COMMUNICATION}
 
 
 class RoboteqNode(DriveNode):
@@ -90,7 +92,7 @@ class RoboteqNode(DriveNode):
 
     @property
     def fault_flags(self) -> int:
-        flags = FAULT_FLAG.get(self.fault, 0) if self.fault is not None else 0
+        flags = FAULT_FLAG.get(self.fault, FAULT_OTHER) if self.fault is not None else 0
         return flags | (FAULT_EMERGENCY_STOP if self._shutdown else 0)
 
     @property

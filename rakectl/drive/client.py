@@ -366,7 +366,15 @@ class DriveClient(DriveSupervision):
             self.stats.frames_unknown += 1
 
     def _update_fault(self, j: int) -> None:
-        self._fault[j] = self._state_fault[j] or self._emcy_fault[j] or self._rebooted[j]
+        self._fault[j] = (self._state_fault[j] or self._emcy_fault[j] or self._rebooted[j]
+                          or self._power.lost[j])
+
+    def _power_lost(self, drives: int) -> None:
+        """Roboteq-class drives that went off by themselves while asked on (bit j): a fault
+        until a fault reset (rakectl.drive.power)."""
+        for j in (0, 1):
+            if drives >> j & 1:
+                self._update_fault(j)
 
     # ------------------------------------------------------------------- send
 
@@ -379,6 +387,7 @@ class DriveClient(DriveSupervision):
         for j in JOINTS if joint is None else (joint,):
             if self._roboteq:
                 self._power.command(j, command)
+                self._update_fault(j)  # a fault reset clears a drive found lost
             elif command is DriveCommand.FAULT_RESET:
                 self._fault_reset(j)
             elif command is not self._command[j]:
@@ -404,6 +413,9 @@ class DriveClient(DriveSupervision):
         """
         rpdo, controlword, sent = self._rpdo, self._controlword, self._controlword_sent
         if self._roboteq:
+            lost = self._power.send(self.feedback.state, self.feedback.statusword)
+            if lost:
+                self._power_lost(lost)
             r_per_mille = volts_to_per_mille(voltage_r_v, self._supply_v[0])
             theta_per_mille = volts_to_per_mille(voltage_theta_v, self._supply_v[1])
             pack_command_into(rpdo[0].data, r_per_mille)
@@ -416,8 +428,6 @@ class DriveClient(DriveSupervision):
         self._send_failed = False
         self._transmit(rpdo[0])
         self._transmit(rpdo[1])
-        if self._roboteq:
-            self._power.send(self.feedback.state)
         sent[0], sent[1] = controlword
         controlword[0], controlword[1] = self._controlword_after
 

@@ -13,6 +13,7 @@ import math
 
 from rakectl.config.service import DrivesSettings
 from rakectl.drive.joints import JOINTS, drive_label, node_ids
+from rakectl.drive.power import PowerRequests
 from rakectl.protocol.cia402 import DriveState
 from rakectl.protocol.nmt import Emcy, NmtState, emcy_code
 
@@ -106,7 +107,8 @@ class DriveSupervision:
     _state_fault: list[bool]  # in FAULT or FAULT_REACTION_ACTIVE
     _emcy_fault: list[bool]  # an EMCY other than NO_ERROR is active
     _rebooted: list[bool]  # a boot-up heartbeat came after bring-up
-    _fault: list[bool]  # any of the three
+    _power: PowerRequests  # its lost: a Roboteq-class drive went off by itself while on
+    _fault: list[bool]  # any of the four
 
     def drive_faults(self) -> bool:
         """A drive is in FAULT (or its reaction), has an active EMCY, or rebooted."""
@@ -140,6 +142,10 @@ class DriveSupervision:
                                 f"error register 0x{emcy.error_register:02X}")
             if self._rebooted[joint]:
                 problems.append(f"{label}: rebooted (boot-up heartbeat): bring-up needed")
+            if self._power.lost[joint]:
+                flags = fb.statusword[joint]
+                problems.append(f"{label}: its power stage went off by itself (fault flags "
+                                f"0x{flags >> 16:04X}, status flags 0x{flags & 0xFFFF:04X})")
             if fb.stale_cycles[joint] >= limit_cycles:
                 problems.append(f"{label}: no TPDO1 for {fb.stale_cycles[joint]} cycles")
             if now_s - self._heard_s[joint] > self._heartbeat_timeout_s:

@@ -20,6 +20,8 @@ at start-up.
 
 from __future__ import annotations
 
+import math
+
 from rakectl.config.service import DrivesSettings
 from rakectl.config.settings import MotorsSettings
 from rakectl.drive.joints import Joint, Parameter, motor_of
@@ -55,7 +57,8 @@ def drive_parameters(joint: Joint, drives: DrivesSettings,
     )
     if drives.profile is DriveProfile.ROBOTEQ:
         return (
-            Parameter(0x3002, 0, "amps limit", "× 0.1 A", round(motor.current_limit_a * 10),
+            Parameter(0x3002, 0, "amps limit", "× 0.1 A",  # rounded down: never above
+                      math.floor(motor.current_limit_a * 10 + 1e-9),
                       f"{key}.current_limit_a", "current_limit_ma", 100),
             Parameter(0x3001, 0, "command watchdog", "ms", drives.watchdog_timeout_ms,
                       "drives.watchdog_timeout_ms", "watchdog_timeout_ms"),
@@ -87,7 +90,9 @@ def state_of(profile: DriveProfile, status: int) -> DriveState:
 
 def supply_problem(supply_dv: int, supply_v: float) -> str | None:
     """Why a Roboteq-class drive whose battery reads ``supply_dv`` (0.1 V) must be refused
-    when the configuration states ``supply_v``; None if it may be driven."""
+    when the configuration states ``supply_v``; None if it may be driven. A reading equal
+    to it passes: the true supply may then be up to the reading's step above it (0.1 V,
+    0.4 % at 24 V; docs/installation.md)."""
     if supply_dv * 100 > round(supply_v * 1000):
         return (f"its supply reads {supply_dv / 10:g} V (0x{SUPPLY_OBJECT[0]:04X}:"
                 f"{SUPPLY_OBJECT[1]}), above the {supply_v:g} V the motor command is scaled "

@@ -33,8 +33,10 @@ CURRENT_A_PER_UNIT: Final = 0.1  # 0x2100's unit
 TPDO2_SIZE: Final = 4
 
 FAULT_SHORT_CIRCUIT: Final = 1 << 3  # over current (EMCY 0x2310)
-FAULT_EMERGENCY_STOP: Final = 1 << 4  # 0x200C, or the controller's heartbeat lost (0x8130)
+FAULT_EMERGENCY_STOP: Final = 1 << 4  # 0x200C written: the power stage off until 0x200D
 FAULT_SENSOR: Final = 1 << 5  # the joint's hard stop hit (EMCY 0xFF01)
+FAULT_COMMUNICATION: Final = 1 << 8  # the controller's heartbeat lost (0x1016, EMCY 0x8130)
+FAULT_OTHER: Final = 1 << 15  # any other fault (its EMCY names it)
 STATUS_SERIAL_MODE: Final = 1 << 0  # commands come from the bus
 STATUS_POWER_STAGE_OFF: Final = 1 << 3
 STATUS_WATCHDOG_EXPIRED: Final = 1 << 5  # no command for 0x3001 ms: 0 V until the next
@@ -54,15 +56,18 @@ RELEASE_SHUTDOWN: Final = _sdo_download_u8(0x200D, 1)  # and clears the fault fl
 
 
 def volts_to_per_mille(voltage_v: float, supply_v: float) -> int:
-    """A voltage as the motor command: ‰ of ``supply_v``, rounded, saturated at ±1000.
-
-    Scaled by the supply the configuration states (bring-up refuses a drive that reads
-    a higher one), the drive applies at most the voltage asked for."""
+    """A voltage as the motor command: ‰ of ``supply_v``, saturated at ±1000, rounded to
+    the nearest ‰ (half of it is 12 mV at 24 V, as the CiA 402 path rounds to the mV:
+    docs/installation.md states what it is worth in force). Scaled by the supply the
+    configuration states, which bring-up checks the drive's own reading against."""
     if not math.isfinite(voltage_v):
         raise NonFiniteError(f"voltage_v must be finite, got {voltage_v}")
-    per_mille = round(voltage_v * PER_MILLE / supply_v)
-    return PER_MILLE if per_mille > PER_MILLE else -PER_MILLE if per_mille < -PER_MILLE \
-        else per_mille
+    share = voltage_v * PER_MILLE / supply_v
+    if share >= PER_MILLE:
+        return PER_MILLE
+    if share <= -PER_MILLE:
+        return -PER_MILLE
+    return round(share)
 
 
 def per_mille_to_mv(command: int, supply_mv: int) -> int:
@@ -103,8 +108,9 @@ def state_of(image: int) -> DriveState:
     """The CiA 402 state that behaves as a drive with these flags does (:func:`flags_image`):
     FAULT for any fault flag but the emergency stop, and for an expired command watchdog
     (the drive stopped driving by itself, as a CiA 402 drive's watchdog faults it);
-    SWITCH_ON_DISABLED for an emergency stop (the power stage off by command);
-    OPERATION_ENABLED otherwise (it applies the commands it receives)."""
+    SWITCH_ON_DISABLED for an emergency stop (the power stage off by 0x200C);
+    OPERATION_ENABLED otherwise (it applies the commands it receives). An emergency stop
+    the controller did not ask for is its client's fault (rakectl.drive.power)."""
     fault_flags, status_flags = image >> 16, image & 0xFFFF
     if fault_flags & ~FAULT_EMERGENCY_STOP or status_flags & STATUS_WATCHDOG_EXPIRED:
         return DriveState.FAULT

@@ -19,6 +19,7 @@ from rakectl.config.service import DrivesSettings
 from rakectl.config.settings import MotorsSettings
 from rakectl.drive.client import DriveClient
 from rakectl.drive.joints import Joint
+from rakectl.drive.profiles import drive_parameters
 from rakectl.errors import DriveFault, NonFiniteError
 from rakectl.protocol import roboteq
 from rakectl.protocol.cia402 import DriveCommand, DriveState
@@ -141,10 +142,39 @@ def test_a_lost_heartbeat_fault_is_reset_to_switched_off(
         node._consumer = node._consumer & ~0xFFFF | 5000
     for _ in range(101):  # the controller's heartbeat is back (every 100 ms): the cause gone
         tick(client)
+    # Nothing releases them behind the daemon's back: faulted until the fault reset.
+    assert client.drive_faults() and client.feedback.state == [DriveState.FAULT] * 2
+    assert all(n.fault is EmcyCode.HEARTBEAT_LOST for n in emulator.nodes)
+    assert [n.output_voltage_v for n in emulator.nodes] == [0.0, 0.0]
     client.command(None, DriveCommand.FAULT_RESET)
     until(client, lambda: not client.drive_faults()
           and client.feedback.state == [DriveState.SWITCH_ON_DISABLED] * 2)
     assert all(n.fault is None for n in emulator.nodes)
+    client.shutdown()
+
+
+def test_an_emergency_stop_the_controller_did_not_send_is_a_fault_until_reset(
+        rig: tuple[DriveClient, Emulator]) -> None:
+    """Another tool, or the drive's own e-stop input, switches r off while the daemon has it
+    on: the client reads a fault (the flags alone read as switched off) and does not
+    switch it back on; a fault reset leaves it off, the fault cleared."""
+    client, emulator = rig
+    client.bring_up(boot_timeout_s=TIMEOUT_S)
+    client.command(None, DriveCommand.ENABLE_OPERATION)
+    until(client, lambda: client.feedback.state == [DriveState.OPERATION_ENABLED] * 2)
+    emulator.r_node._write_emergency_shutdown(1)  # as an SDO write from elsewhere does
+    until(client, lambda: client.drive_faults(), voltages=(1.0, 0.0))
+    assert client.feedback.state[Joint.R] is DriveState.SWITCH_ON_DISABLED
+    problems = client.describe_problems(client.clock(), 1000)
+    assert problems == ["r drive (node 1): its power stage went off by itself (fault flags "
+                        "0x0010, status flags 0x0009)"], problems
+    for _ in range(120):  # more than a request's period: no release goes out
+        tick(client, (1.0, 0.0))
+    assert client.drive_faults() and emulator.r_node.output_voltage_v == 0.0
+    client.command(None, DriveCommand.FAULT_RESET)
+    until(client, lambda: not client.drive_faults()
+          and client.feedback.state == [DriveState.SWITCH_ON_DISABLED] * 2)
+    assert [n.output_voltage_v for n in emulator.nodes] == [0.0, 0.0]
     client.shutdown()
 
 
@@ -165,3 +195,12 @@ def test_a_supply_above_the_configured_one_is_refused() -> None:
     (2.4, 24.0, 100), (0.0119, 24.0, 0), (0.0121, 24.0, 1), (-6.0, 12.0, -500)])
 def test_volts_to_per_mille_by_hand(voltage_v: float, supply_v: float, per_mille: int) -> None:
     assert roboteq.volts_to_per_mille(voltage_v, supply_v) == per_mille
+
+
+@pytest.mark.parametrize(("limit_a", "written"), [(6.0, 60), (5.96, 59), (0.35, 3)])
+def test_the_amps_limit_is_rounded_down_to_the_drives_step(limit_a: float, written: int) -> None:
+    """The clamp takes the configured current limit as the drive's: never above it."""
+    motors = MotorsSettings()
+    motors = replace(motors, r=replace(motors.r, current_limit_a=limit_a))
+    amps = drive_parameters(Joint.R, DRIVES, motors)[0]
+    assert (amps.index, amps.value, amps.limit_scale) == (0x3002, written, 100)

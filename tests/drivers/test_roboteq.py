@@ -25,6 +25,7 @@ from rakectl.core.motor_model import R_MOTOR_DEFAULT, joint_resolution
 from rakectl.protocol.files import DriveProfile
 from rakectl.protocol.nmt import EmcyCode, NmtCommand
 from rakectl.protocol.roboteq import (
+    FAULT_COMMUNICATION,
     FAULT_EMERGENCY_STOP,
     FAULT_SENSOR,
     STATUS_POWER_STAGE_OFF,
@@ -146,7 +147,7 @@ def test_emergency_shutdown_latches_until_released(drive: Bench) -> None:
     assert drive.node.output_voltage_v == pytest.approx(12.0)  # … the next command drives
 
 
-def test_controller_heartbeat_loss_is_an_emergency_stop_released_once_it_is_back(
+def test_controller_heartbeat_loss_is_a_communication_fault_released_once_it_is_back(
         drive: Bench) -> None:
     heartbeat = 0x700 + CONTROLLER
     drive.rx(heartbeat, b"\x05")
@@ -155,7 +156,7 @@ def test_controller_heartbeat_loss_is_an_emergency_stop_released_once_it_is_back
     frames = drive.at(drive.now_s + 0.25).poll()  # 0x1016: 250 ms
     assert emcys(frames) == [EmcyCode.HEARTBEAT_LOST]
     assert drive.node.output_voltage_v == 0.0
-    assert flags(frames)[-1][0] == FAULT_EMERGENCY_STOP
+    assert flags(frames)[-1][0] == FAULT_COMMUNICATION
     assert drive.sdo(sdo_download(0x200D, 0, 1, 1)) == ("abort", 0x08000022)  # still lost
     drive.rx(heartbeat, b"\x05")
     frames = drive.rx(SDO_RX, sdo_download(0x200D, 0, 1, 1))

@@ -57,6 +57,8 @@ def test_bad_frames_and_numbers_raise_one_clear_error() -> None:
         roboteq.decode_command(b"\x00\x00")
     with pytest.raises(NonFiniteError):
         roboteq.volts_to_per_mille(float("inf"), 24.0)
+    assert roboteq.volts_to_per_mille(1e307, 24.0) == 1000  # saturated before rounding
+    assert roboteq.volts_to_per_mille(-1e307, 24.0) == -1000
 
 
 def test_a_command_round_trips_through_its_frame() -> None:

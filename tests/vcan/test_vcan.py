@@ -295,15 +295,17 @@ def test_a_drive_that_goes_silent_faults_the_controller(tmp_path: Path) -> None:
 
 def test_roboteq_class_drives_on_the_wire(tmp_path: Path) -> None:
     """drives.profile: roboteq on both processes: bring-up writes the Roboteq-class limits
-    (0x3001-0x3003) and reads them back, the daemon arms through the weight check by
-    releasing the power stages (0x200D), jogs on commands in ‰ of the supply, and the
-    e-stop switches them off (0x200C): 0 V in the ground truth from then on."""
+    (0x3001-0x3003) and reads them back (on the wire), the daemon arms through the weight
+    check by releasing the power stages (0x200D), jogs on commands in ‰ of the supply, and
+    the e-stop switches them off (0x200C; the daemon's trace): 0 V in the ground truth
+    from then on, the drives switched off, not faulted."""
     profile = ["--set", "drives.profile=roboteq"]
-    wire = tmp_path / "wire.log"
+    wire, trace = tmp_path / "wire.log", tmp_path / "trace.log"
     with WireRecorder(wire) as recorder, vcan_bench(
-            tmp_path, EMULATOR, DAEMON, daemon_args=profile, emulator_args=profile) as bench:
+            tmp_path, EMULATOR, DAEMON, emulator_args=profile,
+            daemon_args=[*profile, "--set", f"bus.trace_path={trace}"]) as bench:
         _armed(bench)
-        recorder.close()
+        recorder.close()  # bring-up and arming on the wire; it costs CPU in a VM
         before = bench.request("status")["tip"]
         assert isinstance(before, dict)
         for _ in range(10):
@@ -330,12 +332,20 @@ def test_roboteq_class_drives_on_the_wire(tmp_path: Path) -> None:
         assert {(0x3002, 0), (0x3003, 0)} <= written.keys()
         assert {k: written[k] for k in ((0x3001, 0), (0x3002, 0), (0x3003, 0))}.items() <= (
             read.items())
-        assert (0x200C, 0) in written and (0x200D, 0) in written  # off at bring-up, on to arm
-        commands = [int.from_bytes(f.data[:4], "little", signed=True) for f in frames
+        # the daemon's own trace, to its end: the power requests and the jog's commands
+        sent = [f for f in read_trace(trace) if not f.is_rx]
+        power = [f.data[1] for f in sent if f.arbitration_id == 0x600 + node
+                 and f.data[0] == 0x2F and f.data[2] == 0x20]  # 0x200C off, 0x200D on
+        assert power[0] == 0x0C and 0x0D in power and power[-1] == 0x0C, power  # off at the end
+        commands = [int.from_bytes(f.data[:4], "little", signed=True) for f in sent
                     if f.arbitration_id == 0x200 + node]
         assert commands and all(abs(c) <= 1000 for c in commands)
+        assert any(c != 0 for c in commands)
     truth = _truth(tmp_path)
     stopped = [k for k, row in enumerate(truth) if row["r_state"] == "OPERATION_ENABLED"][-1]
+    after = truth[stopped + 1:]
+    assert after and all(row["r_state"] == row["theta_state"] == "SWITCH_ON_DISABLED"
+                         for row in after)  # the emergency stop flag, not a fault
     assert all(float(row["voltage_r_v"]) == 0.0 and float(row["voltage_theta_v"]) == 0.0
-               for row in truth[stopped + 1:])
+               for row in after)
     assert max(float(row["force_down_n"]) for row in truth) < 90.0
