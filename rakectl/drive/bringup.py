@@ -74,7 +74,7 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from rakectl.config.service import DrivesSettings
 from rakectl.config.settings import MotorsSettings
-from rakectl.drive.canbus import BusError, TraceRecorder
+from rakectl.drive.canbus import BusError, TracedNetwork, TraceRecorder
 from rakectl.drive.joints import (
     JOINTS,
     DriveInfo,
@@ -375,35 +375,6 @@ def _repeatable(error: SdoAbortedError | SdoCommunicationError, segmented: bool)
     return segmented or str(error).startswith(("Unexpected response", "Node returned a value"))
 
 
-class _TraceListener(can.Listener):
-    """Frames the bring-up receives, into the bus trace (echoes of its own left out)."""
-
-    def __init__(self, trace: TraceRecorder, own: frozenset[int], lock: threading.Lock) -> None:
-        self._trace, self._own, self._lock = trace, own, lock
-
-    def on_message_received(self, msg: can.Message) -> None:  # the notifier's thread
-        if msg.arbitration_id not in self._own:
-            with self._lock:
-                self._trace.record(msg, True)
-
-
-class _TracedNetwork(canopen.Network):
-    """The bring-up's network, with every frame it sends and receives in the bus trace,
-    once (udp_multicast's echoes of frames sent are left out)."""
-
-    def __init__(self, bus: can.BusABC, trace: TraceRecorder, own: frozenset[int]) -> None:
-        super().__init__(bus)
-        self._trace, self._lock = trace, threading.Lock()
-        self.trace_listener = _TraceListener(trace, own, self._lock)  # for the notifier
-
-    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
-        super().send_message(can_id, data, remote)
-        msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF,
-                          is_remote_frame=remote)
-        with self._lock:
-            self._trace.record(msg, False)
-
-
 def run_bring_up(bus: can.BusABC, drives: DrivesSettings, motors: MotorsSettings,
                  boot_timeout_s: float, trace: TraceRecorder | None = None,
                  start: bool = True) -> tuple[DriveInfo, DriveInfo]:
@@ -414,7 +385,7 @@ def run_bring_up(bus: can.BusABC, drives: DrivesSettings, motors: MotorsSettings
     if trace is None:
         network = canopen.Network(bus)
     else:
-        network = _TracedNetwork(bus, trace, frozenset(own_ids(drives)))
+        network = TracedNetwork(bus, trace, frozenset(own_ids(drives)))
         listeners.append(network.trace_listener)
     sequence = BringUp(network, drives, motors, boot_timeout_s)
     notifier = can.Notifier(bus, [*network.listeners, *listeners], timeout=NOTIFIER_POLL_S)

@@ -30,15 +30,19 @@ a candump ``.log`` with python-can's ``CanutilsLogWriter`` when the loop
 calls :meth:`TraceRecorder.drain` in its slack. A full ring drops the newest
 frame and counts it. Decode a trace with
 ``python -m cantools decode rakectl/protocol/rakedrive.dbc < trace.log``.
+:class:`TracedNetwork` is the bring-up's ``canopen.Network`` with every frame it sends
+and receives in the same trace.
 """
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Iterable
 from typing import Any, Protocol
 
 import can
+import canopen
 
 from rakectl.config.service import BusInterface, BusSettings
 from rakectl.errors import RakeError
@@ -196,3 +200,32 @@ def open_trace(settings: BusSettings, capacity: int = DEFAULT_TRACE_CAPACITY,
     except OSError as error:
         raise BusError(f"cannot open CAN trace {settings.trace_path!r}: {error}") from error
     return TraceRecorder(writer, channel, capacity)
+
+
+class _TraceListener(can.Listener):
+    """Frames the bring-up receives, into the bus trace (echoes of its own left out)."""
+
+    def __init__(self, trace: TraceRecorder, own: frozenset[int], lock: threading.Lock) -> None:
+        self._trace, self._own, self._lock = trace, own, lock
+
+    def on_message_received(self, msg: can.Message) -> None:  # the notifier's thread
+        if msg.arbitration_id not in self._own:
+            with self._lock:
+                self._trace.record(msg, True)
+
+
+class TracedNetwork(canopen.Network):
+    """The bring-up's network, with every frame it sends and receives in the bus trace,
+    once (udp_multicast's echoes of frames sent are left out)."""
+
+    def __init__(self, bus: can.BusABC, trace: TraceRecorder, own: frozenset[int]) -> None:
+        super().__init__(bus)
+        self._trace, self._lock = trace, threading.Lock()
+        self.trace_listener = _TraceListener(trace, own, self._lock)  # for the notifier
+
+    def send_message(self, can_id: int, data: bytes, remote: bool = False) -> None:
+        super().send_message(can_id, data, remote)
+        msg = can.Message(arbitration_id=can_id, data=data, is_extended_id=can_id > 0x7FF,
+                          is_remote_frame=remote)
+        with self._lock:
+            self._trace.record(msg, False)

@@ -74,7 +74,8 @@ from rakectl.config.settings import MotorsSettings
 from rakectl.core.motor_model import joint_per_motor_rad, joint_resolution
 from rakectl.drive.bringup import run_bring_up
 from rakectl.drive.canbus import TraceRecorder
-from rakectl.drive.health import DriveSupervision, Feedback, Stats
+from rakectl.drive.decode import FrameDecoder
+from rakectl.drive.health import Feedback, Stats
 from rakectl.drive.joints import (
     JOINTS,
     DriveInfo,
@@ -92,7 +93,6 @@ from rakectl.protocol.cia402 import (
     FAULT_RESET_BIT,
     DriveCommand,
     DriveState,
-    decode_statusword,
     path_to_enabled,
 )
 from rakectl.protocol.codec import (
@@ -100,12 +100,9 @@ from rakectl.protocol.codec import (
     RPDO1_SIZE,
     SYNC_COB_ID,
     SYNC_COUNTER_MAX,
-    TPDO1_SIZE,
     TPDO2_SIZE,
     FunctionCode,
     cob_id,
-    decode_tpdo1,
-    decode_tpdo2,
     next_sync_counter,
     pack_rpdo_into,
     rpm_to_rad_per_s,
@@ -113,18 +110,13 @@ from rakectl.protocol.codec import (
 )
 from rakectl.protocol.files import DriveProfile
 from rakectl.protocol.nmt import (
-    EMCY_SIZE,
-    EmcyCode,
     NmtCommand,
     NmtState,
-    decode_emcy,
-    decode_heartbeat,
     encode_heartbeat,
     encode_nmt,
 )
 from rakectl.protocol.roboteq import pack_command_into, volts_to_per_mille
 
-CAN_ERR_BUSOFF = 0x040  # error class of a socketcan error frame (linux/can/error.h)
 LATENCY_RING = 65536  # SYNC → TPDO1 latencies kept for the benchmark
 
 
@@ -138,7 +130,7 @@ def _new_message(can_id: int, size: int) -> can.Message:
     return can.Message(arbitration_id=can_id, is_extended_id=False, data=bytearray(size))
 
 
-class DriveClient(DriveSupervision):
+class DriveClient(FrameDecoder):
     """Both drives over one injected bus; see the module docstring for the tick protocol."""
 
     def __init__(self, bus: can.BusABC, drives: DrivesSettings, motors: MotorsSettings,
@@ -283,98 +275,6 @@ class DriveClient(DriveSupervision):
         self._count_stale()
         stats.ticks += 1
         return count
-
-    def _count_stale(self) -> None:
-        fresh, stale, stats = self._fresh, self.feedback.stale_cycles, self.stats
-        received = stats.tpdo_received
-        answered = received[0] if received[0] < received[1] else received[1]
-        self.feedback.samples = answered - self._answered
-        self._answered = answered
-        for j in (0, 1):
-            if fresh[j]:
-                stale[j] = 0
-                if fresh[j] > 1:
-                    stats.tpdo_late[j] += fresh[j] - 1
-            elif self._syncs_pending:
-                stale[j] += 1
-                stats.tpdo_missed[j] += 1
-        self._syncs_pending = 0
-
-    def _on_tpdo1(self, j: int, data: bytearray) -> None:
-        if len(data) != TPDO1_SIZE:
-            self.stats.frames_bad_length += 1
-            return
-        counts, rpm, current_ma = decode_tpdo1(data)
-        fb = self.feedback
-        position = counts * self._position_per_count[j]
-        velocity = rpm * self._velocity_per_rpm[j]
-        if j == 0:
-            fb.r_m, fb.r_vel_m_per_s = position, velocity
-            fb.current_r_a = current_ma / self._units_per_amp
-        else:
-            fb.theta_rad, fb.theta_vel_rad_per_s = position, velocity
-            fb.current_theta_a = current_ma / self._units_per_amp
-        fb.sync_counter[j] = self._sync_counter
-        self._fresh[j] += 1
-        self.stats.tpdo_received[j] += 1
-
-    def _on_tpdo2(self, j: int, data: bytearray) -> None:
-        if len(data) != self._tpdo2_size:
-            self.stats.frames_bad_length += 1
-            return
-        if self._roboteq:
-            statusword = roboteq.flags_image(*roboteq.decode_flags(data))
-            state = roboteq.state_of(statusword)
-            error_register = 1 if state is DriveState.FAULT else 0  # bit 0: generic error
-        else:
-            statusword, error_register = decode_tpdo2(data)
-            state = decode_statusword(statusword)
-        fb = self.feedback
-        fb.statusword[j], fb.error_register[j], fb.state[j] = statusword, error_register, state
-        self._state_fault[j] = state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
-        self._update_fault(j)
-        self.stats.tpdo2_received[j] += 1
-
-    def _on_emcy(self, j: int, data: bytearray) -> None:
-        if len(data) != EMCY_SIZE:
-            self.stats.frames_bad_length += 1
-            return
-        emcy = decode_emcy(data)
-        self.feedback.last_emcy[j] = emcy
-        self._emcy_fault[j] = emcy.code != EmcyCode.NO_ERROR
-        self._update_fault(j)
-        self.stats.emcy_received += 1
-
-    def _on_heartbeat(self, j: int, data: bytearray) -> None:
-        if len(data) != 1:
-            self.stats.frames_bad_length += 1
-            return
-        state = decode_heartbeat(data)
-        self.feedback.nmt_state[j] = state
-        self._heard_s[j] = self.clock()
-        if state is NmtState.BOOT_UP:
-            self._rebooted[j] = True
-            self._update_fault(j)
-        self.stats.heartbeats_received += 1
-
-    def _on_odd_frame(self, msg: can.Message) -> None:
-        if msg.is_error_frame:
-            self.stats.error_frames += 1
-            if msg.arbitration_id & CAN_ERR_BUSOFF:
-                self.stats.bus_off_frames += 1
-        else:
-            self.stats.frames_unknown += 1
-
-    def _update_fault(self, j: int) -> None:
-        self._fault[j] = (self._state_fault[j] or self._emcy_fault[j] or self._rebooted[j]
-                          or self._power.lost[j])
-
-    def _power_lost(self, drives: int) -> None:
-        """Roboteq-class drives that went off by themselves while asked on (bit j): a fault
-        until a fault reset (rakectl.drive.power)."""
-        for j in (0, 1):
-            if drives >> j & 1:
-                self._update_fault(j)
 
     # ------------------------------------------------------------------- send
 

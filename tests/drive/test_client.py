@@ -267,7 +267,7 @@ def test_bad_frames_are_counted_never_raised(bus: FakeBus, client: DriveClient) 
 
 
 def canbus_busoff() -> int:
-    from rakectl.drive.client import CAN_ERR_BUSOFF
+    from rakectl.drive.decode import CAN_ERR_BUSOFF
 
     return CAN_ERR_BUSOFF
 
