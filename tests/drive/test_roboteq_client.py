@@ -204,3 +204,19 @@ def test_the_amps_limit_is_rounded_down_to_the_drives_step(limit_a: float, writt
     motors = replace(motors, r=replace(motors.r, current_limit_a=limit_a))
     amps = drive_parameters(Joint.R, DRIVES, motors)[0]
     assert (amps.index, amps.value, amps.limit_scale) == (0x3002, written, 100)
+
+
+def test_a_profile_that_does_not_match_the_drives_is_refused_naming_both() -> None:
+    """drives.profile: roboteq on the project's own drives (and the other way round):
+    bring-up stops at the identity, before it writes a limit."""
+    with emulated_drives() as (emulator, bus):
+        client = DriveClient(bus, DRIVES, MotorsSettings(), rate_hz=1000.0)
+        with pytest.raises(DriveFault, match=r"r drive \(node 1\): wrong identity: product "
+                           r"code 1, expected 3 \(roboteq_class_drive\.eds\)"):
+            client.bring_up(boot_timeout_s=TIMEOUT_S)
+        assert emulator.r_node.watchdog_timeout_s == 0.02  # its power-on value: not written
+    with emulated_drives(config=roboteq_emulator()) as (_, bus):
+        client = DriveClient(bus, DrivesSettings(), MotorsSettings(), rate_hz=1000.0)
+        with pytest.raises(DriveFault, match=r"r drive \(node 1\): wrong identity: product "
+                           r"code 3, expected 1 \(dc_servo_drive\.eds\)"):
+            client.bring_up(boot_timeout_s=TIMEOUT_S)
