@@ -135,10 +135,14 @@ class DriveNode(PowerStage):
         deadline = self._next_heartbeat_s if self._heartbeat_ms else math.inf
         if self._heartbeat_seen_s is not None and self._consumer & 0xFFFF:
             deadline = min(deadline, self._heartbeat_seen_s + (self._consumer & 0xFFFF) * 0.001)
-        if self.state is DriveState.OPERATION_ENABLED:
+        if self._watchdog_running():
             oldest_s = min(self._last_rpdo_s, self._last_sync_s)
             deadline = min(deadline, oldest_s + self._watchdog_ms * 0.001)
         return deadline
+
+    def _watchdog_running(self) -> bool:
+        """Whether the command watchdog counts now (the CiA 402 drive: while enabled)."""
+        return self.state is DriveState.OPERATION_ENABLED
 
     # ------------------------------------------------------------------- frames in
 

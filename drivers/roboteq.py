@@ -110,14 +110,9 @@ class RoboteqNode(DriveNode):
     def output_enabled(self) -> bool:
         return self.state is DriveState.OPERATION_ENABLED and not self._watchdog_expired
 
-    def next_deadline_s(self) -> float:
-        deadline = self._next_heartbeat_s if self._heartbeat_ms else float("inf")
-        if self._heartbeat_seen_s is not None and self._consumer & 0xFFFF:
-            deadline = min(deadline, self._heartbeat_seen_s + (self._consumer & 0xFFFF) * 0.001)
-        if self.output_enabled and self._watchdog_ms:
-            oldest_s = min(self._last_rpdo_s, self._last_sync_s)
-            deadline = min(deadline, oldest_s + self._watchdog_ms * 0.001)
-        return deadline
+    def _watchdog_running(self) -> bool:
+        """While it drives, unless 0x3001 is 0 (off); not once expired (until a command)."""
+        return self.output_enabled and self._watchdog_ms > 0
 
     # ------------------------------------------------------------------- behaviour
 
@@ -133,7 +128,7 @@ class RoboteqNode(DriveNode):
         super()._latch(voltage_mv, out)
 
     def _check_watchdog(self, now_s: float, out: list[Frame]) -> None:
-        if not self.output_enabled or not self._watchdog_ms:
+        if not self._watchdog_running():
             return
         if now_s - min(self._last_rpdo_s, self._last_sync_s) >= self._watchdog_ms * 0.001:
             self._watchdog_expired, self._latched_mv = True, 0

@@ -50,6 +50,18 @@ def _raking(tmp_path: Path, lane: bytes, defaults: Settings | None = None,
         rig.close()
 
 
+def _rake(rig: LockstepRig, limit: int = 30_000) -> float:
+    """Tick in lock-step while the lane runs; the largest true force on the ground."""
+    daemon, truth = rig.daemon, rig.emulator.ground.truth
+    force_max_n = 0.0
+    for _ in range(limit):
+        if daemon.state is not DaemonState.EXCAVATE:
+            break
+        rig.tick()
+        force_max_n = max(force_max_n, truth.force_down_n)
+    return force_max_n
+
+
 def test_a_lane_with_answers_15_ms_late_every_150_ms_is_raked_to_its_depth(
         tmp_path: Path) -> None:
     """Before the force estimate and the plunge's settle check counted sampling instants
@@ -93,13 +105,8 @@ def test_a_plunge_onto_a_stone_ends_the_lane_with_the_object_found(tmp_path: Pat
     lane = (b'{"cmd": "excavate", "reach_far_m": 1.25, "reach_near_m": 1.15, '
             b'"target_depth_m": 0.03, "depth_step_m": 0.03}')
     with _raking(tmp_path, lane, emulator=load_config(None, stone)) as rig:
-        daemon, truth = rig.daemon, rig.emulator.ground.truth
-        force_max_n = 0.0
-        for _ in range(30_000):
-            if daemon.state is not DaemonState.EXCAVATE:
-                break
-            rig.tick()
-            force_max_n = max(force_max_n, truth.force_down_n)
+        daemon = rig.daemon
+        force_max_n = _rake(rig)
         status = _command(rig, b'{"cmd": "status"}')
     assert daemon.state is DaemonState.HOLD, daemon.state
     excavation = status["excavation"]
@@ -122,14 +129,9 @@ def test_on_roboteq_class_drives_the_daemon_arms_rakes_and_switches_them_off(
         defaults.drives, profile=DriveProfile.ROBOTEQ))
     emulator = load_config(None, ["drives.profile=roboteq"])
     with _raking(tmp_path, LANE, defaults, emulator) as rig:
-        daemon, truth = rig.daemon, rig.emulator.ground.truth
+        daemon = rig.daemon
         assert all(isinstance(node, RoboteqNode) for node in rig.emulator.nodes)
-        force_max_n = 0.0
-        for _ in range(30_000):
-            if daemon.state is not DaemonState.EXCAVATE:
-                break
-            rig.tick()
-            force_max_n = max(force_max_n, truth.force_down_n)
+        force_max_n = _rake(rig)
         status = _command(rig, b'{"cmd": "status"}')
         assert daemon.state is DaemonState.HOLD, daemon.fault_reason
         excavation = status["excavation"]

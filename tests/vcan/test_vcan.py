@@ -219,10 +219,7 @@ def _check_bring_up_on_the_wire(frames: list[can.Message]) -> None:
     exchanges = sdo_exchanges(frames)
     assert exchanges and all(e.abort_code is None for e in exchanges), exchanges
     for node in NODES:
-        written = {(e.index, e.subindex): e.value for e in exchanges
-                   if e.node_id == node and e.write}
-        read = {(e.index, e.subindex): e.value for e in exchanges
-                if e.node_id == node and not e.write}
+        written, read = _sdo_values(exchanges, node)
         assert {index for index, _ in written} >= set(LIMIT_OBJECTS)
         assert written[0x2003, 0] == SETTINGS.drives.watchdog_timeout_ms  # as configured
         assert written.items() <= read.items(), (written, read)  # each value read back
@@ -236,6 +233,15 @@ def _check_bring_up_on_the_wire(frames: list[can.Message]) -> None:
         statuswords = [_decode(dbc, f)["statusword"]
                        for f in frames if f.arbitration_id == 0x280 + node]
         assert decode_statusword(statuswords[-1]) is DriveState.OPERATION_ENABLED
+
+
+def _sdo_values(exchanges: list[Any], node: int) -> tuple[dict[tuple[int, int], int | None],
+                                                          dict[tuple[int, int], int | None]]:
+    """(written, read back) of one node's SDO exchanges, by (index, subindex)."""
+    written = {(e.index, e.subindex): e.value for e in exchanges if e.node_id == node and e.write}
+    read = {(e.index, e.subindex): e.value for e in exchanges
+            if e.node_id == node and not e.write}
+    return written, read
 
 
 def _check_daemon_trace(frames: list[can.Message]) -> None:
@@ -324,10 +330,7 @@ def test_roboteq_class_drives_on_the_wire(tmp_path: Path) -> None:
     exchanges = sdo_exchanges(frames)
     assert exchanges and all(e.abort_code is None for e in exchanges), exchanges
     for node in NODES:
-        written = {(e.index, e.subindex): e.value for e in exchanges
-                   if e.node_id == node and e.write}
-        read = {(e.index, e.subindex): e.value for e in exchanges
-                if e.node_id == node and not e.write}
+        written, read = _sdo_values(exchanges, node)
         assert written[0x3001, 0] == SETTINGS.drives.watchdog_timeout_ms
         assert {(0x3002, 0), (0x3003, 0)} <= written.keys()
         assert {k: written[k] for k in ((0x3001, 0), (0x3002, 0), (0x3003, 0))}.items() <= (
