@@ -199,8 +199,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 def _cmd_bench_profiles(args: argparse.Namespace, report: Path) -> int:
     import time
 
-    from rakectl.bench.hot_path import bench_hot_path
-    from rakectl.bench.report import BENCHMARKS_FILE, hot_path_section, write_hot_path_section
+    from rakectl.bench.hot_path import bench_hot_path, hot_path_section, write_hot_path_section
+    from rakectl.bench.report import BENCHMARKS_FILE, git_revision
 
     if args.ticks < 1000:
         raise ConfigError("bench: --ticks must be >= 1000")
@@ -209,7 +209,7 @@ def _cmd_bench_profiles(args: argparse.Namespace, report: Path) -> int:
     path = report / BENCHMARKS_FILE
     started = time.strftime("%Y-%m-%d %H:%M %Z")
     write_hot_path_section(path, hot_path_section("rakectl " + " ".join(args.argv), started,
-                                                  text))
+                                                  git_revision(), text))
     print(f"written: section (e) of {path}")
     return 0
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rakectl.bench.report import (
+from rakectl.bench.hot_path import (
     HOT_PATH_END,
     HOT_PATH_START,
     hot_path_section,
@@ -18,8 +18,8 @@ from rakectl.cli.main import main
 def test_the_section_is_appended_once_then_replaced_in_place(tmp_path: Path) -> None:
     path = tmp_path / "BENCHMARKS.md"
     path.write_text("# Benchmarks\n\n## (d) Excavation\n\nrows\n")
-    write_hot_path_section(path, hot_path_section("rakectl bench --profiles", "then", "old"))
-    write_hot_path_section(path, hot_path_section("rakectl bench --profiles", "now", "new"))
+    write_hot_path_section(path, hot_path_section("rakectl bench --profiles", "then", "abc", "old"))
+    write_hot_path_section(path, hot_path_section("rakectl bench --profiles", "now", "abc", "new"))
     text = path.read_text()
     assert text.startswith("# Benchmarks\n\n## (d) Excavation\n\nrows\n\n")
     assert text.count(HOT_PATH_START) == text.count(HOT_PATH_END) == 1
