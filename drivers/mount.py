@@ -362,8 +362,16 @@ class TineMount:
             changed = False
             for i, law in enumerate(laws):
                 if not active[i]:
-                    if height_m + d < refs[i] and not above[i] and not slack[i]:
-                        active[i] = changed = True  # the solution reaches it: it joins
+                    if height_m + d < refs[i] and not above[i] and (
+                            not slack[i] or min(law.stiffness_n_per_m * (refs[i] - height_m - d),
+                                                law.cap_n) > law.damping_ns_per_m * (
+                                height_vel_m_per_s + (d - d0) / h)):
+                        # the solution reaches it (one let go as pulling joins again once
+                        # it would push there: the others moved the tines back into it,
+                        # 20261127/8181: a soil that gave way under tines leaving a mine's
+                        # plate put them 14 µm into it at 233 mm/s, 302 N on the plate
+                        # with the mount carrying 22 N)
+                        active[i], slack[i], changed = True, False, True
                     continue
                 elastic_n = law.stiffness_n_per_m * (refs[i] - height_m - d)
                 if elastic_n < 0.0 and not changed:

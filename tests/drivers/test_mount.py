@@ -20,7 +20,7 @@ from drivers.mechanics import ArmParams, joint_masses, unbalanced_weight_n
 from drivers.motor import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, Bridge, joint_load_band
 from drivers.mount import TineMount
 from drivers.objects import Ground
-from drivers.soil import SoilLayer, SoilParams, cutting_force_n
+from drivers.soil import SoilLayer, SoilParams, VerticalLaw, cutting_force_n
 from rakectl.core import kinematics
 from rakectl.core.kinematics import Workspace
 from rakectl.sim.rake_plant import PeakRecorder
@@ -291,3 +291,41 @@ def test_a_bottom_the_relaxing_mount_leaves_does_not_pull() -> None:
     assert mount.hooked(ground, 1.0, height_m, 0.03, relaxed) == relaxed
     assert mount.hooked_on == -1
     assert mount.commit(0.0, relaxed, 0.0)[1] == 0.0
+
+
+def test_a_plate_let_go_as_pulling_holds_the_tines_when_the_soil_gives_way() -> None:
+    """Tines resting 2.5 µm into a mine's plate under a collapsing soil (20261127/8181's
+    substep at 0.671 s): with both laws pressing, the stiffer soil lifts the tines off the
+    plate faster than it pushes, so the plate is let go; the soil then gives way by one
+    step and the mount relaxes back down. The plate must hold them again: the solution is
+    the hand-solved balance of the mount, the plate and the collapsed soil, where the
+    mine's own law reads what the solve put on it (the plate left out read 302 N at
+    233 mm/s with the mount carrying 22 N)."""
+    k, c, h = 5e3, 7.5, 5e-5
+    d0, arm_m, arm_vel = 4.7175e-3, 0.24758e-3, -7.6e-3
+    mine = MineParams(reach_m=1.1, depth_m=-4.9676e-3, width_m=0.08, thickness_m=0.036,
+                      activation_force_n=94.0)
+    ground = Ground(GroundParams(soil=AIR, objects=BuriedObjects(mines=(mine,))), seed=0)
+    plate = ground.bodies[0]
+    [plate_law] = [law for law in ground.vertical_laws(1.1, arm_m, arm_m + d0)
+                   if not law.collapses]
+    assert plate_law.ref_m == plate.top_m
+    soil = VerticalLaw(5.3917e-3, 61532.9, 61.5329, 19.45, True)
+    mount = TineMount(k, c, 0.0, 0.0, h)
+    mount.compression_m = d0
+    d = mount._vertical([plate_law, soil], arm_m, arm_vel)
+
+    # by hand: the plate pressing, the soil's interface one step of cap/K lower
+    soil_ref = soil.ref_m - soil.cap_n / soil.stiffness_n_per_m
+    k_p, b_p, k_s, b_s = 5e6, 5e6 * 2e-4, soil.stiffness_n_per_m, soil.damping_ns_per_m
+    expected = ((k_p * (plate.top_m - arm_m) + k_s * (soil_ref - arm_m)
+                 + (c + b_p + b_s) * d0 / h - (b_p + b_s) * arm_vel)
+                / (k + c / h + k_p + b_p / h + k_s + b_s / h))
+    assert d == pytest.approx(expected, abs=1e-12)
+    rate = arm_vel + (d - d0) / h
+    assert plate.touch(1.1, arm_m + d, 0.0, rate)
+    soil_n = k_s * (soil_ref - arm_m - d) - b_s * rate
+    assert 0.0 < soil_n < soil.cap_n
+    mount_n = k * d + c * (d - d0) / h
+    assert plate.force_up_n + soil_n == pytest.approx(mount_n, rel=1e-9)
+    assert 10.0 < plate.force_up_n < mount_n < 30.0
