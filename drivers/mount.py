@@ -360,12 +360,12 @@ class TineMount:
                 if k * d + c * (d - d0) / h <= 0.0:  # the ground would pull: it lets go
                     d = relaxed
             changed = False
+            rate_m_per_s = height_vel_m_per_s + (d - d0) / h  # the tines' speed up
             for i, law in enumerate(laws):
                 if not active[i]:
                     if height_m + d < refs[i] and not above[i] and (
                             not slack[i] or min(law.stiffness_n_per_m * (refs[i] - height_m - d),
-                                                law.cap_n) > law.damping_ns_per_m * (
-                                height_vel_m_per_s + (d - d0) / h)):
+                                                law.cap_n) > law.damping_ns_per_m * rate_m_per_s):
                         # the solution reaches it (one let go as pulling joins again once
                         # it would push there: the others moved the tines back into it,
                         # 20261127/8181: a soil that gave way under tines leaving a mine's
@@ -386,8 +386,7 @@ class TineMount:
                     active[i], above[i], changed = False, True, True
                     break
                 held_n = law.cap_n if yielding[i] else elastic_n
-                if not changed and held_n < law.damping_ns_per_m * (
-                        height_vel_m_per_s + (d - d0) / h):
+                if not changed and held_n < law.damping_ns_per_m * rate_m_per_s:
                     # it would pull: a contact only pushes (Soil.step and Body.touch clip its
                     # force at 0), so it carries nothing this substep and the others hold the
                     # tines (else its damping pulled the mount down while the ground read the

@@ -20,6 +20,7 @@ import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 from rakectl.api.client import call
 from rakectl.errors import ApiError, CommsTimeout, RakeError
@@ -75,9 +76,10 @@ class Bench:
     out: Path
     socket: Path
     process: subprocess.Popen[bytes]
+    request_timeout_s: ClassVar[float] = 2.0  # how long a request waits for the answer
 
     def request(self, cmd: str, **args: object) -> dict[str, object]:
-        return call(self.socket, {"cmd": cmd, **args})
+        return call(self.socket, {"cmd": cmd, **args}, self.request_timeout_s)
 
     def arm_when_timed(self, timeout_s: float) -> dict[str, object]:
         """Arm, asking again while the daemon is still measuring its own timing (with

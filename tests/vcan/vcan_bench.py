@@ -23,12 +23,11 @@ import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import can
 import cantools
 
-from rakectl.api.client import call
 from rakectl.errors import ApiError, CommsTimeout, RakeError
 from rakectl.protocol.files import DBC_PATH
 from rakectl.sim.rig import Bench
@@ -72,9 +71,7 @@ class VcanBench(Bench):
     """A running bench on vcan0: ``process`` is the daemon, ``emulator`` the drives."""
 
     emulator: subprocess.Popen[bytes]
-
-    def request(self, cmd: str, **args: object) -> dict[str, object]:
-        return call(self.socket, {"cmd": cmd, **args}, REQUEST_TIMEOUT_S)
+    request_timeout_s: ClassVar[float] = REQUEST_TIMEOUT_S
 
     def alive(self) -> None:
         """Raise, naming the logs, if either process has ended."""
