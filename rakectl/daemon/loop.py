@@ -111,7 +111,7 @@ class Daemon(SlackWork):
         self._clock_ns = clock_ns
         self._next_stats_tick = 0
         self._next_watchdog_tick = 0
-        self._next_forced_poll_tick = 0
+        self._next_starved_tick = 0
         self._ref = (0.0, 0.0)
         self.slack_hook: Callable[[float], object] | None = None  # the command server's poll
         self.trace: TraceRecorder | None = None  # bus trace, drained in the slack

@@ -28,9 +28,10 @@ from rakectl.drive.canbus import TraceRecorder
 from rakectl.drive.client import DriveClient
 
 SLACK_GUARD_S = 250e-6  # slack work stops this long before the next deadline
-# While the loop overruns there is no slack: the command socket is still polled at least
-# this often, past the deadline, with STARVED_POLL_BUDGET_S, so that a request (an
-# e-stop among them) waits a bounded time, not until the load drops.
+# While the loop overruns there is no slack. At least this often, past the deadline, the
+# command socket is still polled for STARVED_POLL_BUDGET_S, so that a request (an e-stop
+# among them) waits a bounded time, not until the load drops, and systemd's watchdog is
+# still kicked: the loop is slow, not stuck (a slow armed loop faults on its own).
 STARVED_POLL_INTERVAL_S = 0.01
 STARVED_POLL_BUDGET_S = 200e-6
 
@@ -56,7 +57,7 @@ class SlackWork:
     _clock_ns: Callable[[], int]
     _next_stats_tick: int
     _next_watchdog_tick: int
-    _next_forced_poll_tick: int  # the tick from which the socket is polled with no slack
+    _next_starved_tick: int  # from this tick, the socket is polled even with no slack
 
     def finish(self, reason: str = "stop requested") -> None:
         """0 V, drives disabled, the recorder dumped: the end of every run (``reason``
@@ -78,14 +79,14 @@ class SlackWork:
         """Work that is not the tick, within the time left before the next deadline."""
         deadline_ns = self.timer.deadline_of(self.timer.tick_index + 1)
         budget_s = (deadline_ns - self._clock_ns()) * 1e-9 - SLACK_GUARD_S
-        hook = self.slack_hook
         if budget_s <= 0.0:
-            if hook is not None and self.ticks >= self._next_forced_poll_tick:
-                self._poll_commands(hook, STARVED_POLL_BUDGET_S)  # late already: bounded
+            if self.ticks >= self._next_starved_tick:
+                self._starved()
             return
         started = time.perf_counter()
-        if hook is not None:
-            self._poll_commands(hook, budget_s * 0.5)
+        self._next_starved_tick = self.ticks + self._starved_interval_ticks()
+        if self.slack_hook is not None:
+            self.slack_hook(budget_s * 0.5)
         if self._dumps:
             left = budget_s - (time.perf_counter() - started)
             if left > 0:
@@ -95,10 +96,20 @@ class SlackWork:
         self.events.flush(self.state.name, 1)
         self._periodic()
 
-    def _poll_commands(self, hook: Callable[[float], object], budget_s: float) -> None:
-        hook(budget_s)
-        self._next_forced_poll_tick = self.ticks + max(
-            1, round(STARVED_POLL_INTERVAL_S * self.settings.rate_hz))
+    def _starved(self) -> None:
+        """The slack's work that cannot wait for slack, bounded: the tick is late already."""
+        self._next_starved_tick = self.ticks + self._starved_interval_ticks()
+        if self.slack_hook is not None:
+            self.slack_hook(STARVED_POLL_BUDGET_S)
+        self._kick_watchdog()
+
+    def _starved_interval_ticks(self) -> int:
+        return max(1, round(STARVED_POLL_INTERVAL_S * self.settings.rate_hz))
+
+    def _kick_watchdog(self) -> None:
+        if self.ticks >= self._next_watchdog_tick:
+            self.notifier.watchdog(self.ticks)  # only sent if the tick counter advanced
+            self._next_watchdog_tick = self.ticks + round(0.1 * self.settings.rate_hz)
 
     def _write_trace(self) -> None:
         """A little of the bus trace and of its inputs. A file that cannot be written (a
@@ -133,9 +144,7 @@ class SlackWork:
         return [str(writer.path) for writer in self._dumps]
 
     def _periodic(self) -> None:
-        if self.ticks >= self._next_watchdog_tick:
-            self.notifier.watchdog(self.ticks)  # only sent if the tick counter advanced
-            self._next_watchdog_tick = self.ticks + round(0.1 * self.settings.rate_hz)
+        self._kick_watchdog()
         if self.ticks >= self._next_stats_tick:
             self._next_stats_tick = self.ticks + round(self.settings.daemon.stats_interval_s
                                                        * self.settings.rate_hz)

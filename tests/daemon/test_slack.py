@@ -1,6 +1,7 @@
-"""The command socket while the loop overruns: with no slack at all, requests are still
-answered, an e-stop among them, within a bounded number of ticks (the lock-step rig's
-daemon and emulated drives, the daemon's own server on a real Unix socket)."""
+"""The slack's work while the loop overruns: with no slack at all, requests are still
+answered, an e-stop among them, within a bounded number of ticks, and systemd's watchdog
+is still kicked (the lock-step rig's daemon and emulated drives, the daemon's own server
+on a real Unix socket, sd_notify datagrams to a real socket)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from rakectl.api.schema import Request, decode_request
 from rakectl.api.server import CommandServer
 from rakectl.bench.tick import LockstepRig
 from rakectl.daemon.handlers import make_handler
+from rakectl.daemon.sdnotify import Notifier
 from rakectl.daemon.slack import STARVED_POLL_INTERVAL_S
 from rakectl.daemon.states import DaemonState
 
@@ -39,6 +41,10 @@ def _overrunning_ticks_until_answered(rig: LockstepRig, sock: socket.socket,
 def test_an_estop_is_answered_and_obeyed_while_every_tick_overruns(tmp_path: Path) -> None:
     rig = LockstepRig(tmp_path)
     daemon = rig.daemon
+    systemd = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    systemd.bind(str(tmp_path / "notify"))
+    systemd.setblocking(False)
+    daemon.notifier = Notifier(str(tmp_path / "notify"))
     interval = round(STARVED_POLL_INTERVAL_S * daemon.settings.rate_hz)
     try:
         rig.bring_up()
@@ -64,5 +70,20 @@ def test_an_estop_is_answered_and_obeyed_while_every_tick_overruns(tmp_path: Pat
             assert daemon.state is DaemonState.ESTOP
             rig.tick()
             assert daemon.voltages == (0.0, 0.0)
+        while True:  # what the daemon told systemd so far
+            try:
+                systemd.recv(4096)
+            except BlockingIOError:
+                break
+        rate_hz = daemon.settings.rate_hz
+        for _ in range(round(0.5 * rate_hz)):  # 0.5 s of ticks, none with slack
+            rig.tick()
+            daemon.slack()
+        kicks = []
+        with contextlib.suppress(BlockingIOError):
+            while True:
+                kicks.append(systemd.recv(4096))
+        assert kicks.count(b"WATCHDOG=1") >= 4, kicks  # every 0.1 s: slow, not stuck
     finally:
         rig.close()
+        systemd.close()
