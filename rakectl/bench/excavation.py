@@ -18,8 +18,10 @@ stepped as the daemon steps it (:func:`rakectl.sim.simulate.advance_reference`):
 
 Each run reports the time until the last stroke at the target depth ends, the
 largest true vertical force (per tick, the in-tick peak), the ticks above
-90 N and the mines fired. Runs go to worker processes. Pure computation: the
-caller prints, plots and writes.
+90 N and the mines fired. Runs go to an executor (rakectl.sim.parallel: local
+worker processes, or a Dask cluster); each run is deterministic in its job, so
+whoever runs it, the figures are the same but the wall times. Pure computation:
+the caller prints, plots and writes.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from __future__ import annotations
 import enum
 import math
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,7 +44,7 @@ from rakectl.config.settings import LaneSettings
 from rakectl.core.lane import LanePhase, LanePlanner
 from rakectl.core.supervision import ForceLevel
 from rakectl.limits import FORCE_LIMIT_N
-from rakectl.sim.parallel import fork_map
+from rakectl.sim.parallel import Executor, LocalExecutor
 from rakectl.sim.rake_plant import RakeLoop
 from rakectl.sim.scenario import Scenario
 from rakectl.sim.simulate import advance_reference, build_reference
@@ -273,25 +275,44 @@ class ExcavationReport:
 Echo = Callable[[str], None]  # one line of progress
 
 
-def find_fixed_safe_speed(shape: LaneShape, speeds: Iterable[float], workers: int,
+def _run_numbered(item: tuple[int, Job]) -> tuple[int, RunResult]:
+    return item[0], run_job(item[1])
+
+
+def run_jobs(executor: Executor, jobs: Sequence[Job],
+             each: Callable[[Job, RunResult], None] | None = None) -> list[RunResult]:
+    """Every job's result in the order of ``jobs``; ``each`` is told of each as it ends."""
+    results: dict[int, RunResult] = {}
+    for i, result in executor.map_unordered(_run_numbered, list(enumerate(jobs))):
+        results[i] = result
+        if each is not None:
+            each(jobs[i], result)
+    return [results[i] for i in range(len(jobs))]
+
+
+def find_fixed_safe_speed(shape: LaneShape, speeds: Iterable[float], executor: Executor,
                           progress: Echo | None = None) -> Sweep:
-    """Try ``speeds`` fastest first in clay, ``workers`` at a time; stop at the first safe."""
+    """Try ``speeds`` fastest first in clay, as many at a time as ``executor`` runs; stop
+    at the first safe."""
     settings = load_settings(scenario_path(HARDEST_SOIL), shape.overrides(), root=Scenario)
     lane = settings.lane
     depth_m = min(lane.target_depth_m, SWEEP_CYCLES * lane.depth_step_m)
     base = (*shape.overrides(), f"lane.target_depth_m={depth_m:g}")
     ordered = sorted(set(speeds), reverse=True)
     tried: list[RunResult] = []
-    for i in range(0, len(ordered), max(1, workers)):
+
+    def tell(job: Job, result: RunResult) -> None:
+        if progress is not None:
+            progress(f"sweep in {HARDEST_SOIL}: {speed_of(job):g} m/s "
+                     f"{'safe' if result.safe else 'not safe'} ({why(result)})")
+
+    batch_size = executor.slots()
+    for i in range(0, len(ordered), batch_size):
         batch = [Job(HARDEST_SOIL, "sweep",
                      (*base, *controller_overrides(Controller.FIXED_SAFE, v, math.nan)),
                      keep_series=False)
-                 for v in ordered[i:i + max(1, workers)]]
-        for job, result in zip(batch, fork_map(run_job, batch, workers), strict=True):
-            tried.append(result)
-            if progress is not None:
-                progress(f"sweep in {HARDEST_SOIL}: {speed_of(job):g} m/s "
-                         f"{'safe' if result.safe else 'not safe'} ({why(result)})")
+                 for v in ordered[i:i + batch_size]]
+        tried += run_jobs(executor, batch, tell)
         safe = [speed_of(r.job) for r in tried if r.safe]
         if safe:
             return Sweep(max(safe), tried)
@@ -323,23 +344,27 @@ def why(r: RunResult) -> str:
 
 def run_excavation(shape: LaneShape = FULL, workers: int = 2,
                    sweep_speeds: Iterable[float] = SWEEP_SPEEDS_M_PER_S,
-                   progress: Echo | None = None) -> ExcavationReport:
-    """The sweep, then every (soil, controller) run."""
+                   progress: Echo | None = None, executor: Executor | None = None
+                   ) -> ExcavationReport:
+    """The sweep, then every (soil, controller) run: on ``executor``, or on ``workers``
+    local processes."""
     started = time.perf_counter()
+    executor = LocalExecutor(workers) if executor is None else executor
     top = load_settings(scenario_path(HARDEST_SOIL), shape.overrides(),
                         root=Scenario).lane.max_stroke_speed_m_per_s
     sweep = find_fixed_safe_speed(shape, [v for v in sweep_speeds if v <= top + 1e-12],
-                                  workers, progress)
+                                  executor, progress)
     fixed = sweep.speed_m_per_s if math.isfinite(sweep.speed_m_per_s) else min(sweep_speeds)
     jobs = [Job(soil, controller, (*shape.overrides(),
                                    *controller_overrides(controller, fixed, top)))
             for soil in SOILS for controller in Controller]
-    results: list[RunResult] = []
-    for job, result in zip(jobs, fork_map(run_job, jobs, workers), strict=True):
-        results.append(result)
+
+    def tell(job: Job, result: RunResult) -> None:
         if progress is not None:
             progress(f"{job.soil}, {job.controller}: "
                      + (f"{result.time_s:.1f} s to depth" if result.reached else "not reached")
                      + f" ({why(result)}; {result.wall_s:.0f} s wall)")
+
+    results = run_jobs(executor, jobs, tell)
     return ExcavationReport(shape, sweep, top, results, time.perf_counter() - started)
 

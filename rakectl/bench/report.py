@@ -44,6 +44,7 @@ from rakectl.bench.tick import STAGES, TickFigures, bench_tick, format_tick
 from rakectl.config.loader import load_settings
 from rakectl.errors import RakeError
 from rakectl.limits import FORCE_LIMIT_N
+from rakectl.sim.parallel import executor_for
 from rakectl.sim.scenario import Scenario
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -59,6 +60,7 @@ class BenchOptions:
     workers: int
     out: Path  # scratch: the loop benchmark's logs
     report: Path  # BENCHMARKS.md and the plots
+    scheduler: str | None = None  # a Dask cluster for the excavation runs (else local)
 
 
 def machine_facts() -> dict[str, str]:
@@ -105,8 +107,13 @@ def run_all(options: BenchOptions, echo: Callable[[str], None]) -> Path:
     hot_path = bench_hot_path(max(1000, options.ticks))
     echo(hot_path)
     echo("(d) excavation …")
-    excavation = run_excavation(QUICK if options.quick else FULL, options.workers,
-                                progress=lambda line: echo(f"  {line}"))
+    executor = executor_for(options.scheduler, options.workers)
+    try:
+        echo(f"    on {executor.describe()}")
+        excavation = run_excavation(QUICK if options.quick else FULL,
+                                    progress=lambda line: echo(f"  {line}"), executor=executor)
+    finally:
+        executor.close()
     echo(format_excavation(excavation))
     options.report.mkdir(parents=True, exist_ok=True)
     from rakectl.bench.plot import plot_excavation

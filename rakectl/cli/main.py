@@ -106,6 +106,10 @@ def _add_bench(sub: argparse._SubParsersAction[_Parser]) -> None:
     bench.add_argument("--quick", action="store_true", help="short phases and a short lane: "
                        "a check that it all runs, not figures")
     bench.add_argument("--workers", type=int, default=2, help="processes for excavation runs")
+    bench.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT|local:N",
+                       help="run the excavation runs on a Dask cluster (the [cluster] extra): "
+                       "an existing scheduler, or local:N to start N worker processes here; "
+                       "default: --workers local processes")
     bench.add_argument("--out", type=Path, default=Path("out/bench-loop"),
                        help="scratch: the loop benchmark's logs")
     bench.add_argument("--report", type=Path, default=None, help="where --all writes "
@@ -174,6 +178,13 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
     if not 1 <= args.workers <= 64:
         raise ConfigError("bench: --workers must be in [1, 64]")
+    if args.scheduler is not None:
+        from rakectl.sim.parallel import local_workers
+
+        if not (args.all or args.excavation):
+            raise ConfigError("bench: --scheduler is for the excavation runs (--excavation, "
+                              "--all)")
+        local_workers(args.scheduler)  # a bad one is named now, not after the other parts
     report = args.report or Path("bench" if args.all and not args.quick else "out/bench")
     if args.all or args.excavation or args.tick:
         return _cmd_bench_parts(args, report)
@@ -225,11 +236,16 @@ def _cmd_bench_parts(args: argparse.Namespace, report: Path) -> int:
         from rakectl.bench.excavation import FULL, QUICK, SOILS, run_excavation
         from rakectl.bench.plot import plot_excavation
         from rakectl.bench.report import format_excavation
+        from rakectl.sim.parallel import executor_for
         from rakectl.sim.plot import pyplot
 
         pyplot()  # fail before the work, not after it
-        result = run_excavation(QUICK if args.quick else FULL, args.workers,
-                                progress=_echo_progress)
+        executor = executor_for(args.scheduler, args.workers)
+        try:
+            result = run_excavation(QUICK if args.quick else FULL, progress=_echo_progress,
+                                    executor=executor)
+        finally:
+            executor.close()
         print(format_excavation(result))
         report.mkdir(parents=True, exist_ok=True)
         for soil in SOILS:
@@ -245,7 +261,7 @@ def _cmd_bench_parts(args: argparse.Namespace, report: Path) -> int:
         raise ConfigError("bench: --seconds must be in [1, 3600]")
     command = "rakectl " + " ".join(args.argv)
     run_all(BenchOptions(command, seconds, tick_ticks, args.quick, args.workers, args.out,
-                         report), lambda line: print(line, flush=True))
+                         report, args.scheduler), lambda line: print(line, flush=True))
     return 0
 
 

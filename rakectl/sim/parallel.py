@@ -16,17 +16,16 @@ J = TypeVar("J")
 R = TypeVar("R")
 
 
-def fork_map(run: Callable[[J], R], jobs: Sequence[J], workers: int,
-             ordered: bool = True) -> Iterator[R]:
+def fork_map(run: Callable[[J], R], jobs: Sequence[J], workers: int) -> Iterator[R]:
     """``run`` over ``jobs`` on up to ``workers`` forked processes (in this process when
-    ``workers`` <= 1 or there is a single job); in the order of ``jobs`` if ``ordered``,
-    else as they finish. The pool is torn down however the caller stops iterating."""
+    ``workers`` <= 1 or there is a single job), yielded as they finish. The pool is torn
+    down however the caller stops iterating."""
     if workers <= 1 or len(jobs) <= 1:
         yield from map(run, jobs)
         return
     pool = multiprocessing.get_context("fork").Pool(min(workers, len(jobs)))
     try:
-        yield from (pool.imap if ordered else pool.imap_unordered)(run, jobs)
+        yield from pool.imap_unordered(run, jobs)
         pool.close()
     finally:
         pool.terminate()
@@ -38,7 +37,13 @@ class Executor(Protocol):
 
     def map_unordered(self, run: Callable[[J], R], jobs: Sequence[J]) -> Iterator[R]: ...
 
+    def slots(self) -> int:
+        """How many jobs it runs at once."""
+        ...
+
     def close(self) -> None: ...
+
+    def describe(self) -> str: ...
 
 
 class LocalExecutor:
@@ -48,7 +53,10 @@ class LocalExecutor:
         self.workers = workers
 
     def map_unordered(self, run: Callable[[J], R], jobs: Sequence[J]) -> Iterator[R]:
-        return fork_map(run, jobs, self.workers, ordered=False)
+        return fork_map(run, jobs, self.workers)
+
+    def slots(self) -> int:
+        return max(1, self.workers)
 
     def close(self) -> None:
         pass
@@ -73,13 +81,8 @@ class DaskExecutor:
         self.scheduler, self.retries = scheduler, retries
         self._cluster: Any = None
         self._before: set[Any] = set()
-        if scheduler.startswith("local:"):
-            try:
-                workers = int(scheduler.removeprefix("local:"))
-            except ValueError:
-                workers = 0
-            if workers < 1:
-                raise ConfigError(f"--scheduler {scheduler}: local:N needs N >= 1 workers")
+        workers = local_workers(scheduler)
+        if workers:
             before = set(multiprocessing.active_children())
             self._cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
                                          processes=True, dashboard_address=None)
@@ -89,7 +92,7 @@ class DaskExecutor:
             except BaseException:
                 self._cluster.close()
                 raise
-        elif scheduler.startswith("tcp://"):
+        else:
             try:
                 self._client = Client(scheduler, timeout=30)
             except OSError as exc:
@@ -100,8 +103,6 @@ class DaskExecutor:
                 self._client.close()
                 raise RakeError(f"--scheduler {scheduler}: the workers' packages differ "
                                 f"from this machine's ({exc})") from exc
-        else:
-            raise ConfigError(f"--scheduler {scheduler!r}: give tcp://HOST:PORT or local:N")
 
     def map_unordered(self, run: Callable[[J], R], jobs: Sequence[J]) -> Iterator[R]:
         from distributed import as_completed
@@ -121,9 +122,29 @@ class DaskExecutor:
             for child in set(multiprocessing.active_children()) - self._before:
                 child.join(timeout=10.0)
 
+    def slots(self) -> int:
+        workers = self._client.scheduler_info().get("workers", {})
+        return max(1, sum(int(w.get("nthreads", 1)) for w in workers.values()))
+
     def describe(self) -> str:
         workers = len(self._client.scheduler_info().get("workers", {}))
         return f"Dask {self.scheduler} ({workers} worker(s))"
+
+
+def local_workers(scheduler: str) -> int:
+    """N of ``local:N``, 0 for ``tcp://HOST:PORT``; ConfigError naming anything else (so a
+    command can check its --scheduler before long work that precedes the cluster's)."""
+    if scheduler.startswith("tcp://"):
+        return 0
+    if scheduler.startswith("local:"):
+        try:
+            workers = int(scheduler.removeprefix("local:"))
+        except ValueError:
+            workers = 0
+        if workers < 1:
+            raise ConfigError(f"--scheduler {scheduler}: local:N needs N >= 1 workers")
+        return workers
+    raise ConfigError(f"--scheduler {scheduler!r}: give tcp://HOST:PORT or local:N")
 
 
 def executor_for(scheduler: str | None, workers: int) -> LocalExecutor | DaskExecutor:

@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
-from rakectl.bench.excavation import SOILS, Controller, LaneShape, run_excavation
+from rakectl.bench.excavation import SOILS, Controller, LaneShape, RunResult, run_excavation
 from rakectl.bench.loop import BUS_BITS_PER_CYCLE, LoopFigures, format_loop
 from rakectl.bench.report import BenchOptions, format_excavation, machine_facts, markdown
 from rakectl.bench.tick import STAGES, bench_tick, format_tick
+from rakectl.sim.parallel import DaskExecutor
 
 TINY = LaneShape(reach_far_m=1.3, reach_near_m=1.15, target_depth_m=0.005)  # clay stalls at 10 mm
 
@@ -51,9 +54,12 @@ def test_a_missing_cyclictest_says_how_to_install_it() -> None:
     assert "apt-get install -y rt-tests" in format_loop(figures)
 
 
+SWEEP = (0.1, 0.05, 0.03)
+
+
 @pytest.fixture(scope="module")
 def excavation() -> Any:
-    return run_excavation(TINY, workers=2, sweep_speeds=(0.1, 0.05, 0.03))
+    return run_excavation(TINY, workers=2, sweep_speeds=SWEEP)
 
 
 @pytest.mark.slow
@@ -111,3 +117,31 @@ def test_plots_and_the_report_file(excavation: Any, tmp_path: Path) -> None:
     missing = markdown(options, "today", None, "loop benchmark not run: no namespace", tick,
                        excavation)
     assert "loop benchmark not run: no namespace" in missing
+
+
+def _figures(r: RunResult) -> str:
+    """Every field of a run but its wall time and its series, exactly (repr: nan == nan)."""
+    return repr({f.name: getattr(r, f.name) for f in dataclasses.fields(r)
+                 if f.name not in ("wall_s", "series")})
+
+
+@pytest.mark.slow
+@pytest.mark.usefixtures("dask_offload_thread")
+def test_the_excavation_on_a_local_cluster_gives_the_local_pools_figures(
+        excavation: Any) -> None:
+    executor = DaskExecutor("local:2")
+    try:
+        dask = run_excavation(TINY, sweep_speeds=SWEEP, executor=executor)
+    finally:
+        executor.close()
+    assert dask.sweep.speed_m_per_s == excavation.sweep.speed_m_per_s
+    local_runs = [*excavation.sweep.tried, *excavation.results]
+    dask_runs = [*dask.sweep.tried, *dask.results]
+    assert [r.job for r in dask_runs] == [r.job for r in local_runs]  # in the jobs' order
+    for ours, theirs in zip(local_runs, dask_runs, strict=True):
+        assert _figures(theirs) == _figures(ours)
+        if ours.series is not None:
+            assert theirs.series is not None
+            for field in dataclasses.fields(ours.series):
+                assert np.array_equal(getattr(theirs.series, field.name),
+                                      getattr(ours.series, field.name)), field.name

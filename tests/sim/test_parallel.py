@@ -13,17 +13,8 @@ from rakectl.errors import ConfigError
 from rakectl.sim.campaign import RESULTS_FILE, campaign
 from rakectl.sim.parallel import DaskExecutor, executor_for
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("dask_offload_thread")]
 SEED, FIRST, CASES = 20261125, 40, 4
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _dask_offload_thread() -> None:
-    """distributed keeps one offload thread for the life of the process, started on
-    first use: started here, before the tests' own leak check sees it appear."""
-    from distributed.utils import _offload_executor
-
-    _offload_executor.submit(lambda: None).result()
 
 
 def _die_once(job: tuple[str, int]) -> int:
@@ -89,3 +80,9 @@ def test_the_command_line_runs_on_a_local_cluster_and_refuses_a_bad_scheduler(
     assert "2 scenarios" in captured.out
     assert main(["fuzz", "--scenarios", "2", "--scheduler", "nowhere"]) == 2
     assert "--scheduler 'nowhere'" in capsys.readouterr().err
+    # the benchmark names a bad one before its other parts, and only takes one where it
+    # has runs to send
+    assert main(["bench", "--all", "--quick", "--scheduler", "local:x"]) == 2
+    assert "--scheduler local:x: local:N needs N >= 1 workers" in capsys.readouterr().err
+    assert main(["bench", "--tick", "--scheduler", "local:2"]) == 2
+    assert "--scheduler is for the excavation runs" in capsys.readouterr().err
