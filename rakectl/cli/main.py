@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -96,7 +97,8 @@ def _add_bench(sub: argparse._SubParsersAction[_Parser]) -> None:
                       help="the daemon's loop on the emulated bench against cyclictest")
     what.add_argument("--tick", action="store_true", help="the daemon's tick, stage by stage")
     what.add_argument("--excavation", action="store_true", help="time to rake a lane to "
-                      "depth in three soils: adaptive vs position control vs fixed speed")
+                      "depth in three soils: adaptive vs position control vs fixed speed; "
+                      "rewrites its section of REPORT/BENCHMARKS.md alone")
     what.add_argument("--profiles", action="store_true", help="the drive client's hot path "
                       "per drive profile; rewrites its section of REPORT/BENCHMARKS.md alone")
     bench.add_argument("--ticks", type=int, default=200_000,
@@ -113,9 +115,9 @@ def _add_bench(sub: argparse._SubParsersAction[_Parser]) -> None:
     bench.add_argument("--out", type=Path, default=Path("out/bench-loop"),
                        help="scratch: the loop benchmark's logs")
     bench.add_argument("--report", type=Path, default=None, help="where --all writes "
-                       "BENCHMARKS.md (--profiles its section (e)) and --all/--excavation the "
-                       "plots (default: bench for --all and --profiles, out/bench otherwise "
-                       "and with --quick)")
+                       "BENCHMARKS.md (--excavation its section (d), --profiles its section "
+                       "(e)) and --all/--excavation the plots (default: bench, out/bench with "
+                       "--quick)")
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -185,7 +187,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             raise ConfigError("bench: --scheduler is for the excavation runs (--excavation, "
                               "--all)")
         local_workers(args.scheduler)  # a bad one is named now, not after the other parts
-    report = args.report or Path("bench" if args.all and not args.quick else "out/bench")
+    report = args.report or Path("bench" if (args.all or args.excavation) and not args.quick
+                                 else "out/bench")
     if args.all or args.excavation or args.tick:
         return _cmd_bench_parts(args, report)
     if args.profiles:
@@ -208,8 +211,6 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench_profiles(args: argparse.Namespace, report: Path) -> int:
-    import time
-
     from rakectl.bench.hot_path import bench_hot_path, hot_path_section, write_hot_path_section
     from rakectl.bench.report import BENCHMARKS_FILE, git_revision
 
@@ -233,24 +234,16 @@ def _cmd_bench_parts(args: argparse.Namespace, report: Path) -> int:
         print(format_tick(bench_tick(tick_ticks)))
         return 0
     if args.excavation:
-        from rakectl.bench.excavation import FULL, QUICK, SOILS, run_excavation
-        from rakectl.bench.plot import plot_excavation
-        from rakectl.bench.report import format_excavation
-        from rakectl.sim.parallel import executor_for
+        from rakectl.bench.report import excavate, format_excavation, git_revision, write_excavation
         from rakectl.sim.plot import pyplot
 
         pyplot()  # fail before the work, not after it
-        executor = executor_for(args.scheduler, args.workers)
-        try:
-            result = run_excavation(QUICK if args.quick else FULL, progress=_echo_progress,
-                                    executor=executor)
-        finally:
-            executor.close()
+        started = time.strftime("%Y-%m-%d %H:%M %Z")
+        result = excavate(args.scheduler, args.workers, args.quick, _echo_progress)
         print(format_excavation(result))
-        report.mkdir(parents=True, exist_ok=True)
-        for soil in SOILS:
-            plot_excavation(result, soil, report / f"excavation-{soil}.png")
-        print(f"plots written to {report}/excavation-{{{','.join(SOILS)}}}.png")
+        path = write_excavation(result, report, "rakectl " + " ".join(args.argv), started,
+                                git_revision())
+        print(f"written: section (d) of {path} and the plots next to it")
         return 0
     from rakectl.bench.report import BenchOptions, run_all
     from rakectl.sim.plot import pyplot
