@@ -6,7 +6,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -19,7 +21,15 @@ from rakectl.sim import campaign, cases
 from rakectl.sim.cases import FAULT_KINDS, CommandKind, Faults, FuzzCase, MotionCommand
 from rakectl.sim.scenario import Scenario
 
-CI_SAMPLE = 60  # cases run on every CI run (48 consecutive cover every kind and fault)
+# Cases run on every CI run (48 consecutive cover every kind and fault): some of the
+# campaign's own, whose results there are pinned in PINNED (its first line: on which chain)
+CI_SAMPLE, CI_SEED, CI_FIRST = 60, 20261127, 9702
+PINNED = Path(__file__).resolve().parents[1] / "data" / "pinned" / "fuzz-20261127-9702.jsonl"
+PINNED_FORCES = ("f_true_z_max_n", "f_mine_plate_max_n", "f_mine_side_max_n",
+                 "f_stone_side_max_n", "f_root_side_max_n")
+PINNED_OUTCOMES = ("seed", "kind", "faults", "supervised", "ticks_over_limit",
+                   "mine_activated", "object_found", "watchdog_tripped", "controller_fault")
+PIN_TOLERANCE_N = 1e-6
 REGRESSIONS = sorted((Path(__file__).resolve().parents[1] / "data" / "fuzz").glob("*.json"))
 
 
@@ -91,12 +101,19 @@ def test_generation_spans_what_an_operator_can_command() -> None:
     assert len(at_cut) > 50
 
 
-def test_small_campaign_is_safe_and_the_worst_case_replays(tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def ci_sample(tmp_path_factory: pytest.TempPathFactory) -> campaign.Report:
+    """The campaign's CI sample: cases 9702–9761 of seed 20261127."""
+    return campaign.campaign(CI_SAMPLE, seed=CI_SEED, workers=2, first=CI_FIRST,
+                             out_dir=tmp_path_factory.mktemp("ci-sample"))
+
+
+def test_small_campaign_is_safe_and_the_worst_case_replays(ci_sample: campaign.Report) -> None:
     """The campaign's CI sample: 60 cases, every command kind under every fault kind,
     with and without supervision (any 48 consecutive cases hold them all). None may
     press the ground or a mine (plate or side) harder than 90 N on any tick or fire a
     mine (docs/safety.md has the full campaign)."""
-    report = campaign.campaign(CI_SAMPLE, seed=1, workers=2, out_dir=tmp_path)
+    report = ci_sample
     assert report.scenarios == len(report.results) == CI_SAMPLE
     assert {r.kind.split()[0] for r in report.results} == set(map(str, CommandKind))
     assert {k for r in report.results for k in r.faults} == set(FAULT_KINDS)
@@ -105,6 +122,57 @@ def test_small_campaign_is_safe_and_the_worst_case_replays(tmp_path: Path) -> No
     assert report.f_true_z_max_n == max(r.f_true_z_max_n for r in report.results)
     now, recorded = campaign.replay(Path(report.worst_case_path))
     assert now == recorded == report.worst
+
+
+def pin_differences(results: Sequence[campaign.CaseResult], pinned: dict[int, dict[str, Any]]
+                    ) -> list[str]:
+    """Where ``results`` differ from ``pinned`` (by case index): a peak force by more than
+    PIN_TOLERANCE_N, or any outcome."""
+    differences = [f"cases run {sorted(r.index for r in results)} != pinned {sorted(pinned)}"] \
+        if {r.index for r in results} != set(pinned) else []
+    for r in sorted(results, key=lambda r: r.index):
+        pin = pinned.get(r.index)
+        if pin is None:
+            continue
+        now = json.loads(json.dumps(r.to_dict()))  # as the results file has it
+        differences += [f"case {r.index}: {key} {pin[key]!r} -> {now[key]!r}"
+                        for key in PINNED_FORCES
+                        if not abs(now[key] - pin[key]) <= PIN_TOLERANCE_N]
+        differences += [f"case {r.index}: {key} {pin[key]!r} -> {now[key]!r}"
+                        for key in PINNED_OUTCOMES if now[key] != pin[key]]
+    return differences
+
+
+def test_the_ci_sample_gives_its_pinned_results(ci_sample: campaign.Report) -> None:
+    """The simulated chain (emulator, controller, clamp, supervision, faults) is the one
+    the campaign's evidence in docs/safety.md was run on: the CI sample's peak forces
+    (within PIN_TOLERANCE_N) and outcomes are the campaign's own for those cases, pinned
+    in PINNED with the chain they were run on. A change to any part of the chain changes
+    some of these. If it is meant, the campaign starts again on the new chain: its
+    results for these cases (`rakectl fuzz --scenarios 60 --first 9702 --seed 20261127
+    --out DIR`, DIR/results.jsonl) become the file's lines after a first line naming the
+    chain, and docs/safety-log.md says why."""
+    pinned = {int(line["index"]): line for line in map(json.loads, PINNED.read_text()
+                                                        .splitlines()[1:])}
+    assert not pin_differences(ci_sample.results, pinned), "\n".join(
+        ["the simulated chain changed:", *pin_differences(ci_sample.results, pinned)])
+
+
+def test_a_changed_result_is_named_by_the_pin_check(ci_sample: campaign.Report) -> None:
+    """The check above can fail: a peak force moved by twice the tolerance, an outcome
+    flipped, or a case missing are each named."""
+    pinned = {r.index: json.loads(json.dumps(r.to_dict())) for r in ci_sample.results}
+    moved = dataclasses.replace(ci_sample.results[0], f_mine_side_max_n=ci_sample.results[0]
+                                .f_mine_side_max_n + 2 * PIN_TOLERANCE_N)
+    flipped = dataclasses.replace(ci_sample.results[1],
+                                  watchdog_tripped=not ci_sample.results[1].watchdog_tripped)
+    assert pin_differences(ci_sample.results, pinned) == []
+    run = [moved, flipped, *ci_sample.results[2:-1]]
+    found = pin_differences(run, pinned)
+    assert len(found) == 3
+    assert found[0] == f"cases run {sorted(r.index for r in run)} != pinned {sorted(pinned)}"
+    assert f"case {moved.index}: f_mine_side_max_n " in found[1:][moved.index > flipped.index]
+    assert f"case {flipped.index}: watchdog_tripped " in found[1:][flipped.index > moved.index]
 
 
 def test_cli_json_last_line_and_exit_status(capsys: pytest.CaptureFixture[str]) -> None:
