@@ -4,8 +4,10 @@ In order (the loop's latency first, while nothing else of ours runs):
 (a) the daemon's wake-up latency next to cyclictest's, and (c) the same
 cross-process 1 kHz run's late ticks, missed feedback and bus load
 (rakectl.bench.loop); (b) the per-tick compute by stage (rakectl.bench.tick);
-(d) the excavation benchmark (rakectl.bench.excavation), with one plot per
-soil. The excavation's figures are put into words here too (the table, the
+(e) the drive client's hot path per drive profile (rakectl.bench.hot_path);
+(f) the safety campaign's speed per core (rakectl.bench.throughput); (d) the
+excavation benchmark (rakectl.bench.excavation), the longest, with one plot
+per soil. The excavation's figures are put into words here too (the table, the
 sweep, the time budget, the goal). The Markdown file says it is generated,
 by which command, when and on what machine. Figures only: nothing here
 passes or fails but the excavation's stated goal, which is reported, not
@@ -41,6 +43,14 @@ from rakectl.bench.excavation import (
 from rakectl.bench.hot_path import bench_hot_path, hot_path_section, write_hot_path_section
 from rakectl.bench.loop import LoopFigures, format_loop, measure_loop
 from rakectl.bench.sections import markers, write_section
+from rakectl.bench.throughput import (
+    CASES,
+    THROUGHPUT_END,
+    THROUGHPUT_START,
+    format_throughput,
+    measure_throughput,
+    throughput_section,
+)
 from rakectl.bench.tick import STAGES, TickFigures, bench_tick, format_tick
 from rakectl.config.loader import load_settings
 from rakectl.errors import RakeError
@@ -62,6 +72,7 @@ class BenchOptions:
     out: Path  # scratch: the loop benchmark's logs
     report: Path  # BENCHMARKS.md and the plots
     scheduler: str | None = None  # a Dask cluster for the excavation runs (else local)
+    cases: int = CASES  # campaign cases timed for (f)
 
 
 def machine_facts() -> dict[str, str]:
@@ -91,7 +102,7 @@ def git_revision() -> str:
 
 
 def run_all(options: BenchOptions, echo: Callable[[str], None]) -> Path:
-    """Run (a)–(d), echoing as it goes; write BENCHMARKS.md and the plots; return its path."""
+    """Run (a)–(f), echoing as it goes; write BENCHMARKS.md and the plots; return its path."""
     started = time.strftime("%Y-%m-%d %H:%M %Z")
     echo(f"(a, c) the daemon's loop on the emulated bench, {options.seconds:g} s per phase …")
     loop: LoopFigures | None = None
@@ -107,6 +118,9 @@ def run_all(options: BenchOptions, echo: Callable[[str], None]) -> Path:
     echo("(e) the drive client's hot path, per drive profile …")
     hot_path = bench_hot_path(max(1000, options.ticks))
     echo(hot_path)
+    echo(f"(f) the campaign's speed per core, {options.cases} cases …")
+    throughput = measure_throughput(cases=options.cases)
+    echo(format_throughput(throughput))
     echo("(d) excavation …")
     excavation = excavate(options.scheduler, options.workers, options.quick, echo)
     echo(format_excavation(excavation))
@@ -116,6 +130,8 @@ def run_all(options: BenchOptions, echo: Callable[[str], None]) -> Path:
     path = options.report / BENCHMARKS_FILE
     path.write_text(markdown(options, started, loop, loop_text, tick, excavation, tree))
     write_hot_path_section(path, hot_path_section(options.command, started, tree, hot_path))
+    write_section(path, THROUGHPUT_START, THROUGHPUT_END,
+                  throughput_section(options.command, started, tree, throughput))
     echo(f"written: {path} and {len(SOILS)} plots next to it")
     return path
 

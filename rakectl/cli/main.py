@@ -101,12 +101,17 @@ def _add_bench(sub: argparse._SubParsersAction[_Parser]) -> None:
                       "rewrites its section of REPORT/BENCHMARKS.md alone")
     what.add_argument("--profiles", action="store_true", help="the drive client's hot path "
                       "per drive profile; rewrites its section of REPORT/BENCHMARKS.md alone")
+    what.add_argument("--campaign", action="store_true", help="the safety campaign's speed "
+                      "per core (--cases of its cases on one process); rewrites its section "
+                      "of REPORT/BENCHMARKS.md alone")
     bench.add_argument("--ticks", type=int, default=200_000,
                        help="ticks to time (the tick stages use a tenth)")
     bench.add_argument("--seconds", type=float, default=60.0,
                        help="per phase of the loop benchmark (--loop, --all)")
     bench.add_argument("--quick", action="store_true", help="short phases and a short lane: "
                        "a check that it all runs, not figures")
+    bench.add_argument("--cases", type=int, default=60,
+                       help="campaign cases to time (--campaign, --all)")
     bench.add_argument("--workers", type=int, default=2, help="processes for excavation runs")
     bench.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT|local:N",
                        help="run the excavation runs on a Dask cluster (the [cluster] extra): "
@@ -115,8 +120,8 @@ def _add_bench(sub: argparse._SubParsersAction[_Parser]) -> None:
     bench.add_argument("--out", type=Path, default=Path("out/bench-loop"),
                        help="scratch: the loop benchmark's logs")
     bench.add_argument("--report", type=Path, default=None, help="where --all writes "
-                       "BENCHMARKS.md (--excavation its section (d), --profiles its section "
-                       "(e)) and --all/--excavation the plots (default: bench, out/bench with "
+                       "BENCHMARKS.md (--excavation, --profiles and --campaign their sections) "
+                       "and --all/--excavation the plots (default: bench, out/bench with "
                        "--quick)")
 
 
@@ -180,6 +185,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
     if not 1 <= args.workers <= 64:
         raise ConfigError("bench: --workers must be in [1, 64]")
+    if not 1 <= args.cases <= 100_000:
+        raise ConfigError("bench: --cases must be in [1, 100000]")
     if args.scheduler is not None:
         from rakectl.sim.parallel import local_workers
 
@@ -187,12 +194,14 @@ def _cmd_bench(args: argparse.Namespace) -> int:
             raise ConfigError("bench: --scheduler is for the excavation runs (--excavation, "
                               "--all)")
         local_workers(args.scheduler)  # a bad one is named now, not after the other parts
-    report = args.report or Path("bench" if (args.all or args.excavation) and not args.quick
-                                 else "out/bench")
+    report = args.report or Path("bench" if (args.all or args.excavation or args.campaign)
+                                 and not args.quick else "out/bench")
     if args.all or args.excavation or args.tick:
         return _cmd_bench_parts(args, report)
     if args.profiles:
         return _cmd_bench_profiles(args, Path(args.report or "bench"))
+    if args.campaign:
+        return _cmd_bench_campaign(args, report)
     if args.loop:
         from rakectl.bench.loop import run_bench
 
@@ -226,6 +235,27 @@ def _cmd_bench_profiles(args: argparse.Namespace, report: Path) -> int:
     return 0
 
 
+def _cmd_bench_campaign(args: argparse.Namespace, report: Path) -> int:
+    from rakectl.bench.report import BENCHMARKS_FILE, git_revision
+    from rakectl.bench.sections import write_section
+    from rakectl.bench.throughput import (
+        THROUGHPUT_END,
+        THROUGHPUT_START,
+        format_throughput,
+        measure_throughput,
+        throughput_section,
+    )
+
+    started = time.strftime("%Y-%m-%d %H:%M %Z")
+    figures = measure_throughput(cases=args.cases, progress=_echo_progress)
+    print(format_throughput(figures))
+    path = report / BENCHMARKS_FILE
+    write_section(path, THROUGHPUT_START, THROUGHPUT_END, throughput_section(
+        "rakectl " + " ".join(args.argv), started, git_revision(), figures))
+    print(f"written: section (f) of {path}")
+    return 0
+
+
 def _cmd_bench_parts(args: argparse.Namespace, report: Path) -> int:
     tick_ticks = 2000 if args.quick else max(1000, args.ticks // 10)
     if args.tick:
@@ -254,7 +284,8 @@ def _cmd_bench_parts(args: argparse.Namespace, report: Path) -> int:
         raise ConfigError("bench: --seconds must be in [1, 3600]")
     command = "rakectl " + " ".join(args.argv)
     run_all(BenchOptions(command, seconds, tick_ticks, args.quick, args.workers, args.out,
-                         report, args.scheduler), lambda line: print(line, flush=True))
+                         report, args.scheduler, 6 if args.quick else args.cases),
+            lambda line: print(line, flush=True))
     return 0
 
 
