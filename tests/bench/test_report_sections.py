@@ -20,6 +20,7 @@ from rakectl.bench.hot_path import (
 )
 from rakectl.bench.throughput import THROUGHPUT_END, THROUGHPUT_START, measure_throughput
 from rakectl.cli.main import main
+from rakectl.sim.rake_plant import SETTLE_S
 
 PINNED = Path(__file__).resolve().parents[1] / "data" / "pinned" / "fuzz-20261127-9702.jsonl"
 
@@ -45,11 +46,13 @@ def test_rakectl_bench_profiles_prints_both_profiles_and_writes_its_section(
 
 def test_the_campaign_speed_counts_the_cases_it_ran() -> None:
     """Two short cases of the CI sample (a stroke and a jog): their simulated time is the
-    campaign's own for them, and the rates are that over the CPU time measured."""
+    campaign's own for them plus the settling before each, and the rates are that over
+    the CPU time measured."""
     pinned = {r["index"]: r for r in map(json.loads, PINNED.read_text().splitlines()[1:])}
     t = measure_throughput(20261127, 9730, 2)
     assert (t.cases, sorted(t.by_kind)) == (2, ["jog", "stroke"])
-    assert t.simulated_s == pytest.approx(pinned[9730]["duration_s"] + pinned[9731]["duration_s"])
+    assert t.simulated_s == pytest.approx(2 * SETTLE_S + pinned[9730]["duration_s"]
+                                          + pinned[9731]["duration_s"])
     assert t.cpu_s == pytest.approx(sum(k.cpu_s for k in t.by_kind.values())) and t.cpu_s > 0
     assert t.cases_per_core_minute == pytest.approx(120.0 / t.cpu_s)
     assert t.simulated_per_cpu_s == pytest.approx(t.simulated_s / t.cpu_s)
