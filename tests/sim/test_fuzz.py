@@ -154,8 +154,8 @@ def test_the_ci_sample_gives_its_pinned_results(ci_sample: campaign.Report) -> N
     chain, and docs/safety-log.md says why."""
     pinned = {int(line["index"]): line for line in map(json.loads, PINNED.read_text()
                                                         .splitlines()[1:])}
-    assert not pin_differences(ci_sample.results, pinned), "\n".join(
-        ["the simulated chain changed:", *pin_differences(ci_sample.results, pinned)])
+    differences = pin_differences(ci_sample.results, pinned)
+    assert not differences, "\n".join(["the simulated chain changed:", *differences])
 
 
 def test_a_changed_result_is_named_by_the_pin_check(ci_sample: campaign.Report) -> None:
