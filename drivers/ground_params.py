@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from drivers.soil import SoilParams
+from drivers.soil_params import SoilParams
 from rakectl.config.declare import section, setting
 
 

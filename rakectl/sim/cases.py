@@ -50,7 +50,8 @@ from typing import Any
 import numpy as np
 
 from drivers.ground_params import BuriedObjects, GroundParams, MineParams, RootParams, StoneParams
-from drivers.soil import SoilLayer, SoilParams, SurfaceWave, original_surface_height_m
+from drivers.soil import original_surface_height_m
+from drivers.soil_params import SoilLayer, SoilParams, SurfaceWave
 
 PLUNGE_END_DEPTH_M = 0.15
 LANE_DURATION_S = 12.0  # cap of one lane or stroke case (simulated)

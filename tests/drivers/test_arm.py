@@ -23,7 +23,7 @@ from drivers.motor import (
     stall_joint_load,
 )
 from drivers.objects import Ground
-from drivers.soil import SoilLayer, SoilParams
+from drivers.soil_params import SoilLayer, SoilParams
 from rakectl.core import kinematics
 from rakectl.core.kinematics import Workspace
 from rakectl.errors import ConfigError, NonFiniteError

@@ -20,7 +20,8 @@ from drivers.mechanics import ArmParams, joint_masses, unbalanced_weight_n
 from drivers.motor import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, Bridge, joint_load_band
 from drivers.mount import TineMount
 from drivers.objects import Ground
-from drivers.soil import SoilLayer, SoilParams, VerticalLaw, cutting_force_n
+from drivers.soil import VerticalLaw, cutting_force_n
+from drivers.soil_params import SoilLayer, SoilParams
 from rakectl.core import kinematics
 from rakectl.core.kinematics import Workspace
 from rakectl.sim.rake_plant import PeakRecorder

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from drivers.ground_params import BuriedObjects, GroundParams, MineParams, RootParams, StoneParams
 from drivers.objects import Body, Contact, Ground
-from drivers.soil import SoilLayer, SoilParams
+from drivers.soil_params import SoilLayer, SoilParams
 from rakectl.errors import NonFiniteError
 
 DT_S = 1e-4

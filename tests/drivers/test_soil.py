@@ -11,15 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import minimize_scalar
 
-from drivers.soil import (
-    Soil,
-    SoilLayer,
-    SoilParams,
-    SurfaceWave,
-    cutting_factors,
-    cutting_force_n,
-    original_surface_height_m,
-)
+from drivers.soil import Soil, cutting_factors, cutting_force_n, original_surface_height_m
+from drivers.soil_params import SoilLayer, SoilParams, SurfaceWave
 from rakectl.errors import ConfigError
 
 DT_S = 1e-4

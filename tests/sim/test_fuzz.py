@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 
 from drivers.ground_params import BuriedObjects, GroundParams, MineParams, StoneParams
-from drivers.soil import SoilLayer, SoilParams
+from drivers.soil_params import SoilLayer, SoilParams
 from rakectl.cli import fuzz as fuzz_cli
 from rakectl.core.clamp import VoltageClamp
 from rakectl.limits import FORCE_LIMIT_N

@@ -17,7 +17,7 @@ import pytest
 
 from drivers.ground_params import BuriedObjects, GroundParams, MineParams
 from drivers.objects import Contact
-from drivers.soil import SoilLayer, SoilParams
+from drivers.soil_params import SoilLayer, SoilParams
 from rakectl.core.clamp import VoltageClamp
 from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim.rake_plant import RakeLoop
