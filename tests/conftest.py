@@ -1,12 +1,42 @@
-"""Shared fixtures: every test must leave no thread and no child process behind."""
+"""Shared fixtures: every test must leave no thread and no child process behind; the
+emulator's physics runs as Python unless a test asks for its compiled build."""
 
 from __future__ import annotations
 
 import multiprocessing
+import os
+import shutil
+import tempfile
 import threading
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
+
+# Which physics a process runs is decided when it imports drivers (drivers.compiled):
+# an empty cache of builds for this whole run, so every process of it runs the Python
+# physics whatever the machine has built, until a test points one at `physics_build`.
+_EMPTY_CACHE = tempfile.mkdtemp(prefix="rakectl-no-physics-build-")
+os.environ["RAKECTL_PHYSICS_CACHE"] = _EMPTY_CACHE
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    shutil.rmtree(_EMPTY_CACHE, ignore_errors=True)
+
+
+@pytest.fixture(scope="session")
+def physics_build(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A cache holding the compiled physics of these sources (built once per run, about
+    30 s of CPU); a test sets RAKECTL_PHYSICS_CACHE to it for the processes it starts."""
+    from drivers import compiled
+
+    cache = tmp_path_factory.mktemp("physics-build")
+    os.environ[compiled.CACHE_ENV] = str(cache)
+    try:
+        compiled.build(progress=lambda line: None)
+    finally:
+        os.environ[compiled.CACHE_ENV] = _EMPTY_CACHE
+    return cache
 
 
 @pytest.fixture(autouse=True)

@@ -5,7 +5,8 @@ In order (the loop's latency first, while nothing else of ours runs):
 cross-process 1 kHz run's late ticks, missed feedback and bus load
 (rakectl.bench.loop); (b) the per-tick compute by stage (rakectl.bench.tick);
 (e) the drive client's hot path per drive profile (rakectl.bench.hot_path);
-(f) the safety campaign's speed per core (rakectl.bench.throughput); (d) the
+(f) the safety campaign's speed per core, its physics as Python and compiled
+(rakectl.bench.throughput); (d) the
 excavation benchmark (rakectl.bench.excavation), the longest, with one plot
 per soil. The excavation's figures are put into words here too (the table, the
 sweep, the time budget, the goal). The Markdown file says it is generated,
@@ -45,11 +46,9 @@ from rakectl.bench.loop import LoopFigures, format_loop, measure_loop
 from rakectl.bench.sections import markers, write_section
 from rakectl.bench.throughput import (
     CASES,
-    THROUGHPUT_END,
-    THROUGHPUT_START,
-    format_throughput,
-    measure_throughput,
-    throughput_section,
+    compare_physics,
+    format_comparison,
+    write_throughput_section,
 )
 from rakectl.bench.tick import STAGES, TickFigures, bench_tick, format_tick
 from rakectl.config.loader import load_settings
@@ -119,8 +118,8 @@ def run_all(options: BenchOptions, echo: Callable[[str], None]) -> Path:
     hot_path = bench_hot_path(max(1000, options.ticks))
     echo(hot_path)
     echo(f"(f) the campaign's speed per core, {options.cases} cases …")
-    throughput = measure_throughput(cases=options.cases)
-    echo(format_throughput(throughput))
+    throughput = compare_physics(cases=options.cases, progress=echo)
+    echo(format_comparison(throughput))
     echo("(d) excavation …")
     excavation = excavate(options.scheduler, options.workers, options.quick, echo)
     echo(format_excavation(excavation))
@@ -130,8 +129,7 @@ def run_all(options: BenchOptions, echo: Callable[[str], None]) -> Path:
     path = options.report / BENCHMARKS_FILE
     path.write_text(markdown(options, started, loop, loop_text, tick, excavation, tree))
     write_hot_path_section(path, hot_path_section(options.command, started, tree, hot_path))
-    write_section(path, THROUGHPUT_START, THROUGHPUT_END,
-                  throughput_section(options.command, started, tree, throughput))
+    write_throughput_section(path, options.command, started, tree, throughput)
     echo(f"written: {path} and {len(SOILS)} plots next to it")
     return path
 

@@ -60,7 +60,12 @@ def test_the_campaign_speed_counts_the_cases_it_ran() -> None:
         measure_throughput(cases=0)
 
 
-def test_rakectl_bench_campaign_writes_its_section_alone(tmp_path: Path) -> None:
+@pytest.mark.slow
+def test_rakectl_bench_campaign_writes_its_section_alone(
+        tmp_path: Path, physics_build: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The case with the physics as Python and compiled (the build there already: not
+    built again), compared; the section states both and that they agree."""
+    monkeypatch.setenv("RAKECTL_PHYSICS_CACHE", str(physics_build))
     path = tmp_path / "BENCHMARKS.md"
     write_hot_path_section(path, hot_path_section("rakectl bench --profiles", "then", "abc", "e"))
     before = path.read_text()
@@ -70,7 +75,8 @@ def test_rakectl_bench_campaign_writes_its_section_alone(tmp_path: Path) -> None
     section = text.split(THROUGHPUT_START)[1].split(THROUGHPUT_END)[0]
     assert "## (f) The safety campaign's speed, per core" in section
     assert "Cases 20261127/9702–9702" in section and "cases per core-minute" in section
-    assert "| **all** | 1 |" in section
+    assert "**1 of 1 cases identical**" in section
+    assert "| **all** | 1 |" in section and "faster per core" in section
 
 
 def test_a_bad_case_count_is_one_line_and_writes_nothing(tmp_path: Path) -> None:
