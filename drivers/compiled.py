@@ -97,13 +97,16 @@ def activate(package_path: list[str]) -> Path | None:
     if mode == "pure":
         return None
     where = build_dir()
-    if not (where / "drivers").is_dir():
+    if not (where / "drivers").is_dir() or not (where / "lib").is_dir():
         if mode == "compiled":
             raise ConfigError(f"{MODE_ENV}=compiled, but the physics of these sources is "
                               f"not built (no {where}): run `rakectl compile`")
         return None
-    if str(where) not in sys.path:
-        sys.path.append(str(where))  # the group's shared library, by its unique name
+    # the group's shared library, by its unique name, in a directory of its own: a
+    # directory holding a drivers/ on sys.path would be taken for the package by a
+    # process that inherits this sys.path (multiprocessing's spawn) before the package
+    if str(where / "lib") not in sys.path:
+        sys.path.append(str(where / "lib"))
     package_path.insert(0, str(where / "drivers"))
     _active = where
     return where
@@ -162,8 +165,9 @@ def build(force: bool = False, progress: Callable[[str], None] = print) -> Path:
             raise RakeError(f"compile: the build failed (exit {done.returncode}):\n{tail}")
         staged = work / "staged"
         (staged / "drivers").mkdir(parents=True)
+        (staged / "lib").mkdir()
         for lib in (work / "lib").glob(f"{GROUP}__mypyc*"):
-            shutil.copy2(lib, staged)
+            shutil.copy2(lib, staged / "lib")
         for name in PHYSICS:
             module = name.split(".")[1]
             found = list((work / "lib" / "drivers").glob(f"{module}.*"))

@@ -27,6 +27,7 @@ from pathlib import Path
 
 from drivers import compiled
 from rakectl.bench.sections import markers, write_section
+from rakectl.errors import RakeError
 from rakectl.sim.campaign import CaseResult, run_case
 from rakectl.sim.cases import generate
 from rakectl.sim.rake_plant import SETTLE_S
@@ -136,8 +137,13 @@ def compare_physics(seed: int = SEED, first: int = FIRST, cases: int = CASES,
     if cases < 1:
         raise ValueError("cases must be >= 1")
     compiled.build(progress=progress or (lambda line: None))
-    return Comparison(_measure_with("pure", seed, first, cases),
-                      _measure_with("compiled", seed, first, cases))
+    comparison = Comparison(_measure_with("pure", seed, first, cases),
+                            _measure_with("compiled", seed, first, cases))
+    if not (comparison.python.physics.startswith("physics: Python")
+            and comparison.compiled.physics.startswith("physics: compiled")):
+        raise RakeError("bench: the runs did not use the physics asked for: "
+                        f"{comparison.python.physics!r}, {comparison.compiled.physics!r}")
+    return comparison
 
 
 def format_throughput(t: Throughput) -> str:

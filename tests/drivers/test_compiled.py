@@ -28,9 +28,10 @@ for index in {CASES!r}:
 """
 
 
-def _python(code: str, mode: str, cache: Path | str) -> subprocess.CompletedProcess[str]:
+def _python(code: str, mode: str, cache: Path | str, cwd: Path = ROOT
+            ) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, compiled.MODE_ENV: mode, compiled.CACHE_ENV: str(cache)}
-    return subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env,
+    return subprocess.run([sys.executable, "-c", code], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=600)
 
 
@@ -77,3 +78,19 @@ def test_a_bad_choice_of_physics_is_named(tmp_path: Path) -> None:
     missing = _python("import drivers", "compiled", tmp_path)
     assert missing.returncode != 0
     assert "not built" in missing.stderr and "rakectl compile" in missing.stderr
+
+
+def test_processes_a_compiled_one_starts_run_the_physics_asked_for(
+        physics_build: Path, tmp_path: Path) -> None:
+    """multiprocessing's spawn hands its children this process's sys.path: the build's
+    entry there must not make the Python physics compiled (bench --campaign's runs). Run
+    away from the sources, so that the package is imported as installed, not from the
+    working directory."""
+    code = ("from drivers import compiled\n"
+            "from rakectl.bench.throughput import compare_physics\n"
+            "c = compare_physics(first=9704, cases=1)\n"  # 8 ms of a lane
+            "print(compiled.status(), c.python.physics, c.compiled.physics, sep='\\n')\n")
+    out = _python(code, "auto", physics_build, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert [line.split(" (")[0] for line in out.stdout.splitlines()] == [
+        "physics: compiled", "physics: Python", "physics: compiled"]
