@@ -91,3 +91,20 @@ def test_workspace_rejects_bad_limits() -> None:
         kin.Workspace(0.6, 1.0, 0.5, 0.0, 1.0)
     with pytest.raises(KinematicsError):
         kin.Workspace(0.6, 0.3, 1.5, 1.0, 0.5)
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_every_mapping_names_its_non_finite_argument(bad: float) -> None:
+    calls = {
+        "r_m": lambda x: kin.forward(WS, x, 0.3),
+        "theta_rad": lambda x: kin.jacobian(1.0, x),
+        "force_reach_n": lambda x: kin.joint_loads(1.0, 0.3, x, 5.0),
+        "force_height_n": lambda x: kin.joint_loads(1.0, 0.3, 5.0, x),
+        "torque_theta_nm": lambda x: kin.tip_force(1.0, 0.3, 5.0, x),
+        "height_m": lambda x: kin.inverse(WS, 1.0, x),
+    }
+    for name, call in calls.items():
+        with pytest.raises(KinematicsError, match=f"{name} must be finite"):
+            call(bad)
+    with pytest.raises(KinematicsError, match="theta_rad must be finite"):
+        kin.tip_velocity(1.0, bad, 0.1, 0.1)
