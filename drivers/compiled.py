@@ -1,10 +1,11 @@
-"""The emulator's physics compiled to C with mypyc: the same code, about 3× faster.
+"""The emulator's physics compiled to C with mypyc: the same code and results, faster.
 
 The substep of the arm, its tine mount, the soil and the buried objects
 (``PHYSICS``) is plain scalar Python run 20 000 times a simulated second; mypyc
-compiles those modules, as they are, into C extensions. The arithmetic is the
+compiles those modules, as they are, into C extensions (a campaign case then takes
+2.6× less CPU: bench/BENCHMARKS.md section (f)). The arithmetic is the
 same IEEE double arithmetic in the same order, so a compiled emulator gives the
-same results as the Python one, to the last bit (tests/sim/test_compiled.py runs
+same results as the Python one, to the last bit (tests/drivers/test_compiled.py runs
 campaign cases both ways and compares them exactly).
 
 A build is kept in a cache directory named by a digest of every source file the
@@ -123,7 +124,7 @@ def status() -> str:
     if compiled:  # cannot happen through activate(); said plainly if it does
         return "physics: MIXED compiled and Python modules: " + ", ".join(
             f"{m.__name__}={m.__file__}" for m in modules)
-    hint = "" if _mode() == "pure" else " (`rakectl compile` makes it about 3x faster)"
+    hint = "" if _mode() == "pure" else " (`rakectl compile` makes the campaign faster)"
     return f"physics: Python{hint}"
 
 
@@ -147,7 +148,6 @@ def build(force: bool = False, progress: Callable[[str], None] = print) -> Path:
         work = Path(tmp)
         paths = [str(_SOURCE_ROOT / (name.replace(".", "/") + ".py")) for name in PHYSICS]
         script = (
-            "import sys\n"
             "from setuptools import setup\n"
             "from mypyc.build import mypycify\n"
             f"ext = mypycify({paths!r}, opt_level='3', group_name={GROUP!r}, "
