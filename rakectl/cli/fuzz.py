@@ -9,7 +9,6 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from drivers import compiled
 from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim.campaign import (
     RESULTS_FILE,
@@ -138,7 +137,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     executor = executor_for(args.scheduler, args.workers)
     try:
         print(f"fuzz: cases {args.first}..{args.first + args.scenarios - 1} of seed "
-              f"{args.seed} on {executor.describe()}; {compiled.status()}", file=sys.stderr)
+              f"{args.seed} on {executor.describe()}; {executor.physics()}", file=sys.stderr)
         report = campaign(args.scenarios, args.seed, args.workers, args.out, Progress("fuzz"),
                           first=args.first, executor=executor)
     finally:

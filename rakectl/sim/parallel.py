@@ -45,6 +45,30 @@ class Executor(Protocol):
 
     def describe(self) -> str: ...
 
+    def physics(self) -> str:
+        """Which physics its workers run (drivers.compiled.status), in one line."""
+        ...
+
+
+def physics_status() -> str:
+    """This process's physics (a function of this module, so that Dask can send it)."""
+    from drivers import compiled
+
+    return compiled.status()
+
+
+def workers_physics(statuses: dict[str, str]) -> str:
+    """One line from each worker's :func:`physics_status`: the common one, or each kind
+    with how many workers run it (a cluster whose nodes are built differently)."""
+    if not statuses:
+        return "physics: no worker answered"
+    kinds: dict[str, int] = {}
+    for line in statuses.values():
+        kinds[line] = kinds.get(line, 0) + 1
+    if len(kinds) == 1:
+        return f"{next(iter(kinds))} (on all {len(statuses)} worker(s))"
+    return "workers DIFFER: " + "; ".join(f"{n} with {line}" for line, n in sorted(kinds.items()))
+
 
 class LocalExecutor:
     """Forked processes on this machine (:func:`fork_map`)."""
@@ -63,6 +87,9 @@ class LocalExecutor:
 
     def describe(self) -> str:
         return f"{self.workers} local process(es)"
+
+    def physics(self) -> str:
+        return physics_status()  # forked from this process: the modules it has
 
 
 class DaskExecutor:
@@ -129,6 +156,10 @@ class DaskExecutor:
     def describe(self) -> str:
         workers = len(self._client.scheduler_info().get("workers", {}))
         return f"Dask {self.scheduler} ({workers} worker(s))"
+
+    def physics(self) -> str:
+        """Asked of every worker: each node runs the physics built on it, or Python."""
+        return workers_physics(self._client.run(physics_status))
 
 
 def local_workers(scheduler: str) -> int:

@@ -11,7 +11,13 @@ import pytest
 
 from rakectl.errors import ConfigError
 from rakectl.sim.campaign import RESULTS_FILE, campaign
-from rakectl.sim.parallel import DaskExecutor, executor_for
+from rakectl.sim.parallel import (
+    DaskExecutor,
+    LocalExecutor,
+    executor_for,
+    physics_status,
+    workers_physics,
+)
 
 pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("dask_offload_thread")]
 SEED, FIRST, CASES = 20261125, 40, 4
@@ -63,6 +69,17 @@ def test_a_resumed_campaign_on_the_cluster_runs_only_what_is_missing(tmp_path: P
     assert len(lines) == CASES  # the two done were not run again
 
 
+def test_the_workers_physics_is_one_line_naming_any_difference() -> None:
+    compiled = "physics: compiled (mypyc) from /cache/a"
+    python = "physics: Python"
+    assert workers_physics({"w1": compiled, "w2": compiled}) == \
+        f"{compiled} (on all 2 worker(s))"
+    assert workers_physics({"w1": compiled, "w2": python, "w3": python}) == \
+        f"workers DIFFER: 2 with {python}; 1 with {compiled}"
+    assert workers_physics({}) == "physics: no worker answered"
+    assert LocalExecutor(2).physics() == physics_status()  # forked: this process's
+
+
 @pytest.mark.parametrize("scheduler", ["local:0", "local:x", "udp://h:1", "h:8786"])
 def test_a_bad_scheduler_is_refused_naming_it(scheduler: str) -> None:
     with pytest.raises(ConfigError, match="--scheduler"):
@@ -77,6 +94,8 @@ def test_the_command_line_runs_on_a_local_cluster_and_refuses_a_bad_scheduler(
                  "--scheduler", "local:2", "--out", str(tmp_path)]) == 0
     captured = capsys.readouterr()
     assert "on Dask local:2 (2 worker(s))" in captured.err
+    # what the workers run, asked of them (the test run's cache is empty: Python)
+    assert "physics: Python" in captured.err and "(on all 2 worker(s))" in captured.err
     assert "2 scenarios" in captured.out
     assert main(["fuzz", "--scenarios", "2", "--scheduler", "nowhere"]) == 2
     assert "--scheduler 'nowhere'" in capsys.readouterr().err
