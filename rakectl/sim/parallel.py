@@ -7,6 +7,7 @@ extra). Jobs must be deterministic in their inputs (the campaign's cases are, fr
 from __future__ import annotations
 
 import multiprocessing
+from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, Protocol, TypeVar
 
@@ -62,9 +63,7 @@ def workers_physics(statuses: dict[str, str]) -> str:
     with how many workers run it (a cluster whose nodes are built differently)."""
     if not statuses:
         return "physics: no worker answered"
-    kinds: dict[str, int] = {}
-    for line in statuses.values():
-        kinds[line] = kinds.get(line, 0) + 1
+    kinds = Counter(statuses.values())
     if len(kinds) == 1:
         return f"{next(iter(kinds))} (on all {len(statuses)} worker(s))"
     return "workers DIFFER: " + "; ".join(f"{n} with {line}" for line, n in sorted(kinds.items()))
