@@ -221,8 +221,9 @@ class VoltageClamp:
         j = int(over.argmax())  # the first stretch whose end is over some bound
         now, nxt = excess[:, j], excess[:, j + 1]
         crossing = nxt > 0.0
-        fraction = float(np.clip(-now[crossing] / (nxt[crossing] - now[crossing]), 0.0,
-                                 1.0).min())
+        # the first crossing, within the stretch (min and a clip to [0, 1] commute)
+        fraction = min(1.0, max(0.0, float((-now[crossing] / (nxt[crossing] - now[crossing])
+                                            ).min())))
         t = (kinks[j] + fraction * (kinks[j + 1] - kinks[j])) * (1.0 - 1e-9)
         out = _lerp(anchor, request, t)
         while t > 0.0 and envelope.excess(*out) > 0.0:  # rounding at the crossing: step back

@@ -222,6 +222,7 @@ class ContactEnvelope:
         self.emf = (0.0, 0.0, 0.0, 0.0)  # r for s = +1, s = −1; θ for s = +1, s = −1
         self._last = (math.nan, math.nan)  # the voltages _last_worst belongs to
         self._last_worst = np.zeros(directions)
+        self._judged: dict[tuple[float, float], np.ndarray] = {}  # this tick's pairs
         self.budget_n = 0.0  # this tick's smallest budget over the directions
 
     def prepare(self, r_m: float, theta_rad: float, r_vel: float, theta_vel: float) -> bool:
@@ -229,6 +230,7 @@ class ContactEnvelope:
         any of them faster than its measurement's uncertainty."""
         sin_t, cos_t = math.sin(theta_rad), math.cos(theta_rad)
         self.r_m = r_m
+        self._judged.clear()
         com_m = r_m - self.half_length_m
         mass_r = self._mass_r
         inertia = self._inertia_0 + self._rake_mass_kg * com_m * com_m
@@ -258,9 +260,11 @@ class ContactEnvelope:
         np.maximum(speed, 0.0, out=speed)
         speed += (0.5 * self.limit_n * self._latency_s) * q  # F_L/2 along u for the latency
         d_n = self._limit - self._damping * speed
-        with np.errstate(divide="ignore", invalid="ignore"):
-            budget = (d_n - self._stiffness * mass * speed * speed / d_n) * 0.5
-        budget[d_n <= 0.0] = -np.inf
+        braking = d_n <= 0.0
+        ratio = self._stiffness * mass * speed * speed
+        np.divide(ratio, d_n, out=ratio, where=~braking)  # no division where it must brake
+        budget = (d_n - ratio) * 0.5
+        budget[braking] = -np.inf
         self.budget = budget
         self.budget_n = float(budget.min())
         # gravity's part of uᵀw is fixed this tick: it is folded into the bound
@@ -279,10 +283,13 @@ class ContactEnvelope:
 
     def _worst(self, voltage_r_v: float, voltage_theta_v: float) -> np.ndarray:
         """Worst case over the loads' box of uᵀ J M⁻¹ Q, in every direction (kept for
-        :meth:`worst_push`)."""
-        self._last = (voltage_r_v, voltage_theta_v)
-        self._last_worst = self.weights @ self.loads(voltage_r_v, voltage_theta_v)
-        return self._last_worst
+        :meth:`worst_push`; a pair judged again this tick is looked up)."""
+        key = self._last = (voltage_r_v, voltage_theta_v)
+        worst = self._judged.get(key)
+        if worst is None:
+            worst = self._judged[key] = self.weights @ self.loads(voltage_r_v, voltage_theta_v)
+        self._last_worst = worst
+        return worst
 
     def excess(self, voltage_r_v: float, voltage_theta_v: float) -> float:
         """How far the worst direction is over its bound, in m/s² (≤ 0: within all)."""

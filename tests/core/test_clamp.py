@@ -164,6 +164,23 @@ def test_requests_within_every_budget_pass_unchanged(q: tuple[float, float],
         assert peaks.max() <= clamp.limit_n * (1 + 1e-9)
 
 
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.tuples(pose, velocity), min_size=2, max_size=6), st.floats(-24, 24),
+       st.floats(-24, 24))
+def test_a_clamp_used_tick_after_tick_answers_as_a_fresh_one(
+        ticks: list[tuple[tuple[float, float], tuple[float, float]]], v_r: float,
+        v_theta: float) -> None:
+    """Within a tick the envelope looks up the voltage pairs it has already judged: from
+    one tick to the next (another pose or motion, the same request) nothing carries
+    over, to the last bit."""
+    kept = VoltageClamp(CLAMP, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, DT_S)
+    for q, qd in ticks:
+        fresh = VoltageClamp(CLAMP, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, DT_S)
+        assert kept.apply(*q, *qd, v_r, v_theta) == fresh.apply(*q, *qd, v_r, v_theta)
+        assert (kept.worst_case_n, kept.worst_direction_rad) == (
+            fresh.worst_case_n, fresh.worst_direction_rad)
+
+
 def test_a_request_safe_in_every_direction_is_not_cut() -> None:
     """Holding the weight at rest (the anchor's own voltages) passes as asked."""
     clamp = VoltageClamp(CLAMP, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, DT_S)
