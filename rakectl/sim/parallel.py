@@ -131,14 +131,27 @@ class DaskExecutor:
                                 f"from this machine's ({exc})") from exc
 
     def map_unordered(self, run: Callable[[J], R], jobs: Sequence[J]) -> Iterator[R]:
+        """Each result is released on the cluster once it is here: a finished job held
+        there would be computed again if its worker went away (a node lost, a worker
+        restarted after missing its heartbeats), and a long campaign would hold every
+        result it has already written."""
         from distributed import as_completed
 
-        futures = self._client.map(run, list(jobs), pure=False, retries=self.retries)
+        pending = as_completed(self._client.map(run, list(jobs), pure=False,
+                                                retries=self.retries))
         try:
-            for future in as_completed(futures):
-                yield future.result()
+            for future in pending:
+                result = future.result()
+                future.release()
+                yield result
         finally:
-            self._client.cancel(futures)
+            left = list(pending.futures)
+            pending.clear()
+            self._client.cancel(left)
+
+    def held_results(self) -> int:
+        """How many jobs' results the workers hold (those finished and not yet yielded)."""
+        return sum(len(keys) for keys in self._client.has_what().values())
 
     def close(self) -> None:
         self._client.close()

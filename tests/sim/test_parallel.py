@@ -5,6 +5,7 @@ campaign skipping what is done. Slow-ish: each test starts a cluster."""
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 import pytest
@@ -54,6 +55,28 @@ def test_a_job_whose_worker_dies_is_run_again_elsewhere(tmp_path: Path) -> None:
         executor.close()
     assert results == [0, 10, 20]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ran-0", "ran-1", "ran-2"]
+
+
+def _square(k: int) -> int:
+    return k * k
+
+
+def test_a_result_received_is_no_longer_held_on_the_cluster() -> None:
+    """Held, a worker lost later (a node gone, a worker restarted after missing its
+    heartbeats) would make the scheduler compute it again."""
+    executor = DaskExecutor("local:1")
+    try:
+        results = executor.map_unordered(_square, [1, 2, 3])
+        got = [next(results) for _ in range(3)]  # all of them, the iteration still open
+        deadline = time.monotonic() + 20.0
+        while executor.held_results() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        held = executor.held_results()
+        results.close()
+    finally:
+        executor.close()
+    assert sorted(got) == [1, 4, 9]
+    assert held == 0
 
 
 def test_a_resumed_campaign_on_the_cluster_runs_only_what_is_missing(tmp_path: Path) -> None:
