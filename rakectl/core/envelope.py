@@ -220,8 +220,6 @@ class ContactEnvelope:
         self._mass = np.zeros(directions)
         self.r_m = 1.0  # this tick's r
         self.emf = (0.0, 0.0, 0.0, 0.0)  # r for s = +1, s = −1; θ for s = +1, s = −1
-        self._last = (math.nan, math.nan)  # the voltages _last_worst belongs to
-        self._last_worst = np.zeros(directions)
         self._judged: dict[tuple[float, float], np.ndarray] = {}  # this tick's pairs
         self.budget_n = 0.0  # this tick's smallest budget over the directions
 
@@ -282,13 +280,12 @@ class ContactEnvelope:
                 -self.theta.load_n(-1.0, voltage_theta_v, emf[3])]
 
     def _worst(self, voltage_r_v: float, voltage_theta_v: float) -> np.ndarray:
-        """Worst case over the loads' box of uᵀ J M⁻¹ Q, in every direction (kept for
-        :meth:`worst_push`; a pair judged again this tick is looked up)."""
-        key = self._last = (voltage_r_v, voltage_theta_v)
+        """Worst case over the loads' box of uᵀ J M⁻¹ Q, in every direction; a pair judged
+        again this tick (the cut's, then :meth:`worst_push`'s) is looked up."""
+        key = (voltage_r_v, voltage_theta_v)
         worst = self._judged.get(key)
         if worst is None:
             worst = self._judged[key] = self.weights @ self.loads(voltage_r_v, voltage_theta_v)
-        self._last_worst = worst
         return worst
 
     def excess(self, voltage_r_v: float, voltage_theta_v: float) -> float:
@@ -298,9 +295,7 @@ class ContactEnvelope:
     def worst_push(self, voltage_r_v: float, voltage_theta_v: float) -> tuple[float, float]:
         """The largest worst-case push F_u of these voltages (N) and the direction φ it is
         along (rad)."""
-        worst = (self._last_worst if self._last == (voltage_r_v, voltage_theta_v)
-                 else self._worst(voltage_r_v, voltage_theta_v))
-        push = self._mass * (worst + self._gravity)
+        push = self._mass * (self._worst(voltage_r_v, voltage_theta_v) + self._gravity)
         i = int(np.argmax(push))
         return float(push[i]), float(self.angles_rad[i])
 
