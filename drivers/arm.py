@@ -326,12 +326,14 @@ class ArmPlant:
             raise NonFiniteError(f"contact force must be finite, got {force}")
         if transmitted is not None and tines.vertical and laws is not None:
             # massless tines: the arm feels what the mount carries, and the ground gets it
-            # too (where the tines rest on a surface the soil's own law reads 0 there; an
-            # object's bottom pulling the mount down, likewise)
+            # too (where the tines rest on a surface the soil's own law reads 0 there); an
+            # object's bottom they are at holds what pushes them up: the ground below and
+            # the mount's pull (TineMount.under)
+            under = tines.under
+            if under >= 0 and lifted is not None:  # at a bottom: bottom_laws, so a Ground
+                lifted(under, mount_n)
             if tines.hooked_on < 0:
                 transmitted(mount_n)
-            elif lifted is not None:  # hooked: bottom_laws, so a Ground
-                lifted(tines.hooked_on, -mount_n)
             force = (force[0], mount_n)
         self._last_tip_force_n = force
         self._last_contact_loads = kinematics.joint_loads(r_m, theta_rad, force[0], force[1])
@@ -362,9 +364,10 @@ class ArmPlant:
                                  tines.step_s)
             if not math.isfinite(force[0] + force[1] + side_n + down_n):
                 raise NonFiniteError(f"contact force must be finite, got {force}")
-            if tines.hooked_on >= 0:
-                ground.lifted(tines.hooked_on, -down_n)  # an object's bottom pulls it
-            elif tines.vertical:
+            under = tines.under
+            if under >= 0:  # at an object's bottom: it holds what pushes the tines up
+                ground.lifted(under, down_n)
+            if tines.hooked_on < 0 and tines.vertical:
                 transmitted(down_n)
             side_sum += side_n
             down_sum += down_n if tines.vertical else force[1]

@@ -20,7 +20,10 @@ mount solves folds in the reach speed only toward an edge (see
 ``vertical_law``); a bottom pushes the tines down and the mount extends
 (``Ground.bottom_laws``). Above its bottom and
 within its extent an object shields the soil below its top: the soil model
-never sees the tip lower than the object's top.
+never sees the tip lower than the object's top; except a tine in it through its
+bottom: that tine is under it and presses the soil under it, at its own height
+(shielded, it was seen on the top, 40 mm higher, and the soil under it pushed it
+up again with a fresh interface, 20261128/2199).
 
 * STONE: rigid (K = 1e7 N/m), never yields or collapses.
 * ROOT: round (its top edges' radius is half its size): a tine that meets it
@@ -129,6 +132,12 @@ class Body:
         if q_z >= q_x:
             return (rho - q_z, 0.0, 1.0) if q_z < rho else None
         return (rho - q_x, math.copysign(1.0, x), 0.0) if q_x < rho else None
+
+    def under(self, reach_m: float, height_m: float) -> bool:
+        """Whether a tip here is in it through its bottom: a tine under it that rose into
+        it, which presses the soil under it, not the soil its top hides."""
+        contact = self._contact(reach_m, height_m)
+        return contact is not None and contact[2] < 0.0
 
     def shield_m(self, reach_m: float) -> float:
         """The height below which it hides the soil from a tip at ``reach_m`` (inside its
@@ -293,7 +302,7 @@ class Ground:
         contact = Contact.NONE
         for body in self.bodies:
             if (not body.broken and body.left_m < reach_m < body.right_m
-                    and height_m > body.bottom_m):
+                    and height_m > body.bottom_m and not body.under(reach_m, height_m)):
                 shield_m = max(shield_m, body.shield_m(reach_m))
             if body.touch(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s):
                 f_reach_n += body.force_reach_n
@@ -349,10 +358,13 @@ class Ground:
                 laws.append((i, *law))
         return laws
 
-    def lifted(self, index: int, force_n: float) -> None:
-        """What a tine mount pulled down by body ``index``'s bottom carried this substep:
-        the body's record is at least that (tines resting on its bottom face, where its own
-        law reads 0, as :meth:`transmitted` does for the ground)."""
+    def lifted(self, index: int, mount_n: float) -> None:
+        """Body ``index``'s bottom held the tines this substep, the mount carrying
+        ``mount_n`` (< 0: pulling them up): massless, they are held down with what the
+        ground below pushes them up with (this step's reading) less that, and the body's
+        record is at least that (tines resting on its bottom face, where its own law reads
+        0, as :meth:`transmitted` does for the ground)."""
+        force_n = self.truth.force_down_n - mount_n
         self.bodies[index]._record_side(force_n)
         if force_n > self.truth.lift_n:
             self.truth.lift_n = force_n

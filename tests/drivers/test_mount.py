@@ -330,3 +330,67 @@ def test_a_plate_let_go_as_pulling_holds_the_tines_when_the_soil_gives_way() -> 
     mount_n = k * d + c * (d - d0) / h
     assert plate.force_up_n + soil_n == pytest.approx(mount_n, rel=1e-9)
     assert 10.0 < plate.force_up_n < mount_n < 30.0
+
+
+def test_tines_the_soil_pushes_into_a_bottom_rest_under_it() -> None:
+    """Tines 1 µm under a mine's bottom, the mount compressed by 1 mm, the soil below
+    pressing them up (its interface 40 µm above them: 14 N). Solved against the soil alone
+    they end inside the bottom, where the mine's own law reads what nothing pushes (the
+    soil gives at most 14 N: 20261128/2199 read 172 N so). Held by the bottom, they rest
+    just under it, the mount's force passes either way, and by hand the mine carries the
+    soil's push less the mount's force at that rest."""
+    k, c, h = 5e3, 7.5, 5e-5
+    ground = Ground(GroundParams(soil=AIR, objects=BuriedObjects(mines=(MineParams(),))),
+                    seed=0)
+    body = ground.bodies[0]
+    bottom_m, reach_m = body.bottom_m, MineParams().reach_m
+    arm_m, d0 = bottom_m - 1e-3, 1e-3 - 1e-6
+    k_s, b_s = 3.5e5, 0.0  # its damping would only slow them: 0.25 µm a substep
+    soil = VerticalLaw(bottom_m + 4e-5, k_s, b_s, 1e3, True)
+    mount = TineMount(k, c, 0.0, 0.0, h)
+    mount.compression_m = d0
+    free = mount._vertical([soil], arm_m, 0.0)
+    # by hand: K_s (ref − z) − B_s ż = k d + c ḋ, z = arm + d, ż = ḋ = (d − d0)/h
+    assert free == pytest.approx((k_s * (soil.ref_m - arm_m) + (b_s + c) * d0 / h)
+                                 / (k + c / h + k_s + b_s / h), abs=1e-12)
+    assert arm_m + free > bottom_m + 1e-5  # inside it
+    assert body.touch(reach_m, arm_m + free, 0.0, (free - d0) / h)
+    assert -body.force_up_n > 50.0  # what the mine's law reads there
+
+    rest = mount.hooked(ground, reach_m, arm_m, 0.0, free)
+    assert (mount.resting_under, mount.hooked_on, mount.under) == (0, -1, 0)
+    assert 0.0 <= bottom_m - (arm_m + rest) < 1e-15  # just under it
+    assert not body.touch(reach_m, arm_m + rest, 0.0, 0.0)  # on its face, not in it
+    rate = (rest - d0) / h
+    mount_n = k * rest + c * rate
+    soil_n = k_s * (soil.ref_m - arm_m - rest) - b_s * rate
+    assert mount.commit(0.0, rest, 0.0)[1] == pytest.approx(mount_n, rel=1e-9)
+    assert 4.0 < mount_n < soil_n < 15.0  # the mine carries soil_n − mount_n
+    mount.resting_under = -1
+    mount.hooked_on = 0
+    assert mount.vertical_n(-1.0) == -1.0 and mount.vertical_n(1.0) == 0.0  # hooked: pulls
+    mount.hooked_on = -1
+    assert mount.vertical_n(-1.0) == 0.0 and mount.vertical_n(1.0) == 1.0  # free: pushes
+    mount.resting_under = 0
+    assert mount.vertical_n(-1.0) == -1.0 and mount.vertical_n(1.0) == 1.0  # resting: both
+
+
+def test_tines_the_soil_does_not_push_keep_the_hooked_balance() -> None:
+    """The same tines with the soil pushing nothing (the mount relaxed, pulling them up
+    into the bottom alone): the mount-and-bottom balance of :meth:`TineMount.hooked`."""
+    k, c, h = 5e3, 7.5, 5e-5
+    ground = Ground(GroundParams(soil=AIR, objects=BuriedObjects(mines=(MineParams(),))),
+                    seed=0)
+    bottom_m, reach_m = ground.bodies[0].bottom_m, MineParams().reach_m
+    mount = TineMount(k, c, 0.0, 0.0, h)
+    mount.compression_m = d0 = -2e-4  # extended: pulling the tines up
+    arm_m = bottom_m + 2e-4 + 1e-7  # the tines 0.1 µm into the bottom, pulled up
+    free = mount._vertical([], arm_m, 0.0)
+    assert arm_m + free > bottom_m
+    hooked = mount.hooked(ground, reach_m, arm_m, 0.0, free)
+    k_b, b_b = 5e6, 5e6 * MineParams().damping_time_s
+    # by hand: −(k d + c ḋ) = K_b (z − z_b) + B_b ż
+    assert hooked == pytest.approx((c * d0 / h + b_b * d0 / h - k_b * (arm_m - bottom_m))
+                                   / (k + c / h + k_b + b_b / h), abs=1e-12)
+    assert arm_m + hooked > bottom_m  # in it by what the mount pulls, over its K_b
+    assert (mount.hooked_on, mount.resting_under, mount.under) == (0, -1, 0)

@@ -280,3 +280,34 @@ def test_a_tine_under_a_mine_rising_into_it_presses_its_bottom() -> None:
     assert not body.activated and not ground.truth.mine_activated
     assert ground.truth.lift_n == pytest.approx(expected_n)
     assert force[1] == pytest.approx(ground.truth.force_down_n - expected_n)
+
+
+def test_a_tine_sliding_in_a_bottom_presses_the_soil_under_it_at_its_own_height() -> None:
+    """A tine under a stone, 1 µm into its bottom (the mount pulling it up there), slides
+    along the reach into the next soil cell: it is under the stone, so the soil it meets is
+    the soil under it, at the tine's own height, not the soil the stone's top hides 30 mm
+    higher (seen there, the soil's interface under it jumped up to the top and pushed the
+    tines back into the bottom with a fresh saw-tooth: 20261128/2199). Dropping 2 µm there,
+    it presses that soil by 2 µm: K·2 µm."""
+    stone = StoneParams(reach_m=1.0, depth_m=0.02, width_m=0.1, thickness_m=0.03)
+    g = ground(stones=(stone,))
+    body, bottom_m = g.bodies[0], g.bodies[0].bottom_m
+    g.step(1.0, bottom_m - 1e-6, 0.0, 0.0, DT_S)  # under it
+    g.step(1.0, bottom_m + 1e-6, 0.0, 0.0, DT_S)  # 1 µm into its bottom
+    assert body.under(1.0, bottom_m + 1e-6)
+    assert g.truth.lift_n == pytest.approx(1e7 * 1e-6)  # the stone holds it down
+    next_cell_m = 1.0 + 1.2 * g.soil.cell_m
+    assert g.soil.cell_index(next_cell_m) != g.soil.cell_index(1.0)
+    g.step(next_cell_m, bottom_m + 1e-6, 0.0, 0.0, DT_S)  # slid along, still in it
+    law = g.soil.vertical_law(next_cell_m, bottom_m - 1e-6)
+    assert law is not None and law.ref_m == bottom_m + 1e-6  # the interface: the tine's
+    g.step(next_cell_m, bottom_m - 1e-6, 0.0, 0.0, DT_S)
+    assert not body.under(next_cell_m, bottom_m - 1e-6)  # out of it again
+    stiffness = SoilLayer().stiffness_n_per_m
+    assert g.truth.force_down_n == pytest.approx(stiffness * 2e-6, rel=1e-6)
+    assert not body.under(1.0, body.top_m - 1e-6)  # just under its top: on it, not under
+    # held at its bottom by a mount pulling 20 N, the tine is held down with the soil's
+    # push and that pull: the stone carries both
+    g.lifted(0, -20.0)
+    assert body.peak_side_n == pytest.approx(20.0 + stiffness * 2e-6, rel=1e-9)
+    assert g.truth.lift_n == body.peak_side_n
