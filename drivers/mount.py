@@ -221,17 +221,19 @@ class TineMount:
         height, if nothing else presses them.
 
         Tines the laws below (the soil, what ``d`` was solved against) pushed up into a
-        bottom are held there: they rest just under it, as under a rigid face (a mine's
-        bottom, 5·10⁶ N/m, gives 2 µm to a soil's 11 N collapse force), and
-        ``resting_under`` names it. Massless, they are in balance: it carries what the
-        ground below pushes less what the mount carries, which the arm records
-        (:attr:`under`, :meth:`drivers.objects.Ground.lifted`). Left out of the balance,
-        the soil pushed them 34 µm into a mine's bottom, read as 172 N with the mount
-        carrying 1.3 N (20261128/2199)."""
+        bottom (rising: tines descending along a side into the corner where the bottom is
+        the nearest face are not under it) are held there: they rest just under it, as
+        under a rigid face (a mine's bottom, 5·10⁶ N/m, gives 2 µm to a soil's 11 N
+        collapse force), and ``resting_under`` names it. Massless, they are in balance:
+        it carries what the ground below pushes less what the mount carries, which the
+        arm records (:attr:`under`, :meth:`drivers.objects.Ground.lifted`). Left out of
+        the balance, the soil pushed them 34 µm into a mine's bottom, read as 172 N with
+        the mount carrying 1.3 N (20261128/2199)."""
         laws = ground.bottom_laws(tine_reach_m, height_m + d) if self.vertical else []
         h, k, c, d0 = self.step_s, self.k_v, self.c_v, self.compression_m
         self.resting_under = -1
-        if laws and k * d + c * (d - d0) / h > _PUSHED_N:
+        if (laws and height_vel + (d - d0) / h > 0.0  # rising into it, not along a side
+                and k * d + c * (d - d0) / h > _PUSHED_N):
             index: int = laws[0][0]
             bottom_m: float = laws[0][1]
             for law in laws:

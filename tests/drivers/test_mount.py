@@ -394,3 +394,26 @@ def test_tines_the_soil_does_not_push_keep_the_hooked_balance() -> None:
                                    / (k + c / h + k_b + b_b / h), abs=1e-12)
     assert arm_m + hooked > bottom_m  # in it by what the mount pulls, over its K_b
     assert (mount.hooked_on, mount.resting_under, mount.under) == (0, -1, 0)
+
+
+def test_tines_descending_into_a_bottom_corner_are_not_rested_under_it() -> None:
+    """Tines descending along a stone's side into the corner by its bottom, where the
+    bottom is the nearest face, are not under it: the soil pushing them (the mount
+    compressed) must not rest them on the bottom, 60 µm lower in one substep, where the
+    soil read its damping at 1.2 m/s: 114.8 N (20261127/1561). They stay as solved."""
+    k, c, h = 5e3, 7.5, 5e-5
+    stone = StoneParams(reach_m=1.0, depth_m=0.02, width_m=0.1, thickness_m=0.03,
+                        edge_radius_m=0.0)
+    ground = Ground(GroundParams(soil=AIR, objects=BuriedObjects(stones=(stone,))), seed=0)
+    body = ground.bodies[0]
+    reach_m = body.left_m + 1e-5  # 10 µm inside its side
+    arm_m, d0, arm_vel = body.bottom_m + 9e-6 - 2e-3, 2e-3, -0.05  # 9 µm above it
+    soil = VerticalLaw(body.bottom_m + 3e-5, 3.5e5, 0.0, 1e3, True)
+    mount = TineMount(k, c, 0.0, 0.0, h)
+    mount.compression_m = d0
+    d = mount._vertical([soil], arm_m, arm_vel)
+    assert arm_vel + (d - d0) / h < 0.0  # descending
+    assert k * d + c * (d - d0) / h > 1.0  # the soil pushes them
+    assert body._contact(reach_m, arm_m + d)[2] == -1.0  # the bottom the nearest face
+    assert mount.hooked(ground, reach_m, arm_m, arm_vel, d) == d
+    assert (mount.resting_under, mount.hooked_on) == (-1, -1)
