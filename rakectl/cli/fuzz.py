@@ -18,6 +18,7 @@ from rakectl.sim.campaign import (
     read_case_file,
     replay,
 )
+from rakectl.sim.cases import Family
 from rakectl.sim.injection import FaultyRakeLoop
 from rakectl.sim.parallel import executor_for
 from rakectl.sim.plants import BASE_COLUMNS
@@ -36,6 +37,10 @@ def _parser() -> argparse.ArgumentParser:
         "reproduce); 2 on usage errors.")
     p.add_argument("--scenarios", type=int, default=100, help="number of cases (default 100)")
     p.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
+    p.add_argument("--family", choices=[str(f) for f in Family], default=str(Family.RANDOM),
+                   help="how cases are drawn: random (default: everything an operator can "
+                   "command, objects anywhere) or edge (plunges and descending jogs along an "
+                   "object's side into its rounded top edge)")
     p.add_argument("--first", type=int, default=0,
                    help="index of the first case (default 0): a large campaign in parts")
     p.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
@@ -137,9 +142,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     executor = executor_for(args.scheduler, args.workers)
     try:
         print(f"fuzz: cases {args.first}..{args.first + args.scenarios - 1} of seed "
-              f"{args.seed} on {executor.describe()}; {executor.physics()}", file=sys.stderr)
+              f"{args.seed} ({args.family}) on {executor.describe()}; {executor.physics()}",
+              file=sys.stderr)
         report = campaign(args.scenarios, args.seed, args.workers, args.out, Progress("fuzz"),
-                          first=args.first, executor=executor)
+                          first=args.first, executor=executor, family=Family(args.family))
     finally:
         executor.close()
     print(human(report))

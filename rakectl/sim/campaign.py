@@ -28,7 +28,7 @@ from rakectl.core.clamp import VoltageClamp
 from rakectl.core.lane import LanePlanner
 from rakectl.core.supervision import ForceLevel
 from rakectl.limits import FORCE_LIMIT_N
-from rakectl.sim.cases import CommandKind, FuzzCase, case_from_dict, from_plain, generate
+from rakectl.sim.cases import CommandKind, Family, FuzzCase, case_from_dict, from_plain, generate
 from rakectl.sim.injection import FaultyRakeLoop, HoldReference, JogReference, PlungeReference
 from rakectl.sim.parallel import Executor, LocalExecutor
 from rakectl.sim.rake_plant import RakeLoop
@@ -64,6 +64,7 @@ class CaseResult:
     supervised: bool = False
     stalled_ticks: int = 0  # ticks the controller did not run (stall, kill)
     watchdog_tripped: bool = False
+    family: str = str(Family.RANDOM)  # how the case was drawn (rakectl.sim.cases.Family)
 
     @property
     def safe(self) -> bool:
@@ -199,7 +200,7 @@ def _result(case: FuzzCase, loop: FaultyRakeLoop, reference: Reference,
                       f_stone_side_max_n=peak(Contact.STONE, "peak_side_n"),
                       f_root_side_max_n=peak(Contact.ROOT, "peak_side_n"),
                       supervised=case.supervised, stalled_ticks=loop.stalled_ticks,
-                      watchdog_tripped=loop.watchdog_tripped)
+                      watchdog_tripped=loop.watchdog_tripped, family=str(case.family))
 
 
 # --------------------------------------------------------------------------- campaign
@@ -284,8 +285,9 @@ class Report:
                 / max(self.wall_time_s, 1e-9)}
 
 
-def _run_index(job: tuple[int, int]) -> CaseResult:
-    return run_case(generate(*job))
+def _run_index(job: tuple[int, int, str]) -> CaseResult:
+    seed, index, family = job
+    return run_case(generate(seed, index, Family(family)))
 
 
 def _severity(r: CaseResult) -> float:
@@ -294,7 +296,7 @@ def _severity(r: CaseResult) -> float:
 
 def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None = None,
              progress: Callable[[int, int], None] | None = None, first: int = 0,
-             executor: Executor | None = None) -> Report:
+             executor: Executor | None = None, family: Family = Family.RANDOM) -> Report:
     """Run cases ``first`` … ``first + scenarios − 1`` of ``seed``; write the worst one
     (the largest force on the ground or on a mine) to ``out_dir``.
 
@@ -303,14 +305,16 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
     interrupted campaign resumes where it stopped, and a long one can be run in parts into
     one directory. Cases are deterministic from (seed, index), so the report is the same
     whichever run computed each case, and whatever ran it: ``executor`` (a Dask cluster,
-    rakectl.sim.parallel) instead of ``workers`` local processes."""
+    rakectl.sim.parallel) instead of ``workers`` local processes. ``family``: how the
+    cases are drawn (the random campaign, or the edge cases of rakectl.sim.cases)."""
     if scenarios < 1:
         raise ValueError("scenarios must be >= 1")
     started = time.perf_counter()
     wanted = range(first, first + scenarios)
-    done = _finished(out_dir / RESULTS_FILE, seed, wanted) if out_dir is not None else {}
+    done = _finished(out_dir / RESULTS_FILE, seed, wanted, family) \
+        if out_dir is not None else {}
     results: list[CaseResult] = list(done.values())
-    jobs = [(seed, i) for i in wanted if i not in done]
+    jobs = [(seed, i, str(family)) for i in wanted if i not in done]
     sink = _open_results(out_dir) if out_dir is not None and jobs else None
     try:
         if progress is not None and results:
@@ -328,7 +332,7 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
             sink.close()
     results.sort(key=lambda r: r.index)
     worst = max(results, key=_severity)
-    report = Report(scenarios, tuple(results), worst, generate(seed, worst.index),
+    report = Report(scenarios, tuple(results), worst, generate(seed, worst.index, family),
                     time.perf_counter() - started, resumed=len(done))
     if out_dir is None:
         return report
@@ -336,9 +340,10 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
     return dataclasses.replace(report, worst_case_path=str(path))
 
 
-def _finished(path: Path, seed: int, wanted: range) -> dict[int, CaseResult]:
-    """The results already in ``path`` for these cases (a line cut short by an
-    interruption is ignored: that case runs again)."""
+def _finished(path: Path, seed: int, wanted: range, family: Family = Family.RANDOM
+              ) -> dict[int, CaseResult]:
+    """The results already in ``path`` for these cases of ``family`` (a line cut short by
+    an interruption is ignored: that case runs again)."""
     done: dict[int, CaseResult] = {}
     if not path.is_file():
         return done
@@ -347,7 +352,7 @@ def _finished(path: Path, seed: int, wanted: range) -> dict[int, CaseResult]:
             result = result_from_dict(json.loads(line))
         except (ValueError, TypeError, KeyError):
             continue
-        if result.seed == seed and result.index in wanted:
+        if result.seed == seed and result.index in wanted and result.family == family:
             done[result.index] = result
     return done
 

@@ -28,6 +28,13 @@ waves; stones, roots and mines (80–100 N fuses) anywhere along the lane, and i
 half of the lanes and strokes a mine whose plate is at one of the cut depths or
 up to 5 mm above it; some mines partly exposed (plate above the ground).
 
+The ``edge`` family (``generate(seed, index, Family.EDGE)``) aims where random
+placement rarely does: a plunge or a descending jog whose path passes within
+4 mm of an object's side (a mine in half the cases, a stone or a root in the
+others), so that the tines meet its rounded top edge, on the same soils; the
+band of paths where an edge forces the tines sideways through the soil is a
+few tenths of a millimetre wide (docs/safety.md).
+
 Faults: lost feedback and lost commands (per tick), a drive fault episode
 (both motors at 0 V for 20–200 ms), a controller stall (no tick for 5–60 ms:
 the drives hold the last command until their watchdog, then 0 V and fault),
@@ -58,6 +65,13 @@ LANE_DURATION_S = 12.0  # cap of one lane or stroke case (simulated)
 JOG_HOLD_S = 1.0  # simulated after the jog's last command
 START_CLEARANCE_M = 0.01  # a jog that starts in the soil starts this far from any object
 FAULT_KINDS = ("feedback", "command", "drive", "stall", "kill")
+
+
+class Family(enum.StrEnum):
+    """How a campaign's cases are drawn."""
+
+    RANDOM = "random"  # everything an operator can command, objects anywhere
+    EDGE = "edge"  # descents along an object's side, into its rounded top edge
 
 
 class CommandKind(enum.StrEnum):
@@ -121,6 +135,7 @@ class FuzzCase:
     faults: Faults
     duration_s: float
     supervised: bool = False  # the daemon's force supervision acts (holds, back-off)
+    family: Family = Family.RANDOM
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -290,10 +305,12 @@ def _faults(rng: np.random.Generator, forced: int, duration_s: float) -> Faults:
                   kill_at_s=start if on[4] else -1.0)
 
 
-def generate(seed: int, index: int) -> FuzzCase:
+def generate(seed: int, index: int, family: Family = Family.RANDOM) -> FuzzCase:
     """The ``index``-th case of campaign ``seed`` (pure, deterministic). Kinds cycle with
     the index, fault kinds with index // 4, supervision with index // 24: any 48
     consecutive cases cover every kind under every fault, with and without supervision."""
+    if family is Family.EDGE:
+        return _edge_case(seed, index)
     rng = np.random.default_rng([seed, index])
     kind = list(CommandKind)[index % 4]
     command = _command(rng, kind)
@@ -328,6 +345,69 @@ def generate(seed: int, index: int) -> FuzzCase:
         command = dataclasses.replace(command, adaptive=adaptive)
     supervised = (index // 24) % 2 == 1
     return FuzzCase(seed, index, ground, ground_seed, command, faults, duration_s, supervised)
+
+
+EDGE_BAND_M = 0.004  # an edge case's path passes this close to the object's side, either way
+
+
+def _edge_object(rng: np.random.Generator, kind: int, side_m: float, toward_robot: bool,
+                 top_depth_m: float) -> BuriedObjects:
+    """One object whose near (``toward_robot``) or far side is at reach ``side_m``."""
+    if kind == 2:
+        root = RootParams(0.0, top_depth_m)
+        half_m = 0.5 * root.width_m
+        return BuriedObjects(roots=(dataclasses.replace(
+            root, reach_m=side_m + half_m if toward_robot else side_m - half_m),),)
+    if kind == 1:
+        stone = StoneParams(0.0, top_depth_m, float(rng.uniform(0.03, 0.15)),
+                            float(rng.uniform(0.03, 0.1)))
+        half_m = 0.5 * stone.width_m
+        return BuriedObjects(stones=(dataclasses.replace(
+            stone, reach_m=side_m + half_m if toward_robot else side_m - half_m),),)
+    mine = _mine(rng, 0.0, top_depth_m)
+    half_m = 0.5 * mine.width_m
+    return BuriedObjects(mines=(dataclasses.replace(
+        mine, reach_m=side_m + half_m if toward_robot else side_m - half_m),))
+
+
+def _edge_case(seed: int, index: int) -> FuzzCase:
+    """An edge case: plunges (even indices) and descending task-space jogs (odd) whose
+    path passes within :data:`EDGE_BAND_M` of an object's side (or over a root's round
+    side), over a mine (indices
+    0, 1 mod 4), a stone (2 mod 4, every other time) or a root; its top 5–100 mm below
+    ground level, on the campaign's soils; faults and supervision as in the random
+    family."""
+    rng = np.random.default_rng([seed, index, 2])
+    plunge = index % 2 == 0
+    kind = 0 if index % 4 < 2 else (1 if (index // 4) % 2 == 0 else 2)
+    reach_m = float(rng.uniform(0.95, 1.35))
+    soil = _soil(rng)
+    surface_m = original_surface_height_m(soil, reach_m)
+    top_depth_m = float(rng.uniform(0.005, 0.1))
+    toward_robot = bool(rng.integers(0, 2))  # the object beyond the path, or before it
+    # > 0: the path over it; a root's round side spans its radius (10 mm)
+    inside_m = float(rng.uniform(-EDGE_BAND_M, 0.01 if kind == 2 else EDGE_BAND_M))
+    side_m = reach_m - inside_m if toward_robot else reach_m + inside_m
+    objects = _edge_object(rng, kind, side_m, toward_robot, top_depth_m)
+    if plunge:
+        command = MotionCommand(CommandKind.PLUNGE, reach_m, reach_m, PLUNGE_END_DEPTH_M,
+                                PLUNGE_END_DEPTH_M, float(rng.uniform(0.05, 0.25)), 0.0,
+                                float(rng.uniform(0.02, 0.1)), bool(rng.integers(0, 2)))
+    else:  # within ±15° of straight down, from just above the ground
+        command = MotionCommand(CommandKind.JOG, reach_m, reach_m, 0.0, 0.0, 0.0, 0.0,
+                                float(rng.uniform(0.0, 0.03)), True, jog_space="task",
+                                jog_angle_rad=float(rng.uniform(-0.26, 0.26)),
+                                jog_s=float(rng.uniform(0.3, 1.5)))
+    command = dataclasses.replace(command, start_height_m=max(
+        command.start_height_m, _height_clear_of(objects, reach_m, surface_m)))
+    if plunge:
+        duration_s = (command.start_height_m + PLUNGE_END_DEPTH_M + 0.1) \
+            / command.speed_m_per_s + 1.0
+    else:
+        duration_s = command.jog_s + JOG_HOLD_S
+    faults = _faults(rng, (index // 4) % (len(FAULT_KINDS) + 1), duration_s)
+    return FuzzCase(seed, index, GroundParams(soil, objects), int(rng.integers(0, 2**32)),
+                    command, faults, duration_s, (index // 24) % 2 == 1, Family.EDGE)
 
 
 # --------------------------------------------------------------------------- serialization

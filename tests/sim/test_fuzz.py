@@ -101,6 +101,34 @@ def test_generation_spans_what_an_operator_can_command() -> None:
     assert len(at_cut) > 50
 
 
+def test_edge_cases_descend_along_an_objects_side() -> None:
+    """The edge family: plunges and descending jogs whose path passes within the band of
+    an object's side (a root's round side: its radius), over mines in half the cases,
+    stones and roots in the others, under every fault, half supervised; deterministic,
+    serializable, and drawn apart from the random family."""
+    some = [cases.generate(2, i, cases.Family.EDGE) for i in range(48)]
+    assert some[3] == cases.generate(2, 3, cases.Family.EDGE) != cases.generate(2, 3)
+    assert all(c.family is cases.Family.EDGE for c in some)
+    assert cases.case_from_dict(json.loads(json.dumps(some[3].to_dict()))) == some[3]
+    assert {c.command.kind for c in some} == {CommandKind.PLUNGE, CommandKind.JOG}
+    assert {k for c in some for k in c.faults.kinds()} == set(FAULT_KINDS)
+    assert {c.supervised for c in some} == {False, True}
+    kinds = [(len(o.mines), len(o.stones), len(o.roots))
+             for o in (c.ground.objects for c in some)]
+    assert kinds.count((1, 0, 0)) == 24 and kinds.count((0, 1, 0)) == kinds.count((0, 0, 1))
+    for c in some:
+        body = (*c.ground.objects.mines, *c.ground.objects.stones, *c.ground.objects.roots)[0]
+        path_m = c.command.reach_far_m
+        gap_m = min(abs(path_m - (body.reach_m - 0.5 * body.width_m)),
+                    abs(path_m - (body.reach_m + 0.5 * body.width_m)))
+        assert gap_m <= max(cases.EDGE_BAND_M, 0.5 * body.width_m) + 1e-12
+        if c.command.kind is CommandKind.JOG:
+            assert c.command.jog_space == "task" and abs(c.command.jog_angle_rad) < 0.27
+    old_file = some[0].to_dict()
+    del old_file["family"]  # a case file from before the families: the random one
+    assert cases.case_from_dict(old_file).family is cases.Family.RANDOM
+
+
 @pytest.fixture(scope="module")
 def ci_sample(tmp_path_factory: pytest.TempPathFactory) -> campaign.Report:
     """The campaign's CI sample: cases 9702–9761 of seed 20261127."""
@@ -340,3 +368,7 @@ def test_a_campaign_streams_its_results_and_resumes_where_it_stopped(tmp_path: P
     assert again.resumed == 4 and again.results == resumed.results
     other_seed = campaign.campaign(1, seed=4, workers=1, out_dir=tmp_path)
     assert other_seed.resumed == 0
+    edge = campaign.campaign(1, seed=3, workers=1, out_dir=tmp_path, family=cases.Family.EDGE)
+    assert edge.resumed == 0 and edge.results[0].family == "edge"  # not seed 3's random case
+    assert campaign.campaign(1, seed=3, workers=1, out_dir=tmp_path,
+                             family=cases.Family.EDGE).resumed == 1
