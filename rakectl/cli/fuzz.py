@@ -39,8 +39,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
     p.add_argument("--family", choices=[str(f) for f in Family], default=str(Family.RANDOM),
                    help="how cases are drawn: random (default: everything an operator can "
-                   "command, objects anywhere) or edge (plunges and descending jogs along an "
-                   "object's side into its rounded top edge)")
+                   "command, objects anywhere) or edge (plunges along an object's side into "
+                   "its rounded top edge)")
     p.add_argument("--first", type=int, default=0,
                    help="index of the first case (default 0): a large campaign in parts")
     p.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")

@@ -3,8 +3,9 @@
 A stone's side met by the arm coasting along the reach (a mass meeting a
 spring-damper, integrated here with RK4, not the emulator's code), a steady
 drag through soil (the earthmoving equation by hand), a static press with a
-known motor current, and the mount's reading against the ground's own on a
-rounded edge.
+known motor current, the mount's reading against the ground's own on a
+rounded edge, and a rounded edge forcing descending tines sideways through
+soil, which loads the object with the soil's cutting resistance.
 """
 
 from __future__ import annotations
@@ -417,3 +418,43 @@ def test_tines_descending_into_a_bottom_corner_are_not_rested_under_it() -> None
     assert body._contact(reach_m, arm_m + d)[2] == -1.0  # the bottom the nearest face
     assert mount.hooked(ground, reach_m, arm_m, arm_vel, d) == d
     assert (mount.resting_under, mount.hooked_on) == (-1, -1)
+
+
+def test_an_edge_forcing_descending_tines_sideways_loads_it_with_the_soils_resistance() -> None:
+    """The gap the clamp leaves (docs/safety.md, "Not covered"): the arm servoed straight
+    down at 0.2 m/s, the tines' path 0.3 mm inside a mine's 3 mm rim, in a soil soft to
+    the tips and strong to the rake's face (12 kPa). The rim forces the tines toward the
+    robot through a 33 mm cut; at the mine's peak the soil's drag is the earthmoving
+    equation's H at that cut in closed form (``cutting_force_n``: fully mobilized), and
+    the mine carries it and what the mount carries, which is a few newtons: the arm, and
+    so the clamp, feels only those."""
+    layer = SoilLayer(stiffness_n_per_m=3.5e3, collapse_force_n=9.0, cohesion_pa=12e3,
+                      damping_time_s=1e-3)
+    soil = SoilParams(layers=(layer,), surface_slope=0.0, stiffness_rel_std=0.0,
+                      strength_rel_std=0.0, lane_reach_max_m=2.0)
+    reach_m, speed = 1.1, 0.2
+    mine = MineParams(reach_m - 0.0003 + 0.04, 0.03, 0.08, 0.06, activation_force_n=1e4)
+    ground = Ground(GroundParams(soil=soil, objects=BuriedObjects(mines=(mine,))), seed=0)
+    body = ground.bodies[0]
+    rows: list[tuple[float, float, float, float]] = []
+
+    class _Record(PeakRecorder):
+        def step(self, reach: float, height: float, reach_vel: float, height_vel: float,
+                 dt_s: float) -> tuple[float, float]:
+            total = super().step(reach, height, reach_vel, height_vel, dt_s)
+            rows.append((body.force_reach_n, ground.soil.force_reach_n, total[0],
+                         ground.soil.cut_depth_m))
+            return total
+
+    plant = ArmPlant(ARM, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, WS)
+    plant.set_state(ArmState(*kinematics.inverse(WS, reach_m, -0.005)))
+    recorder = _Record(ground)
+    for k in range(300):
+        r, th = kinematics.inverse(WS, reach_m, -0.005 - speed * k * STEP_S)
+        plant.step(*_servo(plant, r, th, *_joint_rates(r, th, 0.0, -speed)), recorder, STEP_S)
+    mine_n, drag_n, mount_n, cut_m = min(rows)
+    assert cut_m == pytest.approx(0.033, abs=1e-3)
+    assert drag_n == pytest.approx(cutting_force_n(layer, soil, cut_m), rel=0.01)
+    assert abs(mount_n) < 10.0
+    assert -mine_n == pytest.approx(drag_n - mount_n, rel=1e-9)
+    assert -mine_n > 150.0 > 90.0  # over the limit, with the mount carrying a few newtons
