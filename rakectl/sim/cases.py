@@ -31,9 +31,9 @@ up to 5 mm above it; some mines partly exposed (plate above the ground).
 The ``edge`` family (``generate(seed, index, Family.EDGE)``) aims where random
 placement rarely does: a plunge whose path passes within 4 mm of an object's
 side (a mine in half the cases, a stone or a root in the others), so that the
-tines meet its rounded top edge, on the same soils; the
-band of paths where an edge forces the tines sideways through the soil is a
-few tenths of a millimetre wide (docs/safety.md).
+tines meet its rounded top edge, on the same soils; the band of paths where an
+edge forces the tines sideways through the soil is a few tenths of a
+millimetre wide (docs/safety.md, "Not covered").
 
 Faults: lost feedback and lost commands (per tick), a drive fault episode
 (both motors at 0 V for 20–200 ms), a controller stall (no tick for 5–60 ms:
@@ -352,22 +352,21 @@ EDGE_BAND_M = 0.004  # an edge case's path passes this close to the object's sid
 
 def _edge_object(rng: np.random.Generator, kind: int, side_m: float, toward_robot: bool,
                  top_depth_m: float) -> BuriedObjects:
-    """One object whose near (``toward_robot``) or far side is at reach ``side_m``."""
+    """One mine (``kind`` 0), stone (1) or root (2) whose near (``toward_robot``) or far
+    side is at reach ``side_m``."""
+    body: StoneParams | RootParams | MineParams
     if kind == 2:
-        root = RootParams(0.0, top_depth_m)
-        half_m = 0.5 * root.width_m
-        return BuriedObjects(roots=(dataclasses.replace(
-            root, reach_m=side_m + half_m if toward_robot else side_m - half_m),),)
-    if kind == 1:
-        stone = StoneParams(0.0, top_depth_m, float(rng.uniform(0.03, 0.15)),
-                            float(rng.uniform(0.03, 0.1)))
-        half_m = 0.5 * stone.width_m
-        return BuriedObjects(stones=(dataclasses.replace(
-            stone, reach_m=side_m + half_m if toward_robot else side_m - half_m),),)
-    mine = _mine(rng, 0.0, top_depth_m)
-    half_m = 0.5 * mine.width_m
-    return BuriedObjects(mines=(dataclasses.replace(
-        mine, reach_m=side_m + half_m if toward_robot else side_m - half_m),))
+        body = RootParams(0.0, top_depth_m)
+    elif kind == 1:
+        body = StoneParams(0.0, top_depth_m, float(rng.uniform(0.03, 0.15)),
+                           float(rng.uniform(0.03, 0.1)))
+    else:
+        body = _mine(rng, 0.0, top_depth_m)
+    half_m = 0.5 * body.width_m
+    body = dataclasses.replace(body, reach_m=side_m + half_m if toward_robot else side_m - half_m)
+    return BuriedObjects(stones=(body,) if isinstance(body, StoneParams) else (),
+                         roots=(body,) if isinstance(body, RootParams) else (),
+                         mines=(body,) if isinstance(body, MineParams) else ())
 
 
 def _edge_case(seed: int, index: int) -> FuzzCase:
