@@ -12,7 +12,7 @@ exactly what the mount carries.
 Vertically the compression d is solved against the ground's piecewise-linear
 laws (``drivers.soil.VerticalLaw``: the soil's interface with its saw-tooth
 collapse, objects' tops with their yield), backward Euler, with an active set
-(:meth:`TineMount._vertical`).
+(:func:`drivers.mount_vertical.compression`).
 
 Sideways the tines' offset e along the reach is solved with it: the soil's drag
 −H·tanh(v/v_s) on the tines (linearized at their last speed: one Newton step of
@@ -39,11 +39,10 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from drivers.mount_vertical import compression
 from drivers.objects import NormalLaw
 from drivers.soil import VerticalLaw
 
-# Rounds of the tine mount's active-set iteration (contacts, yields, soil collapses).
-_MOUNT_ITERATIONS = 16
 # Largest slide of the tines relative to the arm in one solve (a 20 µm slide strays
 # 0.07 µm off a 3 mm edge: under 1 N on a stone).
 MAX_SLIDE_M = 2e-5
@@ -59,6 +58,11 @@ _NEWTON_STEPS = 60
 # The least force the laws below must put on the mount for tines in an object's bottom to
 # be pushed there by them rather than pulled up by the extended mount alone.
 _PUSHED_N = 1e-6
+
+
+def _bottom_of(law: tuple[int, float, float, float]) -> float:
+    """A bottom law's height (``Ground.bottom_laws``: index, bottom, K, B)."""
+    return law[1]
 
 
 class _Coupled:
@@ -229,16 +233,13 @@ class TineMount:
         arm records (:attr:`under`, :meth:`drivers.objects.Ground.lifted`). Left out of
         the balance, the soil pushed them 34 µm into a mine's bottom, read as 172 N with
         the mount carrying 1.3 N (20261128/2199)."""
-        laws = ground.bottom_laws(tine_reach_m, height_m + d) if self.vertical else []
+        laws: list[tuple[int, float, float, float]] = (
+            ground.bottom_laws(tine_reach_m, height_m + d) if self.vertical else [])
         h, k, c, d0 = self.step_s, self.k_v, self.c_v, self.compression_m
         self.resting_under = -1
         if (laws and height_vel + (d - d0) / h > 0.0  # rising into it, not along a side
                 and k * d + c * (d - d0) / h > _PUSHED_N):
-            index: int = laws[0][0]
-            bottom_m: float = laws[0][1]
-            for law in laws:
-                if law[1] < bottom_m:
-                    index, bottom_m = law[0], law[1]
+            index, bottom_m, _, _ = min(laws, key=_bottom_of)
             rest = bottom_m - height_m
             while height_m + rest > bottom_m:
                 rest = math.nextafter(rest, -math.inf)
@@ -259,7 +260,7 @@ class TineMount:
             if not pulling:
                 self.hooked_on = laws[0][0]
                 # pushed out below the bottom by its damping alone: the tines rest on it
-                lowest_m = min(bottom_m for _, bottom_m, _, _ in laws) - height_m
+                lowest_m = _bottom_of(min(laws, key=_bottom_of)) - height_m
                 return hooked if hooked > lowest_m else lowest_m
             laws = [law for law in laws if law not in pulling]
         self.hooked_on = -1
@@ -360,116 +361,8 @@ class TineMount:
         return e
 
     def _vertical(self, laws: list[VerticalLaw], height_m: float, height_vel_m_per_s: float
-               ) -> float:
-        """The mount's compression at the end of this substep (backward Euler).
-
-        The tines are massless: the mount's force k·δ + c·δ̇ equals the ground's, the
-        sum over the laws the tines are below of K (ref − z − δ) − B (ż + δ̇), each as the
-        ground itself computes it: an object's elastic part held at its cap where it
-        yields, the soil's interface lowered by whole steps of cap/K where it collapses
-        (:class:`drivers.soil.VerticalLaw`). The laws in contact, yielding, and the
-        collapsed interfaces are found by iteration (piecewise linear, active set); each
-        only changes one way within a substep, so a stiff top cannot make it chatter.
-        Solved implicitly, so a stiff ground (a stone, 10⁷ N/m) is stable at the
-        substep and meets the tines without a force spike.
-        """
-        h, k, c, d0 = self.step_s, self.k_v, self.c_v, self.compression_m
-        relaxed = c * d0 / (c + h * k)  # no ground force: the mount relaxes
-        d = relaxed
-        refs = [law.ref_m for law in laws]
-        active = [height_m + d0 < ref_m for ref_m in refs]
-        yielding = [False] * len(laws)
-        above = [False] * len(laws)  # the tines stay above it this substep
-        slack = [False] * len(laws)  # the tines leave it faster than it pushes: it reads 0
-        for _ in range(_MOUNT_ITERATIONS):
-            stiff = damp = force = 0.0
-            for law, ref_m, on, cap in zip(laws, refs, active, yielding, strict=True):
-                if on:
-                    damp += law.damping_ns_per_m
-                    if cap:
-                        force += law.cap_n
-                    else:
-                        stiff += law.stiffness_n_per_m
-                        force += law.stiffness_n_per_m * (ref_m - height_m)
-            if any(active):
-                force += (damp + c) * d0 / h - damp * height_vel_m_per_s
-                d = force / (stiff + k + (damp + c) / h)
-                if k * d + c * (d - d0) / h <= 0.0:  # the ground would pull: it lets go
-                    d = relaxed
-            changed = False
-            rate_m_per_s = height_vel_m_per_s + (d - d0) / h  # the tines' speed up
-            for i, law in enumerate(laws):
-                if not active[i]:
-                    if height_m + d < refs[i] and not above[i] and (
-                            not slack[i] or min(law.stiffness_n_per_m * (refs[i] - height_m - d),
-                                                law.cap_n) > law.damping_ns_per_m * rate_m_per_s):
-                        # the solution reaches it (one let go as pulling joins again once
-                        # it would push there: the others moved the tines back into it,
-                        # 20261127/8181: a soil that gave way under tines leaving a mine's
-                        # plate put them 14 µm into it at 233 mm/s, 302 N on the plate
-                        # with the mount carrying 22 N)
-                        active[i], slack[i], changed = True, False, True
-                    continue
-                elastic_n = law.stiffness_n_per_m * (refs[i] - height_m - d)
-                if elastic_n < 0.0 and not changed:
-                    # in contact, yet the solution is above it: the contact force jumps at
-                    # the surface (damping). Either the tines rest on it this substep, or
-                    # the other laws already hold the mount above it there.
-                    rest = self._rest_on(refs[i], height_m, relaxed)
-                    if self._others_n(laws, refs, active, yielding, i, height_m,
-                                      height_vel_m_per_s, rest) < (
-                            k * rest + c * (rest - d0) / h):
-                        return rest
-                    active[i], above[i], changed = False, True, True
-                    break
-                held_n = law.cap_n if yielding[i] else elastic_n
-                if not changed and held_n < law.damping_ns_per_m * rate_m_per_s:
-                    # it would pull: a contact only pushes (Soil.step and Body.touch clip its
-                    # force at 0), so it carries nothing this substep and the others hold the
-                    # tines (else its damping pulled the mount down while the ground read the
-                    # others' force unrelieved: a tine lifted up a rounded edge out of the soil
-                    # read 90-170 N with the mount carrying 17-47 N, seed 7's lanes 429, 606,
-                    # 732, 735)
-                    active[i], slack[i], changed = False, True, True
-                    break
-                if yielding[i]:
-                    continue
-                if elastic_n > law.cap_n:
-                    changed = True
-                    if law.collapses:  # the soil gives way as Soil._push does
-                        steps = math.floor(elastic_n / law.cap_n)
-                        refs[i] -= steps * law.cap_n / law.stiffness_n_per_m
-                    else:
-                        yielding[i] = True
-            if not changed:
-                break
-        for i, ref_m in enumerate(refs):
-            if above[i] and height_m + d < ref_m:  # left out, yet reached: rest on it
-                return self._rest_on(ref_m, height_m, relaxed)
-        return d
-
-    @staticmethod
-    def _rest_on(ref_m: float, height_m: float, relaxed_m: float) -> float:
-        """The compression that puts the tines on ``ref_m``, not below it by a rounding (the
-        ground would read its damping at the speed they fell in this substep), and never
-        extending faster than the mount relaxes (its force stays ≥ 0)."""
-        d = max(ref_m - height_m, relaxed_m)
-        while height_m + d < ref_m:
-            d = math.nextafter(d, math.inf)
-        return d
-
-    def _others_n(self, laws: list[VerticalLaw], refs: list[float], active: list[bool],
-                  yielding: list[bool], skip: int, height_m: float, height_vel_m_per_s: float,
-                  d_m: float) -> float:
-        """The force of the active laws but ``skip`` on tines at compression ``d_m``."""
-        tine_m = height_m + d_m
-        rate_m_per_s = height_vel_m_per_s + (d_m - self.compression_m) / self.step_s
-        total_n = 0.0
-        for j, law in enumerate(laws):
-            if j == skip or not active[j] or tine_m >= refs[j]:
-                continue
-            elastic_n = (law.cap_n if yielding[j]
-                         else law.stiffness_n_per_m * (refs[j] - tine_m))
-            total_n += max(0.0, elastic_n - law.damping_ns_per_m * rate_m_per_s)
-        return total_n
-
+                  ) -> float:
+        """The mount's compression at the end of this substep against ``laws``
+        (:func:`drivers.mount_vertical.compression`)."""
+        return compression(self.k_v, self.c_v, self.step_s, self.compression_m, laws,
+                           height_m, height_vel_m_per_s)
