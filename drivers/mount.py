@@ -191,30 +191,62 @@ class TineMount:
             coupled = kept + [_Coupled(i, law, (e, d), start, reach_vel, height_vel, h)
                               for i, law in inside.items()]
             v_lin = v_new
-        else:  # not settled: the tines sit on a soil cell's edge; keep them in the laws' cell
+        else:  # not settled: the tines sit on a soil cell's edge; hold them in the laws' cell
             soil = ground.soil
             low_m, high_m = soil.cell_edges_m(soil.cell_index(laws_at))
-            pinned = min(max(e, low_m - reach_m), math.nextafter(high_m, -math.inf) - reach_m)
-            d = self._no_deeper(ground, reach_m, height_m, (e, d), pinned)
-            e = pinned
+            e = min(max(e, low_m - reach_m), math.nextafter(high_m, -math.inf) - reach_m)
+            d = self._held(ground, reach_m, height_m, reach_vel, height_vel, e)
         return e, d
 
-    @staticmethod
-    def _no_deeper(ground: Any, reach_m: float, height_m: float, solved: tuple[float, float],
-                   pinned_m: float) -> float:
-        """d for tines moved from the solved (e, d) to offset ``pinned_m`` at a cell's edge:
-        on an object's rounded edge, raised so that they are in it no deeper than the solve
-        put them. The move along the reach alone would put them deeper by n_reach/n_up of
-        it, a penetration the mount never carried (20261125/2781: a stone's edge read
-        141 N with the mount carrying 13 N)."""
-        e, d = solved
-        if pinned_m == e:
-            return d
-        depth_at = {i: law.depth_m for i, law in ground.normal_laws(reach_m + e, height_m + d)}
-        for i, law in ground.normal_laws(reach_m + pinned_m, height_m + d):
-            excess_m = law.depth_m - max(depth_at.get(i, 0.0), 0.0)
-            if law.n_up > 0.0 and excess_m > 0.0:
-                d = max(d, solved[1] + excess_m / law.n_up)
+    def _held(self, ground: Any, reach_m: float, height_m: float, reach_vel: float,
+              height_vel: float, held_m: float) -> float:
+        """d for tines held at offset ``held_m`` (a soil cell's edge), solved against every
+        law there, the objects' laws taken again where the solution puts the tines until
+        they read what it assumed.
+
+        Where the drag jumps between two cells and the solve settles in neither, the tines
+        stay on the edge between them, the drag taking any value between the two cells'
+        (a sliding mode, as for Coulomb friction at rest): it takes what the sideways
+        balance leaves, so the offset is held and only the vertical balance is solved,
+        implicitly as any other. The objects' edges then read exactly what the mount
+        carries vertically. Moved along the reach without it, tines went deeper into a
+        rounded edge than the mount carried (a stone read 141 N, the mount 13 N,
+        20261125/2781); raised back to the depth the solve had put them at, they moved
+        faster than anything pushed them (0.5 mm in 50 µs, the mount's damping read
+        90.4 N, 20261128 edge 7070; a stone's damping read 1537 N, edge 8890)."""
+        h, e0 = self.step_s, self.offset_m
+        reach_rate_m_per_s = reach_vel + (held_m - e0) / h  # the tines' along the reach
+        d = self.compression_m
+        # each object's law as last read, and the compression it was read at
+        read: dict[int, tuple[NormalLaw, float]] = {
+            i: (law, d) for i, law in ground.normal_laws(reach_m + held_m, height_m + d)
+            if law.n_up > 0.0}
+        for _ in range(_SIDE_ROUNDS):
+            laws: list[VerticalLaw] = ground.vertical_laws(
+                reach_m + held_m, height_m, height_m + self.compression_m, reach_vel,
+                edges=False)
+            for law, at_m in read.values():
+                # the face's height at this offset, where the tines at compression
+                # ``at_m`` read law.depth_m; its push along the reach folded in (a
+                # constant: the offset is held)
+                into_m_per_s = max(0.0, -law.n_reach * reach_rate_m_per_s)
+                ref_m = (height_m + at_m + law.depth_m / law.n_up
+                         + law.damping_ns_per_m * into_m_per_s
+                         / (law.n_up * law.stiffness_n_per_m))
+                n2 = law.n_up * law.n_up
+                laws.append(VerticalLaw(ref_m, n2 * law.stiffness_n_per_m,
+                                        n2 * law.damping_ns_per_m, law.cap_n * law.n_up,
+                                        False))
+            d_new = self._vertical(laws, height_m, height_vel)
+            inside = {i: law for i, law in ground.normal_laws(reach_m + held_m, height_m + d_new)
+                      if law.n_up > 0.0}
+            settled = read.keys() == inside.keys() and all(
+                abs(law.depth_m - (read[i][0].depth_m - read[i][0].n_up * (d_new - read[i][1])))
+                < _SETTLED_M for i, law in inside.items())
+            d = d_new
+            if settled:
+                break
+            read.update({i: (law, d) for i, law in inside.items()})
         return d
 
     def hooked(self, ground: Any, tine_reach_m: float, height_m: float, height_vel: float,
@@ -297,13 +329,15 @@ class TineMount:
 
     def _coupled_vertical(self, ground: Any, coupled: list[_Coupled], a_e: float, b_e: float,
                           tine_reach_m: float, height_m: float, reach_vel: float,
-                          height_vel: float) -> float:
-        """d, with each edge's law folded through the sideways balance into a vertical one;
+                          height_vel: float, held_m: float = math.nan) -> float:
+        """d, with each edge's law folded through the sideways balance into a vertical one
+        (or, with ``held_m``, taken at that offset, which does not move with d);
         the soil's and the tops' laws where the tines are (``tine_reach_m``)."""
         if not self.vertical:
             return 0.0
         d0, h = self.compression_m, self.step_s
-        e_0, e_1 = self._elimination(coupled, a_e, b_e)
+        e_0, e_1 = ((held_m, 0.0) if not math.isnan(held_m)
+                    else self._elimination(coupled, a_e, b_e))
         laws: list[VerticalLaw] = ground.vertical_laws(
             tine_reach_m, height_m, height_m + d0, reach_vel, edges=False)
         for c in coupled:

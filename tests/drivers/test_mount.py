@@ -204,37 +204,42 @@ def test_on_a_rounded_edge_the_mount_carries_what_the_mine_reads() -> None:
         max(body.peak_side_n, body.peak_down_n), rel=0.5)
 
 
-def test_tines_held_at_a_cells_edge_go_no_deeper_into_a_rounded_edge() -> None:
-    """Moved along the reach to a soil cell's edge (where the drag jumps and the solve
-    cannot settle), tines on a stone's rounded edge are raised to the depth the solve put
-    them at: hand-computed on the edge's circle, 2 µm in before and after, not the 7.1 µm
-    a move of 8 µm along the reach alone gives (the stone read 141 N where the mount carried 13 N,
-    20261125/2781)."""
+def test_tines_held_at_a_cells_edge_meet_a_rounded_edge_in_balance() -> None:
+    """Held at a soil cell's edge (where the drag jumps and the solve cannot settle), tines
+    2 µm inside a stone's rounded edge, the mount compressed 5 mm (25 N), the arm
+    descending at 20 mm/s, take the
+    compression of the backward-Euler balance along the vertical, computed by hand on
+    the edge's normal, and the stone then reads (Body.touch) what the mount carries: not
+    a penetration the mount never carried (20261125/2781: 141 N against 13 N), nor a
+    speed nothing pushed the tines to (20261128 edge 7070: raised 0.5 mm in 50 µs, the
+    mount's damping read 90.4 N)."""
     stone = StoneParams(reach_m=1.0, depth_m=0.01, width_m=0.05, thickness_m=0.07,
                         edge_radius_m=0.005)
     ground = Ground(GroundParams(soil=AIR, objects=BuriedObjects(stones=(stone,))), seed=0)
     rho, angle = 0.005, math.radians(40.0)  # a point on the far edge, 40° from the top
     centre_x, centre_z = 1.025 - rho, -0.01 - rho
-    inside_m = 2e-6
-    tine_x = centre_x + (rho - inside_m) * math.sin(angle)
-    tine_z = centre_z + (rho - inside_m) * math.cos(angle)
-    arm_x, arm_z, e, d = 1.02, -0.02, tine_x - 1.02, tine_z + 0.02
-    moved_m = -8e-6  # toward the robot: deeper into the far edge
-    # by hand: the pinned point's distance from the edge's centre, raised back onto the
-    # 2 µm circle
-    x1 = tine_x + moved_m - centre_x
-    z_on_circle = centre_z + math.sqrt((rho - inside_m) ** 2 - x1 * x1)
-    [(_, before)] = ground.normal_laws(tine_x, tine_z)
-    assert before.depth_m == pytest.approx(inside_m, abs=1e-12)
-    [(_, alone)] = ground.normal_laws(tine_x + moved_m, tine_z)
-    # moved along the reach only: deeper by the move's share along the normal
-    assert alone.depth_m == pytest.approx(inside_m - moved_m * math.sin(angle), abs=1e-8)
-    raised = TineMount._no_deeper(ground, arm_x, arm_z, (e, d), e + moved_m)
-    # raised along the normal's vertical share: exact to the edge's curvature over the move
-    assert arm_z + raised == pytest.approx(z_on_circle, abs=5e-8)
-    [(_, after)] = ground.normal_laws(tine_x + moved_m, arm_z + raised)
-    assert after.depth_m == pytest.approx(inside_m, abs=5e-8)
-    assert TineMount._no_deeper(ground, arm_x, arm_z, (e, d), e) == d  # not moved: as solved
+    p0_m, d0_m, h_s, v_m_per_s = 2e-6, 5e-3, 50e-6, -0.02
+    tine_x = centre_x + (rho - p0_m) * math.sin(angle)
+    tine_z = centre_z + (rho - p0_m) * math.cos(angle)
+    arm_x, arm_z = 1.02, tine_z - d0_m
+    mount = TineMount(5000.0, 7.5, 5000.0, 7.5, h_s)
+    mount.offset_m, mount.compression_m = tine_x - arm_x, d0_m
+    [(index, law)] = ground.normal_laws(tine_x, tine_z)
+    assert law.depth_m == pytest.approx(p0_m, abs=1e-12)
+    assert law.n_up == pytest.approx(math.cos(angle))
+    # by hand: k·d + c·(d − d0)/h = n_z·(K·p + B·ṗ), p = p0 − n_z·x, ṗ = −n_z·(v + x/h),
+    # x = d − d0, the offset held (no motion along the reach)
+    n_z, k_s, b_s = math.cos(angle), law.stiffness_n_per_m, law.damping_ns_per_m
+    x_m = ((n_z * k_s * p0_m - n_z * n_z * b_s * v_m_per_s - 5000.0 * d0_m)
+           / (5000.0 + 7.5 / h_s + n_z * n_z * (k_s + b_s / h_s)))
+    d_m = mount._held(ground, arm_x, arm_z, 0.0, v_m_per_s, mount.offset_m)
+    assert 0.0 < n_z * x_m < p0_m  # still in the edge: the law is linear there
+    assert d_m == pytest.approx(d0_m + x_m, abs=1e-10)  # the edge's curvature over x: < 0.1 nm
+    mount_n = 5000.0 * d_m + 7.5 * (d_m - d0_m) / h_s
+    body = ground.bodies[index]
+    assert body.touch(tine_x, arm_z + d_m, 0.0, v_m_per_s + (d_m - d0_m) / h_s)
+    assert body.force_up_n == pytest.approx(mount_n, rel=1e-3)
+    assert 10.0 < mount_n < 90.0  # a contact worth checking, met at a speed the mount allows
 
 
 def _rise_into_a_bottom(speed_m_per_s: float) -> tuple[Ground, float, float]:
