@@ -133,11 +133,13 @@ class Body:
             return (rho - q_z, 0.0, 1.0) if q_z < rho else None
         return (rho - q_x, math.copysign(1.0, x), 0.0) if q_x < rho else None
 
-    def under(self, reach_m: float, height_m: float) -> bool:
-        """Whether a tip here is in it through its bottom: a tine under it that rose into
-        it, which presses the soil under it, not the soil its top hides."""
+    def hides_soil_from(self, reach_m: float, height_m: float) -> bool:
+        """Whether it hides the soil below its top from a tip here (within its extent):
+        not from a tip in it through its bottom (a tine under it that rose into it presses
+        the soil under it) nor through a side (a tine beside it, in the soil there, meets
+        that soil at its own height, as the tine mount's solve takes it)."""
         contact = self._contact(reach_m, height_m)
-        return contact is not None and contact[2] < 0.0
+        return contact is None or contact[2] > 0.0
 
     def shield_m(self, reach_m: float) -> float:
         """The height below which it hides the soil from a tip at ``reach_m`` (inside its
@@ -302,7 +304,7 @@ class Ground:
         contact = Contact.NONE
         for body in self.bodies:
             if (not body.broken and body.left_m < reach_m < body.right_m
-                    and height_m > body.bottom_m and not body.under(reach_m, height_m)):
+                    and height_m > body.bottom_m and body.hides_soil_from(reach_m, height_m)):
                 shield_m = max(shield_m, body.shield_m(reach_m))
             if body.touch(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s):
                 f_reach_n += body.force_reach_n

@@ -282,6 +282,36 @@ def test_a_tine_under_a_mine_rising_into_it_presses_its_bottom() -> None:
     assert force[1] == pytest.approx(ground.truth.force_down_n - expected_n)
 
 
+def test_a_tine_in_a_roots_side_presses_the_soil_there_at_its_own_height() -> None:
+    """A tine beside a root, below its rounded top, pushed 54 µm into its side: it is in the
+    soil beside the root, so it meets that soil at its own height (the law the tine mount
+    solves against, Soil.vertical_law), not the soil the root's top hides, 1 mm higher
+    there: held at that height, the soil read 274.6 N with the mount carrying 21.4 N
+    (20261128 edge 3311). Dropping 2 µm into the soil it carried down, it presses it by
+    K·(interface − tine), the saw-tooth's remainder, by hand."""
+    root = RootParams(reach_m=1.162, depth_m=0.029, width_m=0.02, thickness_m=0.02)
+    g = ground(roots=(root,))
+    body = g.bodies[0]
+    z0_m = body.top_m - 0.0113  # below the root's centre line: its side is straight there
+    outside_m, inside_m = body.right_m + 1e-6, body.right_m - 54e-6
+    assert g.soil.cell_index(outside_m) == g.soil.cell_index(inside_m)
+    g.step(outside_m, z0_m, 0.0, 0.0, DT_S)  # in the soil beside it: carried down to here
+    interface_m = g.soil.interface_height_m
+    contact = body._contact(inside_m, z0_m - 2e-6)
+    assert contact is not None and contact[1:] == (1.0, 0.0)  # its side
+    assert contact[0] == pytest.approx(54e-6)
+    assert z0_m - 2e-6 < body.shield_m(inside_m) - 5e-4  # its top hides the soil 1 mm up
+    assert not body.hides_soil_from(inside_m, z0_m - 2e-6)
+    law = g.soil.vertical_law(inside_m, z0_m - 2e-6)
+    g.step(inside_m, z0_m - 2e-6, 0.0, 0.0, DT_S)
+    layer = SoilLayer()
+    elastic_n = layer.stiffness_n_per_m * (interface_m - (z0_m - 2e-6))
+    elastic_n -= math.floor(elastic_n / layer.collapse_force_n) * layer.collapse_force_n
+    assert law is not None and law.ref_m == interface_m  # what the mount solves against
+    assert g.soil.force_up_n == pytest.approx(elastic_n, rel=1e-6)
+    assert g.truth.force_down_n == pytest.approx(elastic_n, rel=1e-6)  # the root: sideways
+
+
 def test_a_tine_sliding_in_a_bottom_presses_the_soil_under_it_at_its_own_height() -> None:
     """A tine under a stone, 1 µm into its bottom (the mount pulling it up there), slides
     along the reach into the next soil cell: it is under the stone, so the soil it meets is
@@ -294,7 +324,7 @@ def test_a_tine_sliding_in_a_bottom_presses_the_soil_under_it_at_its_own_height(
     body, bottom_m = g.bodies[0], g.bodies[0].bottom_m
     g.step(1.0, bottom_m - 1e-6, 0.0, 0.0, DT_S)  # under it
     g.step(1.0, bottom_m + 1e-6, 0.0, 0.0, DT_S)  # 1 µm into its bottom
-    assert body.under(1.0, bottom_m + 1e-6)
+    assert not body.hides_soil_from(1.0, bottom_m + 1e-6)
     assert g.truth.lift_n == pytest.approx(1e7 * 1e-6)  # the stone holds it down
     next_cell_m = 1.0 + 1.2 * g.soil.cell_m
     assert g.soil.cell_index(next_cell_m) != g.soil.cell_index(1.0)
@@ -302,10 +332,10 @@ def test_a_tine_sliding_in_a_bottom_presses_the_soil_under_it_at_its_own_height(
     law = g.soil.vertical_law(next_cell_m, bottom_m - 1e-6)
     assert law is not None and law.ref_m == bottom_m + 1e-6  # the interface: the tine's
     g.step(next_cell_m, bottom_m - 1e-6, 0.0, 0.0, DT_S)
-    assert not body.under(next_cell_m, bottom_m - 1e-6)  # out of it again
+    assert body._contact(next_cell_m, bottom_m - 1e-6) is None  # out of it again
     stiffness = SoilLayer().stiffness_n_per_m
     assert g.truth.force_down_n == pytest.approx(stiffness * 2e-6, rel=1e-6)
-    assert not body.under(1.0, body.top_m - 1e-6)  # just under its top: on it, not under
+    assert body.hides_soil_from(1.0, body.top_m - 1e-6)  # just under its top: on it
     # held at its bottom by a mount pulling 20 N, the tine is held down with the soil's
     # push and that pull: the stone carries both
     g.lifted(0, -20.0)
