@@ -31,7 +31,6 @@ import can
 import structlog
 
 from rakectl.config.settings import Settings
-from rakectl.core import kinematics
 from rakectl.core.control import TipController
 from rakectl.core.jog import Jog
 from rakectl.core.lane import LanePlanner
@@ -41,19 +40,19 @@ from rakectl.core.supervision import (
     implausible_joints,
     plausible_ranges,
 )
-from rakectl.daemon.checks import ArmingChecks, Verdict
+from rakectl.daemon.checks import ArmingChecks
 from rakectl.daemon.events import EventLog
 from rakectl.daemon.inputs import InputLog
 from rakectl.daemon.recorder import DumpWriter, FlightRecorder
 from rakectl.daemon.sdnotify import Notifier
-from rakectl.daemon.slack import SlackWork
-from rakectl.daemon.states import ARMED_STATES, DaemonState, Event, next_state
+from rakectl.daemon.states import ARMED_STATES, DaemonState, Event
 from rakectl.daemon.timing import LoopTiming, TickTimer
+from rakectl.daemon.transitions import StateChanges
 from rakectl.drive.canbus import TraceRecorder
 from rakectl.drive.client import DriveClient
 from rakectl.drive.joints import Joint
 from rakectl.errors import CommsTimeout
-from rakectl.protocol.cia402 import DriveCommand, DriveState
+from rakectl.protocol.cia402 import DriveState
 from rakectl.protocol.nmt import NmtState
 
 RECORDER_COLUMNS = (
@@ -69,7 +68,7 @@ HEARTBEAT_CHECK_TICKS = 10
 log = structlog.get_logger("rakectl")
 
 
-class Daemon(SlackWork):
+class Daemon(StateChanges):
     """The control loop and its state; ``handle`` (rakectl.daemon.handlers) serves requests."""
 
     def __init__(self, settings: Settings, client: DriveClient, notifier: Notifier,
@@ -231,14 +230,6 @@ class Daemon(SlackWork):
             return f"{self._overrun_streak} late ticks in a row: the loop cannot keep time"
         return ""
 
-    def _heartbeat_lost(self) -> bool:
-        """The heartbeat check, on the wall clock; a lost heartbeat goes to the trace's
-        inputs (rare: it faults)."""
-        lost = self.client.heartbeat_lost(self.heartbeat_clock())
-        if lost and self.inputs is not None:
-            self.inputs.heartbeat_lost(self.ticks)
-        return lost
-
     def _on_send_error(self, msg: can.Message, error: can.CanError) -> None:
         """A send failed (the client calls this, rarely): into the trace's inputs."""
         if self.inputs is not None:
@@ -360,93 +351,3 @@ class Daemon(SlackWork):
             fb.current_theta_a, self.supervisor.f_current_n, float(self.supervisor.level),
             self.timer.latency_ns * 1e-3, self._exec_us,
         ))
-
-    # ------------------------------------------------------------------ states
-
-    def _transition(self, event: Event, reason: str = "") -> bool:
-        new = next_state(self.state, event)
-        if new is None:
-            return False
-        old, self.state = self.state, new
-        if old is DaemonState.CHECKING:  # passed, or left unfinished (judged again next arm)
-            self.checks.stop()
-        if old in ARMED_STATES and new not in ARMED_STATES:
-            self._enabled = False
-            self.client.command(None, DriveCommand.QUICK_STOP if new is DaemonState.ESTOP
-                                else DriveCommand.DISABLE_VOLTAGE)
-        self.event("state", old=old.name, new=new.name, reason=reason)
-        self.notifier.status(f"{new.name.lower()}{': ' + reason if reason else ''}")
-        return True
-
-    def fault(self, reason: str) -> None:
-        """0 V from this tick on, drives disabled, the recorder dumped; latched until reset."""
-        if self._transition(Event.FAULT, reason):
-            self.fault_reason = reason
-            self.client.command(None, DriveCommand.DISABLE_VOLTAGE)
-            self._dump("fault")
-
-    def estop(self) -> None:
-        self._transition(Event.ESTOP, "operator e-stop")
-        self.fault_reason = "operator e-stop"
-        self.client.command(None, DriveCommand.QUICK_STOP)
-        self._dump("estop")
-
-    def arm(self) -> None:
-        """Hold the present pose and step the drives to OPERATION ENABLED; the first time
-        after start-up, through the checks before arming (CHECKING: rakectl.daemon.checks)."""
-        fb, s = self.client.feedback, self.settings
-        self.controller.reset(fb.r_m, fb.theta_rad)
-        self.controller.clamp.clear_latched()  # a fault it raised before was reset
-        self.supervisor.reset()
-        self.hold = (self.controller.reach_m, self.controller.depth_m)
-        self._ref = self.hold
-        self._enabled = False
-        self._enable_deadline = self.ticks + round(s.daemon.enable_timeout_s * s.rate_hz)
-        if self.checks.passed:
-            self._transition(Event.ARM)
-            return
-        reason = self.checks.start(*self.hold)  # built here, off the tick
-        if not self._transition(Event.CHECK, reason):
-            self.checks.stop()
-
-    def _judge(self, verdict: Verdict) -> None:
-        """A check ended: log it, then fault, run the next check, or arm."""
-        self.hold = verdict.start
-        self.event(verdict.event, **verdict.fields)
-        if not verdict.passed:
-            self.fault(verdict.message)
-        elif self.checks.mount_check is None:
-            self._transition(Event.CHECKED, verdict.message)
-
-    def start_reset(self) -> None:
-        """Fault-reset the drives; FAULT/ESTOP → DISARMED once no problem is left (≤ 1 s)."""
-        self.client.command(None, DriveCommand.FAULT_RESET)
-        self._reset_deadline = self.ticks + round(self.settings.rate_hz)
-
-    def _try_reset(self) -> None:
-        limit = self.settings.drives.feedback_timeout_cycles
-        client = self.client
-        if not (client.drive_faults() or client.stale_feedback(limit)
-                or self._heartbeat_lost()):
-            self._reset_deadline = -1
-            self.client.command(None, DriveCommand.DISABLE_VOLTAGE)
-            self.fault_reason = ""
-            self._transition(Event.RESET, "reset")
-        elif self.ticks > self._reset_deadline:
-            self._reset_deadline = -1
-            problems = client.describe_problems(self.heartbeat_clock(), limit)
-            self.fault_reason = "reset failed: " + ("; ".join(problems) or "a drive problem")
-            self.event("reset_failed", problems=problems)
-
-    def disarm(self) -> None:
-        self._transition(Event.DISARM, "operator disarm")
-
-    def hold_here(self) -> None:
-        """Stop a jog or excavation where the reference is now."""
-        self.hold = self._ref
-        self._transition(Event.STOP, "operator stop")
-
-    def tip_now(self) -> tuple[float, float]:
-        fb = self.client.feedback
-        reach, height = kinematics.forward(self.workspace, fb.r_m, fb.theta_rad)
-        return reach, -height

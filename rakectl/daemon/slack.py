@@ -1,6 +1,7 @@
 """What the daemon does besides the tick: the slack's work, events, dumps, the end of a run.
 
-The base of :class:`rakectl.daemon.loop.Daemon`. Everything here runs in the
+The base of the daemon (then :class:`rakectl.daemon.transitions.StateChanges`, then
+:class:`rakectl.daemon.loop.Daemon`). Everything here runs in the
 tick's slack with a hard time budget (the command socket's poll, flight-recorder
 dumps, bus traces, log lines, systemd's watchdog, the garbage collector while
 disarmed), or once when the loop ends: it can delay nothing but itself.

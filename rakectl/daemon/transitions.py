@@ -1,0 +1,133 @@
+"""The daemon's state changes: the operator's commands and the faults.
+
+The base of :class:`rakectl.daemon.loop.Daemon`, on :class:`rakectl.daemon.slack.SlackWork`.
+Every change of state goes through :meth:`StateChanges._transition` (the table of
+rakectl.daemon.states): leaving the armed states disables the drives (a quick stop
+for an e-stop); a fault also dumps the flight recorder and latches until a reset
+finds its cause gone. The operator's requests (rakectl.daemon.handlers) call these
+between ticks, on the loop's thread, so nothing here races the tick.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from rakectl.core import kinematics
+from rakectl.core.control import TipController
+from rakectl.core.supervision import ForceSupervisor
+from rakectl.daemon.checks import ArmingChecks, Verdict
+from rakectl.daemon.slack import SlackWork
+from rakectl.daemon.states import ARMED_STATES, DaemonState, Event, next_state
+from rakectl.protocol.cia402 import DriveCommand
+
+
+class StateChanges(SlackWork):
+    """Arm, disarm, stop, e-stop, fault and reset; the loop's state is the subclass's."""
+
+    controller: TipController
+    supervisor: ForceSupervisor
+    checks: ArmingChecks
+    workspace: kinematics.Workspace
+    fault_reason: str
+    hold: tuple[float, float]  # (reach, depth) held in ARMED and HOLD
+    heartbeat_clock: Callable[[], float]
+    _ref: tuple[float, float]
+    _enabled: bool
+    _enable_deadline: int
+    _reset_deadline: int
+
+    def _heartbeat_lost(self) -> bool:
+        """The heartbeat check, on the wall clock; a lost heartbeat goes to the trace's
+        inputs (rare: it faults)."""
+        lost = self.client.heartbeat_lost(self.heartbeat_clock())
+        if lost and self.inputs is not None:
+            self.inputs.heartbeat_lost(self.ticks)
+        return lost
+
+    def _transition(self, event: Event, reason: str = "") -> bool:
+        new = next_state(self.state, event)
+        if new is None:
+            return False
+        old, self.state = self.state, new
+        if old is DaemonState.CHECKING:  # passed, or left unfinished (judged again next arm)
+            self.checks.stop()
+        if old in ARMED_STATES and new not in ARMED_STATES:
+            self._enabled = False
+            self.client.command(None, DriveCommand.QUICK_STOP if new is DaemonState.ESTOP
+                                else DriveCommand.DISABLE_VOLTAGE)
+        self.event("state", old=old.name, new=new.name, reason=reason)
+        self.notifier.status(f"{new.name.lower()}{': ' + reason if reason else ''}")
+        return True
+
+    def fault(self, reason: str) -> None:
+        """0 V from this tick on, drives disabled, the recorder dumped; latched until reset."""
+        if self._transition(Event.FAULT, reason):
+            self.fault_reason = reason
+            self.client.command(None, DriveCommand.DISABLE_VOLTAGE)
+            self._dump("fault")
+
+    def estop(self) -> None:
+        self._transition(Event.ESTOP, "operator e-stop")
+        self.fault_reason = "operator e-stop"
+        self.client.command(None, DriveCommand.QUICK_STOP)
+        self._dump("estop")
+
+    def arm(self) -> None:
+        """Hold the present pose and step the drives to OPERATION ENABLED; the first time
+        after start-up, through the checks before arming (CHECKING: rakectl.daemon.checks)."""
+        fb, s = self.client.feedback, self.settings
+        self.controller.reset(fb.r_m, fb.theta_rad)
+        self.controller.clamp.clear_latched()  # a fault it raised before was reset
+        self.supervisor.reset()
+        self.hold = (self.controller.reach_m, self.controller.depth_m)
+        self._ref = self.hold
+        self._enabled = False
+        self._enable_deadline = self.ticks + round(s.daemon.enable_timeout_s * s.rate_hz)
+        if self.checks.passed:
+            self._transition(Event.ARM)
+            return
+        reason = self.checks.start(*self.hold)  # built here, off the tick
+        if not self._transition(Event.CHECK, reason):
+            self.checks.stop()
+
+    def _judge(self, verdict: Verdict) -> None:
+        """A check ended: log it, then fault, run the next check, or arm."""
+        self.hold = verdict.start
+        self.event(verdict.event, **verdict.fields)
+        if not verdict.passed:
+            self.fault(verdict.message)
+        elif self.checks.mount_check is None:
+            self._transition(Event.CHECKED, verdict.message)
+
+    def start_reset(self) -> None:
+        """Fault-reset the drives; FAULT/ESTOP → DISARMED once no problem is left (≤ 1 s)."""
+        self.client.command(None, DriveCommand.FAULT_RESET)
+        self._reset_deadline = self.ticks + round(self.settings.rate_hz)
+
+    def _try_reset(self) -> None:
+        limit = self.settings.drives.feedback_timeout_cycles
+        client = self.client
+        if not (client.drive_faults() or client.stale_feedback(limit)
+                or self._heartbeat_lost()):
+            self._reset_deadline = -1
+            self.client.command(None, DriveCommand.DISABLE_VOLTAGE)
+            self.fault_reason = ""
+            self._transition(Event.RESET, "reset")
+        elif self.ticks > self._reset_deadline:
+            self._reset_deadline = -1
+            problems = client.describe_problems(self.heartbeat_clock(), limit)
+            self.fault_reason = "reset failed: " + ("; ".join(problems) or "a drive problem")
+            self.event("reset_failed", problems=problems)
+
+    def disarm(self) -> None:
+        self._transition(Event.DISARM, "operator disarm")
+
+    def hold_here(self) -> None:
+        """Stop a jog or excavation where the reference is now."""
+        self.hold = self._ref
+        self._transition(Event.STOP, "operator stop")
+
+    def tip_now(self) -> tuple[float, float]:
+        fb = self.client.feedback
+        reach, height = kinematics.forward(self.workspace, fb.r_m, fb.theta_rad)
+        return reach, -height
