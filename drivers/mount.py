@@ -208,12 +208,13 @@ class TineMount:
         stay on the edge between them, the drag taking any value between the two cells'
         (a sliding mode, as for Coulomb friction at rest): it takes what the sideways
         balance leaves, so the offset is held and only the vertical balance is solved,
-        implicitly as any other. The objects' edges then read exactly what the mount
-        carries vertically. Moved along the reach without it, tines went deeper into a
-        rounded edge than the mount carried (a stone read 141 N, the mount 13 N,
-        20261125/2781); raised back to the depth the solve had put them at, they moved
-        faster than anything pushed them (0.5 mm in 50 µs, the mount's damping read
-        90.4 N, 20261128 edge 7070; a stone's damping read 1537 N, edge 8890)."""
+        implicitly as any other, an object's edge as its face along the vertical (its
+        height at this offset; n_up²·K, n_up²·B). The objects' edges then read exactly
+        what the mount carries vertically (the holds before it: docs/safety-log.md,
+        2026-11-28). The sliding mode holds only while what the balance leaves lies
+        between the two cells' drags; where an edge's push exceeds both (a steep edge
+        over weak soil, 20261128 edge 2761: 82.1 N on a mine's side, the drag 1.3 N),
+        the held tines read more than they would sliding off it."""
         h, e0 = self.step_s, self.offset_m
         reach_rate_m_per_s = reach_vel + (held_m - e0) / h  # the tines' along the reach
         d = self.compression_m
@@ -329,15 +330,13 @@ class TineMount:
 
     def _coupled_vertical(self, ground: Any, coupled: list[_Coupled], a_e: float, b_e: float,
                           tine_reach_m: float, height_m: float, reach_vel: float,
-                          height_vel: float, held_m: float = math.nan) -> float:
-        """d, with each edge's law folded through the sideways balance into a vertical one
-        (or, with ``held_m``, taken at that offset, which does not move with d);
+                          height_vel: float) -> float:
+        """d, with each edge's law folded through the sideways balance into a vertical one;
         the soil's and the tops' laws where the tines are (``tine_reach_m``)."""
         if not self.vertical:
             return 0.0
         d0, h = self.compression_m, self.step_s
-        e_0, e_1 = ((held_m, 0.0) if not math.isnan(held_m)
-                    else self._elimination(coupled, a_e, b_e))
+        e_0, e_1 = self._elimination(coupled, a_e, b_e)
         laws: list[VerticalLaw] = ground.vertical_laws(
             tine_reach_m, height_m, height_m + d0, reach_vel, edges=False)
         for c in coupled:
