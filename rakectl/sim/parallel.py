@@ -7,6 +7,7 @@ extra). Jobs must be deterministic in their inputs (the campaign's cases are, fr
 from __future__ import annotations
 
 import multiprocessing
+import threading
 from collections import Counter
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, Protocol, TypeVar
@@ -107,6 +108,7 @@ class DaskExecutor:
         self.scheduler, self.retries = scheduler, retries
         self._cluster: Any = None
         self._before: set[Any] = set()
+        self._threads_before = set(threading.enumerate())
         workers = local_workers(scheduler)
         if workers:
             before = set(multiprocessing.active_children())
@@ -157,9 +159,14 @@ class DaskExecutor:
         self._client.close()
         if self._cluster is not None:
             self._cluster.close()
-            # the workers' processes (a restarted one too) are gone when this returns
+            # the workers' processes (a restarted one too) are gone when this returns,
+            # and so are the threads that watched them end (distributed's AsyncProcess
+            # joins each process in a thread of its own, which outlives the join briefly)
             for child in set(multiprocessing.active_children()) - self._before:
                 child.join(timeout=10.0)
+            for thread in set(threading.enumerate()) - self._threads_before:
+                if thread.name.startswith("AsyncProcess"):
+                    thread.join(timeout=10.0)
 
     def slots(self) -> int:
         workers = self._client.scheduler_info().get("workers", {})
