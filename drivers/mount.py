@@ -222,10 +222,11 @@ class TineMount:
         read: dict[int, tuple[NormalLaw, float]] = {
             i: (law, d) for i, law in ground.normal_laws(reach_m + held_m, height_m + d)
             if law.n_up > 0.0}
+        # the soil's and the tops' laws there: the same in every round (the offset is held)
+        others: list[VerticalLaw] = ground.vertical_laws(
+            reach_m + held_m, height_m, height_m + d, reach_vel, edges=False)
         for _ in range(_SIDE_ROUNDS):
-            laws: list[VerticalLaw] = ground.vertical_laws(
-                reach_m + held_m, height_m, height_m + self.compression_m, reach_vel,
-                edges=False)
+            laws = list(others)
             for law, at_m in read.values():
                 # the face's height at this offset, where the tines at compression
                 # ``at_m`` read law.depth_m; its push along the reach folded in (a

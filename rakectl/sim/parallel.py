@@ -108,10 +108,11 @@ class DaskExecutor:
         self.scheduler, self.retries = scheduler, retries
         self._cluster: Any = None
         self._before: set[Any] = set()
-        self._threads_before = set(threading.enumerate())
+        self._threads_before: set[threading.Thread] = set()
         workers = local_workers(scheduler)
         if workers:
             before = set(multiprocessing.active_children())
+            self._threads_before = set(threading.enumerate())
             self._cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
                                          processes=True, dashboard_address=None)
             self._before = before
