@@ -53,7 +53,7 @@ MAX_EXPLICIT_DAMPING = 0.1  # largest allowed h·c/M of an explicitly integrated
 class ContactModel(Protocol):
     """The ground as the tip feels it (implemented by the soil model).
 
-    A model that also has ``vertical_laws(reach_m, height_m, face_height_m,
+    A model that also has ``vertical_laws(reach_m, height_m, face_height_m, step_s,
     reach_vel_m_per_s)`` and
     ``transmitted(force_down_n)`` (Ground) lets the arm solve its compliant tine mount
     implicitly; one without them (the tests' idealized contacts) meets a rigid mount.
@@ -310,7 +310,8 @@ class ArmPlant:
             # every law the tines could meet down to the mount fully extended (the lowest
             # they can reach), so a relaxing mount never carries them unseen into the ground
             compression_m = tines._vertical(
-                laws(reach_m, height_m, height_m + tines.compression_m, reach_vel), height_m,
+                laws(reach_m, height_m, height_m + tines.compression_m, self.substep_s,
+                     reach_vel), height_m,
                 height_vel)
             tines.hooked_on = -1
             if hasattr(ground, "bottom_laws"):  # under an object: its bottom extends it

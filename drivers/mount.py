@@ -159,7 +159,7 @@ class TineMount:
         e0, d0, h = self.offset_m, self.compression_m, self.step_s
         start = (e0, d0)
         coupled = [_Coupled(i, law, start, start, reach_vel, height_vel, h)
-                   for i, law in ground.normal_laws(reach_m + e0, height_m + d0)]
+                   for i, law in ground.normal_laws(reach_m + e0, height_m + d0, h)]
         v_lin = self.tine_reach_vel_m_per_s
         d, e = d0, e0
         laws_at = math.nan  # where the vertical laws were taken (the tines' reach)
@@ -179,7 +179,7 @@ class TineMount:
             # the edges are curved and the drag is not linear: take every law again where
             # the tines now are (objects they reach join; ones they left keep their last
             # linearization) until what the solve assumed is what the ground will read
-            inside = {i: law for i, law in ground.normal_laws(reach_m + e, height_m + d)}
+            inside = {i: law for i, law in ground.normal_laws(reach_m + e, height_m + d, h)}
             settled = (same_cell and len(inside) == len(coupled)
                        and abs(v_new - v_lin) < _SETTLED_M_PER_S
                        and all(c.index in inside and abs(c.penetration_m(e, d)
@@ -220,11 +220,11 @@ class TineMount:
         d = self.compression_m
         # each object's law as last read, and the compression it was read at
         read: dict[int, tuple[NormalLaw, float]] = {
-            i: (law, d) for i, law in ground.normal_laws(reach_m + held_m, height_m + d)
+            i: (law, d) for i, law in ground.normal_laws(reach_m + held_m, height_m + d, h)
             if law.n_up > 0.0}
         # the soil's and the tops' laws there: the same in every round (the offset is held)
         others: list[VerticalLaw] = ground.vertical_laws(
-            reach_m + held_m, height_m, height_m + d, reach_vel, edges=False)
+            reach_m + held_m, height_m, height_m + d, h, reach_vel, edges=False)
         for _ in range(_SIDE_ROUNDS):
             laws = list(others)
             for law, at_m in read.values():
@@ -240,7 +240,8 @@ class TineMount:
                                         n2 * law.damping_ns_per_m, law.cap_n * law.n_up,
                                         False))
             d_new = self._vertical(laws, height_m, height_vel)
-            inside = {i: law for i, law in ground.normal_laws(reach_m + held_m, height_m + d_new)
+            inside = {i: law for i, law in ground.normal_laws(reach_m + held_m,
+                                                              height_m + d_new, h)
                       if law.n_up > 0.0}
             settled = read.keys() == inside.keys() and all(
                 abs(law.depth_m - (read[i][0].depth_m - read[i][0].n_up * (d_new - read[i][1])))
@@ -268,7 +269,7 @@ class TineMount:
         the balance, the soil pushed them 34 µm into a mine's bottom, read as 172 N with
         the mount carrying 1.3 N (20261128/2199)."""
         laws: list[tuple[int, float, float, float]] = (
-            ground.bottom_laws(tine_reach_m, height_m + d) if self.vertical else [])
+            ground.bottom_laws(tine_reach_m, height_m + d, self.step_s) if self.vertical else [])
         h, k, c, d0 = self.step_s, self.k_v, self.c_v, self.compression_m
         self.resting_under = -1
         if (laws and height_vel + (d - d0) / h > 0.0  # rising into it, not along a side
@@ -339,7 +340,7 @@ class TineMount:
         d0, h = self.compression_m, self.step_s
         e_0, e_1 = self._elimination(coupled, a_e, b_e)
         laws: list[VerticalLaw] = ground.vertical_laws(
-            tine_reach_m, height_m, height_m + d0, reach_vel, edges=False)
+            tine_reach_m, height_m, height_m + d0, h, reach_vel, edges=False)
         for c in coupled:
             if c.n_up <= 0.0:
                 continue  # a side: only the sideways balance feels it

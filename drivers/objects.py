@@ -93,7 +93,7 @@ class Body:
     __slots__ = ("activated", "activation_force_n", "bottom_m", "break_m", "broken",
                  "damping_s", "force_reach_n", "force_up_n", "kind", "left_m", "moved_m",
                  "peak_down_n", "peak_side_n", "radius_m", "right_m", "stiffness_n_per_m",
-                 "top_m", "yield_force_n")
+                 "top_m", "touching", "yield_force_n")
 
     def __init__(self, kind: Contact, p: StoneParams | RootParams | MineParams) -> None:
         self.kind = kind
@@ -107,6 +107,7 @@ class Body:
         self.moved_m = self.force_reach_n = self.force_up_n = 0.0
         self.peak_down_n = self.peak_side_n = 0.0
         self.broken = self.activated = False
+        self.touching = False  # the tip was in it at the last reading (touch)
         half_m = 0.5 * min(p.width_m, p.thickness_m)
         self.radius_m = half_m if isinstance(p, RootParams) else min(p.edge_radius_m, half_m)
 
@@ -151,22 +152,25 @@ class Body:
         return self.top_m - self.radius_m + math.sqrt(max(self.radius_m ** 2 - q_x * q_x, 0.0))
 
     def touch(self, reach_m: float, height_m: float, reach_vel_m_per_s: float,
-              height_vel_m_per_s: float) -> bool:
-        """Forces on the tip at this position; False (and zero forces) if not touching. The
-        force acts along the normal: K·penetration (a root's capped at its yield force, the
-        rest a permanent set along the normal) plus B times the approach speed along it."""
+              height_vel_m_per_s: float, dt_s: float) -> bool:
+        """Forces on the tip at this position after a step of ``dt_s``; False (and zero
+        forces) if not touching. The force acts along the normal: K·penetration (a root's
+        capped at its yield force, the rest a permanent set along the normal) plus B times
+        the approach speed along it, with K and B as :meth:`_damping_law` gives them (a
+        tip that was not in it at the last reading meets it elastically)."""
         self.force_reach_n = self.force_up_n = 0.0
         contact = self._contact(reach_m, height_m)
+        stiffness, damping = self._damping_law(dt_s)
+        self.touching = contact is not None
         if contact is None:
             return False
         depth_m, n_reach, n_up = contact
-        elastic_n = self.stiffness_n_per_m * depth_m
+        elastic_n = stiffness * depth_m
         if elastic_n > self.yield_force_n:
-            self._yield((elastic_n - self.yield_force_n) / self.stiffness_n_per_m,
-                        -n_reach, -n_up)
+            self._yield((elastic_n - self.yield_force_n) / stiffness, -n_reach, -n_up)
             elastic_n = self.yield_force_n
         approach_m_per_s = -(reach_vel_m_per_s * n_reach + height_vel_m_per_s * n_up)
-        normal_n = elastic_n + self.stiffness_n_per_m * self.damping_s * approach_m_per_s
+        normal_n = elastic_n + damping * approach_m_per_s
         normal_n = normal_n if normal_n > 0.0 else 0.0
         self.force_reach_n, self.force_up_n = normal_n * n_reach, normal_n * n_up
         if n_up > 0.0:
@@ -177,29 +181,44 @@ class Body:
             self._record_side(abs(self.force_reach_n))
         return True
 
-    def bottom_law(self, reach_m: float, height_m: float) -> tuple[float, float, float] | None:
+    def _damping_law(self, step_s: float) -> tuple[float, float]:
+        """(K, B) as a reading or a solve over a step of ``step_s`` takes them. Met anew
+        (the tip was not in it at the last reading), its damping acts on the penetration
+        gained since the touch, B·p/h, not on the speed the tip arrived at: K + B/h, no
+        damping on the speed. Massless tines cannot carry the Kelvin–Voigt jump B·v at
+        first touch: what stops them is what the mount pushes with (read at the speed of
+        their fall, a mine's rounded edge met at 0.09 m/s read 84.6 N with the mount
+        carrying 12.3 N, 20261129 edge 345)."""
+        damping = self.stiffness_n_per_m * self.damping_s
+        if self.touching:
+            return self.stiffness_n_per_m, damping
+        return self.stiffness_n_per_m + damping / step_s, 0.0
+
+    def bottom_law(self, reach_m: float, height_m: float, step_s: float
+                   ) -> tuple[float, float, float] | None:
         """(its bottom's height, K, B) if a tine here presses its bottom from under it (the
-        tine mount solves it: it extends), else None."""
+        tine mount solves it over ``step_s``: it extends), else None."""
         contact = self._contact(reach_m, height_m)
         if contact is None or contact[2] >= 0.0:
             return None
-        return self.bottom_m, self.stiffness_n_per_m, self.stiffness_n_per_m * self.damping_s
+        return (self.bottom_m, *self._damping_law(step_s))
 
-    def normal_law(self, reach_m: float, height_m: float) -> NormalLaw | None:
+    def normal_law(self, reach_m: float, height_m: float, step_s: float) -> NormalLaw | None:
         """The law along the normal at this point, if it is inside and the normal leans
-        sideways (a side or a rounded edge): what the tine mount's coupled solve needs."""
+        sideways (a side or a rounded edge): what the tine mount's coupled solve over
+        ``step_s`` needs."""
         contact = self._contact(reach_m, height_m)
         if contact is None or contact[1] == 0.0:
             return None
         depth_m, n_reach, n_up = contact
-        return NormalLaw(depth_m, n_reach, n_up, self.stiffness_n_per_m,
-                         self.stiffness_n_per_m * self.damping_s, self.yield_force_n)
+        return NormalLaw(depth_m, n_reach, n_up, *self._damping_law(step_s),
+                         self.yield_force_n)
 
     def vertical_law(self, reach_m: float, height_m: float, face_height_m: float,
-                     reach_vel_m_per_s: float = 0.0, edges: bool = True
+                     step_s: float, reach_vel_m_per_s: float = 0.0, edges: bool = True
                      ) -> VerticalLaw | None:
         """The law of the face the tines press from above, if any, as the tine mount solves
-        it, if the tip at ``height_m`` is inside: linearized where the tines were
+        it over ``step_s``, if the tip at ``height_m`` is inside: linearized where the tines were
         (``face_height_m``; on its surface if they were above it), along the normal
         there: K·n², B·n² and the yield force·n on the height, the approach the reach
         speed makes along the normal folded into the reference. None on a side (that
@@ -215,7 +234,7 @@ class Body:
         depth_m, n_reach, n_up = contact
         if n_reach != 0.0 and not edges:  # a mount that gives sideways solves it coupled
             return None
-        damping = self.stiffness_n_per_m * self.damping_s
+        stiffness, damping = self._damping_law(step_s)
         # Only a reach speed INTO an edge is folded into the reference (it raises it: the
         # tines ride up sooner). One away from it would lower the reference below the
         # surface, and the mount rests its tines on the reference: sliding off an edge,
@@ -223,14 +242,14 @@ class Body:
         # the mount never carried (seed 7's plunges 277, 442, 514, 595, 688: 97-120 N).
         reach_approach_m_per_s = max(0.0, -n_reach * reach_vel_m_per_s)
         ref_m = (at_m + depth_m / n_up
-                 + damping * reach_approach_m_per_s / (self.stiffness_n_per_m * n_up))
+                 + damping * reach_approach_m_per_s / (stiffness * n_up))
         if n_reach == 0.0:  # a flat top's surface is its top exactly: at_m + depth_m can
             # round a bit below it, where tines put on the reference would be inside by
             # 1e-18 m and read the damping at their arrival speed (20261125/5: 238 N on a
             # plate the mount carried nothing to)
             ref_m = max(ref_m, self.top_m)
-        return VerticalLaw(ref_m, self.stiffness_n_per_m * n_up * n_up,
-                           damping * n_up * n_up, self.yield_force_n * n_up, False)
+        return VerticalLaw(ref_m, stiffness * n_up * n_up, damping * n_up * n_up,
+                           self.yield_force_n * n_up, False)
 
     def _yield(self, set_m: float, dx: float, dz: float) -> None:
         self.left_m += dx * set_m
@@ -306,7 +325,7 @@ class Ground:
             if (not body.broken and body.left_m < reach_m < body.right_m
                     and height_m > body.bottom_m and body.hides_soil_from(reach_m, height_m)):
                 shield_m = max(shield_m, body.shield_m(reach_m))
-            if body.touch(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s):
+            if body.touch(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s, dt_s):
                 f_reach_n += body.force_reach_n
                 if body.force_up_n >= 0.0:
                     f_up_n += body.force_up_n
@@ -322,17 +341,17 @@ class Ground:
         return truth.force_drag_n, truth.force_down_n - lift_n
 
     def vertical_laws(self, reach_m: float, height_m: float, face_height_m: float,
-                      reach_vel_m_per_s: float = 0.0, edges: bool = True
+                      step_s: float, reach_vel_m_per_s: float = 0.0, edges: bool = True
                       ) -> list[VerticalLaw]:
         """The vertical laws a tip at reach_m could meet from ``height_m`` up: the soil's
         (Soil.vertical_law) and any buried object's top or rounded edge (which, judged
         where the tines were: ``face_height_m``; an edge's law depends on the tip's reach
         speed too; ``edges=False`` leaves edges to a mount that gives sideways); used by
-        the arm's compliant tine mount."""
+        the arm's compliant tine mount, solved over ``step_s``."""
         laws = []
         for body in self.bodies:
-            law = body.vertical_law(reach_m, height_m, face_height_m, reach_vel_m_per_s,
-                                    edges)
+            law = body.vertical_law(reach_m, height_m, face_height_m, step_s,
+                                    reach_vel_m_per_s, edges)
             if law is not None:
                 laws.append(law)
         law = self.soil.vertical_law(reach_m, height_m)
@@ -340,22 +359,24 @@ class Ground:
             laws.append(law)
         return laws
 
-    def normal_laws(self, reach_m: float, height_m: float) -> list[tuple[int, NormalLaw]]:
-        """(body index, law) of every object whose side or rounded edge holds this point."""
+    def normal_laws(self, reach_m: float, height_m: float, step_s: float
+                    ) -> list[tuple[int, NormalLaw]]:
+        """(body index, law) of every object whose side or rounded edge holds this point,
+        as solved over ``step_s``."""
         laws = []
         for i, body in enumerate(self.bodies):
-            law = body.normal_law(reach_m, height_m)
+            law = body.normal_law(reach_m, height_m, step_s)
             if law is not None:
                 laws.append((i, law))
         return laws
 
-    def bottom_laws(self, reach_m: float, height_m: float
+    def bottom_laws(self, reach_m: float, height_m: float, step_s: float
                     ) -> list[tuple[int, float, float, float]]:
         """(body index, bottom height, K, B) of every object whose bottom a tine at this
-        point presses."""
+        point presses, as solved over ``step_s``."""
         laws = []
         for i, body in enumerate(self.bodies):
-            law = body.bottom_law(reach_m, height_m)
+            law = body.bottom_law(reach_m, height_m, step_s)
             if law is not None:
                 laws.append((i, *law))
         return laws

@@ -48,8 +48,9 @@ class PeakRecorder:
         return force
 
     def vertical_laws(self, reach_m: float, height_m: float, face_height_m: float,
-                      reach_vel_m_per_s: float = 0.0) -> list[VerticalLaw]:
-        return self.ground.vertical_laws(reach_m, height_m, face_height_m, reach_vel_m_per_s)
+                      step_s: float, reach_vel_m_per_s: float = 0.0) -> list[VerticalLaw]:
+        return self.ground.vertical_laws(reach_m, height_m, face_height_m, step_s,
+                                         reach_vel_m_per_s)
 
     def transmitted(self, force_down_n: float) -> None:
         self.ground.transmitted(force_down_n)
