@@ -40,7 +40,7 @@ from pathlib import Path
 from rakectl.errors import ConfigError, RakeError
 
 PHYSICS = ("drivers.arm", "drivers.mount", "drivers.mount_vertical", "drivers.objects",
-           "drivers.soil", "drivers.motor")
+           "drivers.ground", "drivers.soil", "drivers.motor")
 GROUP = "rakectl_physics"  # mypyc's shared library: rakectl_physics__mypyc
 MODE_ENV, CACHE_ENV = "RAKECTL_PHYSICS", "RAKECTL_PHYSICS_CACHE"
 MODES = ("auto", "pure", "compiled")

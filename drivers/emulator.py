@@ -3,7 +3,7 @@
 :class:`Emulator` works on the bus it is given (a ``can.BusABC``; only the
 composition root, ``python -m drivers``, opens and shuts one), owns two
 :class:`~drivers.node.DriveNode` and the physics (:class:`drivers.arm.ArmPlant`
-against :class:`drivers.objects.Ground`). :meth:`Emulator.service` does one
+against :class:`drivers.ground.Ground`). :meth:`Emulator.service` does one
 round of the loop: wait for a frame (at most ``timeout_s``, less if a timer is
 due), hand it and every other pending frame to the drives that listen to its
 COB-ID, send what they answer, run their timers, advance the physics if it is
@@ -49,8 +49,9 @@ from can.typechecking import CanFilter
 
 from drivers.arm import ArmPlant
 from drivers.dictionary import DriveKind, DriveSpec, Frame
+from drivers.ground import Ground
 from drivers.node import DriveNode
-from drivers.objects import Contact, Ground
+from drivers.objects import Contact
 from drivers.roboteq import RoboteqNode
 from drivers.settings import EmulatorConfig, TimingMode
 from drivers.stats import BadInput, InputStats

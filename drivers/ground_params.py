@@ -1,7 +1,7 @@
 """What a lane's ground is made of, as configuration: the soil and the buried objects'
 declared parameters (physics.ground in the emulator's YAML). The model that uses them
-is :mod:`drivers.objects` (objects, :class:`~drivers.objects.Ground`) and
-:mod:`drivers.soil`."""
+is :mod:`drivers.objects` (the objects), :mod:`drivers.soil` and :mod:`drivers.ground`
+(:class:`~drivers.ground.Ground`, which combines them)."""
 
 from __future__ import annotations
 

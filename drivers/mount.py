@@ -265,7 +265,7 @@ class TineMount:
         under a rigid face (a mine's bottom, 5·10⁶ N/m, gives 2 µm to a soil's 11 N
         collapse force), and ``resting_under`` names it. Massless, they are in balance:
         it carries what the ground below pushes less what the mount carries, which the
-        arm records (:attr:`under`, :meth:`drivers.objects.Ground.lifted`). Left out of
+        arm records (:attr:`under`, :meth:`drivers.ground.Ground.lifted`). Left out of
         the balance, the soil pushed them 34 µm into a mine's bottom, read as 172 N with
         the mount carrying 1.3 N (20261128/2199)."""
         laws: list[tuple[int, float, float, float]] = (

@@ -52,7 +52,7 @@ def bench_controller_step(ticks: int) -> str:
 def bench_emulator_step(steps: int) -> str:
     """CPU time of one 1 ms physics step (arm, motors, ground) in soil, and the real-time ratio."""
     from drivers.arm import ArmPlant
-    from drivers.objects import Ground
+    from drivers.ground import Ground
     from rakectl.core.control import workspace_of
     from rakectl.sim.scenario import Scenario
 

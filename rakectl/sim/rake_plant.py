@@ -13,7 +13,8 @@ claims are checked against.
 from __future__ import annotations
 
 from drivers.arm import ArmPlant
-from drivers.objects import Contact, Ground, GroundTruth
+from drivers.ground import Ground, GroundTruth
+from drivers.objects import Contact
 from drivers.soil import VerticalLaw
 from rakectl.core import kinematics
 from rakectl.core.clamp import VoltageClamp

@@ -28,7 +28,7 @@ command in ‰ of the supply, an emergency shutdown and its release, the command
 
 Not played: the heartbeat consumer 0x1016 (stored, no reaction), over-current faults, the
 pre-defined error field, a PDO remapped over SDO (the maps are the EDS's, read at power-on).
-The physics is the emulator's (drivers.arm.ArmPlant against drivers.objects.Ground), built
+The physics is the emulator's (drivers.arm.ArmPlant against drivers.ground.Ground), built
 from the same configuration: it is not what this slave tests.
 """
 
@@ -49,7 +49,7 @@ from drivers.arm import ArmPlant
 from drivers.cli import load_config, open_bus
 from drivers.dictionary import DriveKind
 from drivers.emulator import workspace
-from drivers.objects import Ground
+from drivers.ground import Ground
 from drivers.settings import EmulatorConfig
 from rakectl.core.motor_model import MotorParams, joint_per_motor_rad, joint_resolution
 from rakectl.protocol.files import DriveProfile

@@ -10,6 +10,7 @@ from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 from drivers.arm import DEFAULT_SUBSTEP_S, ArmPlant, ArmState
+from drivers.ground import Ground
 from drivers.ground_params import BuriedObjects, GroundParams, StoneParams
 from drivers.mechanics import ArmParams, gravity_joint_loads, joint_masses, tip_apparent_masses_kg
 from drivers.motor import (
@@ -22,7 +23,6 @@ from drivers.motor import (
     no_load_joint_speed,
     stall_joint_load,
 )
-from drivers.objects import Ground
 from drivers.soil_params import SoilLayer, SoilParams
 from rakectl.core import kinematics
 from rakectl.core.kinematics import Workspace

@@ -16,11 +16,11 @@ import math
 import pytest
 
 from drivers.arm import ArmPlant, ArmState
+from drivers.ground import Ground
 from drivers.ground_params import BuriedObjects, GroundParams, MineParams, StoneParams
 from drivers.mechanics import ArmParams, joint_masses, unbalanced_weight_n
 from drivers.motor import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, Bridge, joint_load_band
 from drivers.mount import TineMount
-from drivers.objects import Ground
 from drivers.soil import VerticalLaw, cutting_force_n
 from drivers.soil_params import SoilLayer, SoilParams
 from rakectl.core import kinematics

@@ -9,8 +9,9 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from drivers.ground import Ground
 from drivers.ground_params import BuriedObjects, GroundParams, MineParams, RootParams, StoneParams
-from drivers.objects import Body, Contact, Ground
+from drivers.objects import Body, Contact
 from drivers.soil_params import SoilLayer, SoilParams
 from rakectl.errors import NonFiniteError
 
