@@ -511,3 +511,32 @@ def test_tines_meeting_a_rim_within_a_substep_meet_it_as_the_mount_pushes() -> N
     assert body.force_up_n == pytest.approx(down_n, rel=1e-3)
     assert 0.5 < down_n < 1.0  # about c·v: the mount taking up the arm's fall
 
+
+
+def test_the_soil_gives_way_only_under_a_solution_where_no_law_pulls() -> None:
+    """Tines held at a soil cell's edge beside a mine's rim (20261128 edge 7013's substep at
+    0.480 s): the soil's law in contact and a rim's law, met anew, whose face lies 3.4 µm
+    below where the solution puts the tines. Solved with both, the rim's law pulls them
+    0.36 µm past the soil's collapse point; were the collapse taken on that round, the
+    tines rested on the collapsed interface at 0.08 m/s, where the soil reads its damping:
+    62.6 N, with the mount carrying 12.7 N. The rim is let go first; then, by hand, the
+    backward-Euler balance with the soil alone, k·d + c·ḋ = K_s·(ref − z) − B_s·ż, which
+    stops the tines 3.2 µm short of the collapse, the soil carrying what the mount does."""
+    k, c, h = 5e3, 7.5, 5e-5
+    d0, arm_m, arm_vel = 2.2507418367370136e-3, -20.319393416377673e-3, -0.26389146729357643
+    soil = VerticalLaw(-18.055456944180426e-3, 778964.35, 778.96435, 3.1286328, True)
+    rim = VerticalLaw(-18.063221122641453e-3, 17362107.7, 0.0, math.inf, False)
+    mount = TineMount(k, c, 0.0, 0.0, h)
+    mount.compression_m = d0
+    d = mount._vertical([soil, rim], arm_m, arm_vel)
+    k_s, b_s = soil.stiffness_n_per_m, soil.damping_ns_per_m
+    expected = ((k_s * (soil.ref_m - arm_m) + (b_s + c) * d0 / h - b_s * arm_vel)
+                / (k + c / h + k_s + b_s / h))
+    assert d == pytest.approx(expected, abs=1e-12)
+    rate = arm_vel + (d - d0) / h
+    elastic_n = k_s * (soil.ref_m - arm_m - d)
+    assert 0.0 < elastic_n < soil.cap_n  # no collapse
+    assert arm_m + d > rim.ref_m  # above the rim: it carries nothing
+    mount_n = k * d + c * (d - d0) / h
+    assert elastic_n - b_s * rate == pytest.approx(mount_n, rel=1e-9)
+    assert 10.0 < mount_n < 15.0
