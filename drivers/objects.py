@@ -154,10 +154,11 @@ class Body:
         tip that was not in it at the last reading meets it elastically)."""
         self.force_reach_n = self.force_up_n = 0.0
         contact = self._contact(reach_m, height_m)
-        stiffness, damping = self._damping_law(dt_s)
-        self.touching = contact is not None
         if contact is None:
+            self.touching = False
             return False
+        stiffness, damping = self._damping_law(dt_s)  # before touching says "in it"
+        self.touching = True
         depth_m, n_reach, n_up = contact
         elastic_n = stiffness * depth_m
         if elastic_n > self.yield_force_n:
