@@ -12,6 +12,7 @@ import math
 from dataclasses import dataclass
 
 from rakectl.config.declare import Bounds, has_default, section, setting
+from rakectl.config.descent import DescentSettings, descent_checks
 from rakectl.config.service import (
     BusSettings,
     DaemonSettings,
@@ -300,6 +301,7 @@ class Settings:
     motors: MotorsSettings = section(MotorsSettings)
     clamp: ClampSettings = section(ClampSettings)
     supervision: SupervisionSettings = section(SupervisionSettings)
+    descent: DescentSettings = section(DescentSettings)
     bus: BusSettings = section(BusSettings)
     drives: DrivesSettings = section(DrivesSettings)
     daemon: DaemonSettings = section(DaemonSettings)
@@ -362,6 +364,7 @@ def cross_checks(s: Settings) -> list[tuple[str, str]]:
                        f"must be > drives.heartbeat_period_ms ({d.heartbeat_period_ms})"))
     if not errors:  # the press is checked against a valid geometry
         errors.extend(_press_checks(s))
+    errors.extend(descent_checks(s.descent, s.clamp.force_limit_n, s.clamp.model_margin))
     delay_ticks = s.estimator.delay_s * s.rate_hz
     if not math.isclose(delay_ticks, round(delay_ticks), abs_tol=1e-6):
         errors.append(

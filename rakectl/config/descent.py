@@ -1,0 +1,76 @@
+"""The descent budget's options, declared once (pure): the strongest soil the robot may
+meet and the rake's cutting geometry, from which :mod:`rakectl.core.descent` derives how
+deep the tines may go below the soil beside them. A section of
+:class:`rakectl.config.settings.Settings`.
+
+Why a budget at all: where an object's rounded edge forces descending tines sideways,
+the soil beside them resists with its cutting resistance H(c) at their depth c below
+it, and the object carries H(c) on top of what the mount pushes (docs/safety.md, "Not
+covered"). The clamp bounds the mount's share by F_L = (1 − clamp.model_margin) ·
+clamp.force_limit_n; the budget keeps H(c) within the rest.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from rakectl.config.declare import setting
+from rakectl.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class DescentSettings:
+    """The strongest admitted soil and the rake's cutting geometry (the descent budget)."""
+
+    cohesion_max_pa: float = setting(
+        15.0e3, "Largest mean soil cohesion c the robot may meet (the campaign's soils: "
+        "2–15 kPa).", unit="Pa", gt=0, le=1e6)
+    friction_angle_max_rad: float = setting(
+        math.radians(35.0), "Largest internal friction angle φ of the soil.", unit="rad",
+        ge=0, lt=1.3)
+    tool_friction_angle_max_rad: float = setting(
+        math.radians(23.5), "Largest soil–tine friction angle δ.", unit="rad", ge=0, lt=1.3)
+    unit_weight_max_n_per_m3: float = setting(
+        20.0e3, "Largest unit weight γ of the soil.", unit="N/m³", gt=0, le=1e5)
+    surcharge_max_pa: float = setting(
+        0.0, "Largest surcharge q on the soil beside the tines (spoil heaped there: about "
+        "γ times its height, 0.3 kPa for 20 mm).", unit="Pa", ge=0, le=1e5)
+    rake_width_m: float = setting(
+        0.15, "Width of soil the rake cuts (its tines and the soil failing between them).",
+        unit="m", gt=0, le=2)
+    rake_angle_rad: float = setting(
+        math.radians(60.0), "Angle of the tines' face from the horizontal.", unit="rad",
+        gt=0.1, lt=1.5)
+    strength_factor: float = setting(
+        3.2, "Strength of the strongest spot of soil over the soil's mean. Spots spread "
+        "lognormally by ±50 % exceed 3.2 once in 290, by ±20 % exceed 1.7 once in 370 (the "
+        "emulator's 5 mm cells).", ge=1, le=100)
+    drag_margin_n: float = setting(
+        0.0, "Kept back from the cutting resistance's budget (clamp.force_limit_n · "
+        "clamp.model_margin) for its estimate's error.", unit="N", ge=0, le=90)
+    min_step_m: float = setting(
+        0.5e-3, "Smallest descent step worth taking; a strongest soil whose first step is "
+        "smaller is refused at load.", unit="m", gt=0, le=0.1)
+
+
+def descent_checks(descent: DescentSettings, force_limit_n: float, model_margin: float
+                   ) -> list[tuple[str, str]]:
+    """The budget must leave the cutting resistance something, the tine's face must admit
+    a failure wedge, and the strongest soil's first step must be worth taking:
+    (dotted key, message) for each violation."""
+    from rakectl.core.descent import SoilBound  # the derivation; config imports it lazily
+    budget_n = force_limit_n * model_margin
+    if descent.drag_margin_n >= budget_n:
+        return [("descent.drag_margin_n", f"must be < clamp.force_limit_n · clamp.model_margin "
+                 f"({budget_n:g} N), got {descent.drag_margin_n:g}")]
+    try:
+        bound = SoilBound.from_settings(descent, force_limit_n, model_margin)
+    except ConfigError as error:
+        return [("descent.rake_angle_rad", f"leaves {error}")]
+    if bound.first_step_m < descent.min_step_m:
+        return [("descent.min_step_m", "leaves no step within the bound: the strongest "
+                 "admitted soil (descent.*_max, strength_factor) reaches the cutting "
+                 f"resistance's budget ({bound.budget_n:g} N) {bound.first_step_m * 1e3:.3g} "
+                 f"mm deep, less than {descent.min_step_m * 1e3:g} mm")]
+    return []
