@@ -1,0 +1,139 @@
+"""What the controller knows of the soil along the reach, and how low the tines may go (pure).
+
+The descent budget (:mod:`rakectl.core.descent`): wherever the tines are, the soil
+beside them within ``side_reach_m`` (as far as an object's edge can push them) must
+not stand more than that soil's step d* above them, or an edge forcing them into it
+meets more cutting resistance than the clamp leaves for it. So the lowest height the
+tines may take at cell i is
+
+    floor_i = max over |j − i| ≤ side cells of (top_j − step_j),
+
+``top_j`` the highest the soil can stand in cell j and ``step_j`` the cut at which
+its resistance reaches the budget there (d* of the strongest admitted soil until a
+stroke has measured the cell).
+
+``top`` starts at the configured ceiling (the highest the surface stands anywhere in
+the workspace) and only comes down, one way: tines that crossed a whole cell, in one
+pass from one of its edges to the other, cut away every soil above the highest point
+of that pass (:meth:`GroundMap.track`). A vertical plunge lowers nothing: the soil
+beside a tine's path stays. Heights are above ground level 0 (up positive); the
+caller adds to the tip's height what the tines may stand above it (the mount's
+deflection) before handing it in.
+"""
+
+from __future__ import annotations
+
+import math
+
+CELL_M = 0.005  # the map's resolution along the reach: the width of an edge's sideways push
+
+
+class GroundMap:
+    """Per cell of CELL_M along the reach: the highest soil (``top_m``), its step
+    (``step_m``) and the lowest height the tines may take (``floor_m``)."""
+
+    __slots__ = ("_cell", "_entered_from", "_highest_m", "_reach_min_m", "_side_cells",
+                 "ceiling_m", "first_step_m", "floor_m", "n_cells", "step_m", "top_m")
+
+    def __init__(self, reach_min_m: float, reach_max_m: float, ceiling_m: float,
+                 first_step_m: float, side_reach_m: float) -> None:
+        if not (reach_max_m > reach_min_m and first_step_m > 0.0 and side_reach_m >= 0.0
+                and math.isfinite(ceiling_m)):
+            raise ValueError("GroundMap: needs reach_max_m > reach_min_m, first_step_m > 0, "
+                             "side_reach_m >= 0 and a finite ceiling_m")
+        self._reach_min_m = reach_min_m
+        self.n_cells = math.ceil((reach_max_m - reach_min_m) / CELL_M - 1e-9) + 1
+        self._side_cells = math.ceil(side_reach_m / CELL_M - 1e-9)
+        self.ceiling_m = ceiling_m
+        self.first_step_m = first_step_m
+        self.top_m = [ceiling_m] * self.n_cells
+        self.step_m = [first_step_m] * self.n_cells
+        self.floor_m = [ceiling_m - first_step_m] * self.n_cells
+        self._cell = -1  # the cell the tines are in, -1 before the first track()
+        self._entered_from = 0  # -1: from the cell below, +1: from above, 0: not by an edge
+        self._highest_m = -math.inf
+
+    def reset(self) -> None:
+        """Forget everything (the platform may have moved): the ceiling everywhere."""
+        for i in range(self.n_cells):
+            self.top_m[i] = self.ceiling_m
+            self.step_m[i] = self.first_step_m
+            self.floor_m[i] = self.ceiling_m - self.first_step_m
+        self._cell, self._entered_from, self._highest_m = -1, 0, -math.inf
+
+    def cell(self, reach_m: float) -> int:
+        """The cell at ``reach_m`` (the end cells beyond the map)."""
+        i = math.floor((reach_m - self._reach_min_m) / CELL_M)
+        return 0 if i < 0 else self.n_cells - 1 if i >= self.n_cells else i
+
+    def floor_at_m(self, reach_m: float) -> float:
+        """The lowest height the tines may take at ``reach_m``."""
+        return self.floor_m[self.cell(reach_m)]
+
+    def track(self, reach_m: float, height_m: float) -> None:
+        """The tines are at (``reach_m``, ``height_m``) this tick; a cell they have just
+        crossed whole, in one pass, is lowered to the highest point of that pass."""
+        i = self.cell(reach_m)
+        if i == self._cell:
+            if height_m > self._highest_m:
+                self._highest_m = height_m
+            return
+        step = i - self._cell
+        if self._cell >= 0 and abs(step) == 1:
+            if self._entered_from == -step:  # in by one edge, out by the other
+                self.lower(self._cell, self._highest_m)
+            self._entered_from = -step
+            self._highest_m = height_m
+        else:  # the first tick, or a jump: no pass to count
+            self._entered_from = 0
+            self._highest_m = height_m
+        self._cell = i
+
+    def lower(self, i: int, height_m: float) -> None:
+        """No soil stands above ``height_m`` in cell ``i``."""
+        if height_m < self.top_m[i]:
+            self.top_m[i] = height_m
+            self._refresh(i)
+
+    def set_step(self, i: int, step_m: float) -> None:
+        """The cut at which cell ``i``'s resistance reaches the budget."""
+        if step_m != self.step_m[i]:
+            self.step_m[i] = step_m
+            self._refresh(i)
+
+    def _refresh(self, i: int) -> None:
+        side, n = self._side_cells, self.n_cells
+        for k in range(max(0, i - side), min(n, i + side + 1)):
+            self.floor_m[k] = max(self.top_m[j] - self.step_m[j]
+                                  for j in range(max(0, k - side), min(n, k + side + 1)))
+
+
+class DescentLimiter:
+    """Holds a depth reference above the map's floor, at the reference's reach and at the
+    measured one; tines already below it may rise and move sideways, never go deeper."""
+
+    __slots__ = ("_out_m", "clipped", "map")
+
+    def __init__(self, ground: GroundMap) -> None:
+        self.map = ground
+        self._out_m = -math.inf  # the last depth let through (none yet: the floor alone)
+        self.clipped = 0  # ticks whose reference was held up
+
+    def reset(self, depth_m: float) -> None:
+        """Start from the tines' measured depth (arming)."""
+        self._out_m = depth_m
+        self.clipped = 0
+
+    def limit_depth_m(self, reach_ref_m: float, reach_m: float) -> float:
+        """The deepest the floor allows at both reaches (depth: below level 0, down positive)."""
+        return -max(self.map.floor_at_m(reach_ref_m), self.map.floor_at_m(reach_m))
+
+    def clip(self, depth_ref_m: float, reach_ref_m: float, reach_m: float) -> float:
+        """``depth_ref_m`` or the deepest allowed: the floor's, or where the last output
+        already was when that is deeper (the latch)."""
+        allowed_m = max(self.limit_depth_m(reach_ref_m, reach_m), self._out_m)
+        if depth_ref_m > allowed_m:
+            self.clipped += 1
+            depth_ref_m = allowed_m
+        self._out_m = depth_ref_m
+        return depth_ref_m

@@ -1,0 +1,137 @@
+"""The ground map and the descent limiter: the floor against hand-worked tables, the pass
+that lowers a cell, and the limiter's latch (pure)."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from rakectl.core.ground_map import CELL_M, DescentLimiter, GroundMap
+
+CEILING_M, STEP_M = 0.05, 0.002
+
+
+def _map(side_reach_m: float = 0.01) -> GroundMap:
+    """Cells of 5 mm from 1.0 m to 1.05 m: 11 cells."""
+    return GroundMap(1.0, 1.05, CEILING_M, STEP_M, side_reach_m)
+
+
+def _sweep(ground: GroundMap, reach_from_m: float, reach_to_m: float, height_m: float,
+           ticks: int = 200) -> None:
+    for k in range(ticks + 1):
+        ground.track(reach_from_m + (reach_to_m - reach_from_m) * k / ticks, height_m)
+
+
+def test_the_floor_is_the_step_below_the_highest_soil_within_the_side_reach() -> None:
+    ground = _map()
+    assert ground.n_cells == 11
+    assert ground.floor_m == pytest.approx([0.048] * 11)
+    ground.lower(5, 0.0)  # one cell raked to level 0: its neighbours still see the ceiling
+    assert ground.floor_m == pytest.approx([0.048] * 11)
+    ground.reset()
+    for i in range(11):
+        ground.lower(i, 0.02 - 0.002 * i)  # a floor falling 2 mm per cell
+    ground.set_step(7, 0.001)
+    # by hand: floor_i = max over |j - i| <= 2 of (top_j - step_j)
+    tops = [0.02 - 0.002 * i for i in range(11)]
+    steps = [0.002] * 11
+    steps[7] = 0.001
+    expected = [max(tops[j] - steps[j] for j in range(max(0, i - 2), min(11, i + 3)))
+                for i in range(11)]
+    assert ground.floor_m == pytest.approx(expected)
+    assert expected[6] == pytest.approx(0.02 - 0.008 - 0.002)  # cell 4 two cells away rules
+    assert ground.floor_at_m(1.0 + 6.5 * CELL_M) == pytest.approx(expected[6])
+    assert ground.floor_at_m(0.5) == ground.floor_m[0]  # beyond the map: its end cells
+    assert ground.floor_at_m(2.0) == ground.floor_m[10]
+
+
+def test_only_a_cell_crossed_whole_in_one_pass_comes_down() -> None:
+    ground = _map(side_reach_m=0.0)
+    _sweep(ground, 1.0005, 1.0125, 0.01)  # from inside cell 0 to inside cell 2
+    assert ground.top_m[:4] == pytest.approx([CEILING_M, 0.01, CEILING_M, CEILING_M])
+    ground.reset()
+    for h in (0.03, 0.02, 0.01, 0.0):  # a plunge inside cell 3 lowers nothing
+        ground.track(1.017, h)
+    assert ground.top_m == pytest.approx([CEILING_M] * 11)
+    _sweep(ground, 1.017, 1.0375, 0.0)  # from there toward the far end: 4, 5, 6 crossed
+    assert ground.top_m[3:8] == pytest.approx([CEILING_M, 0.0, 0.0, 0.0, CEILING_M])
+
+
+def test_a_pass_is_counted_at_its_highest_point() -> None:
+    ground = _map(side_reach_m=0.0)
+    for k in range(101):  # across cell 1 and back up in its middle
+        reach = 1.004 + 0.007 * k / 100
+        ground.track(reach, 0.004 if abs(reach - 1.0075) < 1e-3 else 0.0)
+    assert ground.top_m[1] == pytest.approx(0.004)
+
+
+def test_back_and_forth_across_an_edge_lowers_nothing() -> None:
+    ground = _map(side_reach_m=0.0)
+    for k in range(50):
+        ground.track(1.0045 if k % 2 else 1.0055, 0.0)
+    assert ground.top_m == pytest.approx([CEILING_M] * 11)
+
+
+def test_the_limiter_passes_what_the_floor_allows_and_holds_the_rest() -> None:
+    ground = _map()
+    limiter = DescentLimiter(ground)
+    limiter.reset(-0.1)
+    assert limiter.clip(-0.06, 1.02, 1.02) == -0.06  # above the floor: untouched
+    assert limiter.clip(0.0, 1.02, 1.02) == pytest.approx(-0.048)  # the floor: 48 mm up
+    assert limiter.clipped == 1
+    for i in range(11):
+        ground.lower(i, 0.0)
+    assert limiter.clip(0.01, 1.02, 1.02) == pytest.approx(0.002)  # level 0 less the step
+    # the reference's reach and the measured one: the higher floor of the two
+    ground.lower(10, -0.02)
+    ground.lower(9, -0.02)
+    ground.lower(8, -0.02)
+    assert limiter.clip(0.05, 1.049, 1.02) == pytest.approx(0.002)
+
+
+def test_tines_below_the_floor_may_rise_never_sink() -> None:
+    ground = _map()
+    limiter = DescentLimiter(ground)
+    limiter.reset(0.03)  # armed 30 mm deep, the floor 48 mm above level 0
+    assert limiter.clip(0.04, 1.02, 1.02) == pytest.approx(0.03)
+    assert limiter.clip(0.025, 1.02, 1.02) == pytest.approx(0.025)
+    assert limiter.clip(0.03, 1.02, 1.02) == pytest.approx(0.025)
+    assert limiter.clip(-0.06, 1.02, 1.02) == pytest.approx(-0.06)
+    assert limiter.clip(0.0, 1.02, 1.02) == pytest.approx(-0.048)
+
+
+def test_a_limiter_never_reset_holds_the_floor() -> None:
+    assert DescentLimiter(_map()).clip(0.0, 1.02, 1.02) == pytest.approx(-0.048)
+
+
+@settings(max_examples=200, deadline=None)
+@given(refs=st.lists(st.tuples(st.floats(-0.08, 0.08), st.floats(0.99, 1.06),
+                               st.floats(0.99, 1.06)), min_size=1, max_size=60),
+       lowered=st.lists(st.tuples(st.integers(0, 10), st.floats(-0.05, 0.05)), max_size=20),
+       start=st.floats(-0.08, 0.08))
+def test_no_output_is_deeper_than_the_floor_or_the_last_output(
+        refs: list[tuple[float, float, float]], lowered: list[tuple[int, float]],
+        start: float) -> None:
+    ground = _map()
+    limiter = DescentLimiter(ground)
+    limiter.reset(start)
+    last = start
+    for k, (depth, reach_ref, reach) in enumerate(refs):
+        if k < len(lowered):
+            ground.lower(*lowered[k])
+        out = limiter.clip(depth, reach_ref, reach)
+        floor_depth = -max(ground.floor_at_m(reach_ref), ground.floor_at_m(reach))
+        assert out <= depth
+        assert out <= max(floor_depth, last) + 1e-15
+        assert out == depth or out == pytest.approx(max(floor_depth, last))
+        last = out
+
+
+def test_a_map_that_cannot_be_is_refused() -> None:
+    for args in ((1.0, 1.0, 0.0, 0.001, 0.01), (1.0, 1.1, 0.0, 0.0, 0.01),
+                 (1.0, 1.1, math.nan, 0.001, 0.01), (1.0, 1.1, 0.0, 0.001, -0.01)):
+        with pytest.raises(ValueError):
+            GroundMap(*args)
