@@ -71,6 +71,7 @@ def descent_checks(descent: DescentSettings, force_limit_n: float, model_margin:
     if bound.first_step_m < descent.min_step_m:
         return [("descent.min_step_m", "leaves no step within the bound: the strongest "
                  "admitted soil (descent.*_max, strength_factor) reaches the cutting "
-                 f"resistance's budget ({bound.budget_n:g} N) {bound.first_step_m * 1e3:.3g} "
+                 f"resistance's budget ({bound.budget_n:g} N: clamp.force_limit_n · "
+                 f"clamp.model_margin − descent.drag_margin_n) {bound.first_step_m * 1e3:.3g} "
                  f"mm deep, less than {descent.min_step_m * 1e3:g} mm")]
     return []

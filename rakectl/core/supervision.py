@@ -8,6 +8,8 @@
    load), the rake's weight removed with the clamp's arm model, and the tip
    force through J⁻ᵀ (rakectl.core.kinematics): at rest the tip presses down with
    F = J⁻ᵀ(Q_motor + G). Inertia is neglected, so the estimate is low-passed.
+   Its vertical part is supervised; its horizontal part, the soil's cutting
+   resistance (drag) a stroke works against, is read alongside, not supervised.
 
 The larger of the two is compared with two levels, in the manner of a
 collision-behaviour setting: CAUTION (the motion holds still) and HARD
@@ -35,10 +37,18 @@ class ForceLevel(enum.IntEnum):
 
 
 class ForceSupervisor:
-    """Current-based tip force and the caution/hard levels, one tick at a time."""
+    """Current-based tip force and the caution/hard levels, one tick at a time.
+
+    ``f_current_n``: the low-passed vertical force of the tip on the ground (> 0
+    pressing down). ``f_reach_current_n``: the low-passed force of the ground on the
+    tip along the reach, > 0 pushing it toward the far end: the drag a stroke toward
+    the robot (reach decreasing) works against. Both are nominal (friction and gear
+    efficiency unknown): while the motors drive a stroke they read high.
+    """
 
     __slots__ = ("_alpha", "_g", "_half_length_m", "_kt_r", "_kt_theta", "caution_n",
-                 "f_current_n", "f_hat_filtered_n", "f_max_n", "hard_n", "level")
+                 "f_current_n", "f_hat_filtered_n", "f_max_n", "f_reach_current_n", "hard_n",
+                 "level")
 
     def __init__(self, supervision: SupervisionSettings, clamp: ClampSettings,
                  motor_r: MotorParams, motor_theta: MotorParams, dt_s: float) -> None:
@@ -51,12 +61,13 @@ class ForceSupervisor:
         self.caution_n = supervision.caution_force_n
         self.hard_n = supervision.hard_force_n
         self.f_current_n = 0.0
+        self.f_reach_current_n = 0.0
         self.f_hat_filtered_n = 0.0
         self.f_max_n = 0.0
         self.level = ForceLevel.OK
 
     def reset(self) -> None:
-        self.f_current_n = self.f_hat_filtered_n = 0.0
+        self.f_current_n = self.f_reach_current_n = self.f_hat_filtered_n = 0.0
         self.level = ForceLevel.OK
 
     def force_from_currents_n(self, r_m: float, theta_rad: float, current_r_a: float,
@@ -68,14 +79,18 @@ class ForceSupervisor:
 
     def step(self, f_hat_n: float, r_m: float, theta_rad: float, current_r_a: float,
              current_theta_a: float) -> ForceLevel:
-        """Update the filtered current-based estimate and return this tick's level."""
+        """Update the filtered current-based estimates and return this tick's level."""
         total = f_hat_n + r_m + theta_rad + current_r_a + current_theta_a
         if not math.isfinite(total) or r_m < kinematics.MIN_REACH_M:  # nan/inf poisons the sum
             self.level = ForceLevel.HARD
             return self.level
-        raw = self.force_from_currents_n(r_m, theta_rad, current_r_a, current_theta_a)
-        self.f_current_n += self._alpha * (raw - self.f_current_n)
-        self.f_hat_filtered_n += self._alpha * (f_hat_n - self.f_hat_filtered_n)
+        reach_n, down_n = tip_force_from_loads_n(
+            r_m, theta_rad, self._kt_r * current_r_a, self._kt_theta * current_theta_a,
+            self._g, self._half_length_m)
+        alpha = self._alpha
+        self.f_current_n += alpha * (down_n - self.f_current_n)
+        self.f_reach_current_n += alpha * (reach_n - self.f_reach_current_n)
+        self.f_hat_filtered_n += alpha * (f_hat_n - self.f_hat_filtered_n)
         force = max(f_hat_n, self.f_current_n)
         if force > self.f_max_n:
             self.f_max_n = force
@@ -88,10 +103,25 @@ class ForceSupervisor:
 def down_force_n(r_m: float, theta_rad: float, load_r_n: float, load_theta_nm: float,
                  weight_n: float, half_length_m: float) -> float:
     """Vertical force of the tip on the ground (> 0 down) that balances the joints' motor
-    loads and an unbalanced weight ``weight_n`` (acting at half the rake's length) at rest."""
+    loads and an unbalanced weight ``weight_n`` (acting at half the rake's length) at rest:
+    the second element of :func:`tip_force_from_loads_n`."""
+    return tip_force_from_loads_n(r_m, theta_rad, load_r_n, load_theta_nm, weight_n,
+                                  half_length_m)[1]
+
+
+def tip_force_from_loads_n(r_m: float, theta_rad: float, load_r_n: float,
+                           load_theta_nm: float, weight_n: float, half_length_m: float
+                           ) -> tuple[float, float]:
+    """(reach, down) in N: the force of the ground on the tip along the reach (> 0 toward
+    the far end: the drag of a stroke toward the robot) and the vertical force of the tip
+    on the ground (> 0 down), that balance the joints' motor loads and an unbalanced
+    weight ``weight_n`` (acting at half the rake's length) at rest."""
     load_r = load_r_n + weight_n * math.sin(theta_rad)
     load_theta = load_theta_nm + weight_n * (r_m - half_length_m) * math.cos(theta_rad)
-    return -kinematics.tip_force(r_m, theta_rad, load_r, load_theta)[1]
+    # J⁻ᵀ(load) is the tip's force on the ground as (reach, height); J⁻ᵀ(−load), the
+    # ground's on the tip, is (reach, down) as returned: tip_force's one tuple, bit for bit
+    # the negation of the former (IEEE rounding is symmetric)
+    return kinematics.tip_force(r_m, theta_rad, -load_r, -load_theta)
 
 
 PLAUSIBLE_MARGIN = (0.05, 0.1)  # m on r, rad on θ: beyond the workspace's limits by more

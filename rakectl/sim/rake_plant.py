@@ -66,7 +66,8 @@ class RakeLoop:
         "reach_ref_m", "r_ref_m", "theta_ref_rad", "r_m", "theta_rad", "voltage_r_req_v",
         "voltage_theta_req_v", "voltage_r_v", "voltage_theta_v", "current_r_a",
         "current_theta_a", "tip_reach_m", "tip_depth_m", "interface_depth_m", "f_true_z_n",
-        "f_true_x_n", "contact", "mine_activated", "f_current_n", "force_level",
+        "f_true_x_n", "contact", "mine_activated", "f_current_n", "f_reach_current_n",
+        "force_level",
     )
 
     def __init__(self, settings: Scenario, start_reach_m: float, start_depth_m: float,
@@ -148,7 +149,8 @@ class RakeLoop:
             arm.current_r_a, arm.current_theta_a, reach_m, -height_m,
             -truth.interface_height_m, self.contact.peak_down_n, truth.force_drag_n,
             CONTACT_CODE[truth.contact], float(truth.mine_activated),
-            self.supervisor.f_current_n, float(self.supervisor.level),
+            self.supervisor.f_current_n, self.supervisor.f_reach_current_n,
+            float(self.supervisor.level),
         )
 
     def summary(self) -> dict[str, float | int | bool]:

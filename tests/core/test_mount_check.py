@@ -142,7 +142,8 @@ def test_the_press_is_checked_against_the_clamp_and_the_workspace() -> None:
     ok = dataclasses.replace(s, selftest=dataclasses.replace(s.selftest, press=True))
     assert cross_checks(ok) == []
     hard = dataclasses.replace(ok, selftest=dataclasses.replace(ok.selftest, press_force_n=20.0),
-                               clamp=dataclasses.replace(s.clamp, force_limit_n=36.0))
+                               clamp=dataclasses.replace(s.clamp, force_limit_n=36.0),
+                               descent=dataclasses.replace(s.descent, min_step_m=1e-4))
     assert cross_checks(hard) == [("selftest.press_force_n", "must be <= half "
                                    "clamp.force_limit_n (18 N), got 20")]
     far = dataclasses.replace(ok, selftest=dataclasses.replace(ok.selftest, anvil_reach_m=2.5))
