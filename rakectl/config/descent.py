@@ -49,6 +49,22 @@ class DescentSettings:
     drag_margin_n: float = setting(
         0.0, "Kept back from the cutting resistance's budget (clamp.force_limit_n · "
         "clamp.model_margin) for its estimate's error.", unit="N", ge=0, le=90)
+    enforce: bool = setting(
+        False, "Hold every depth reference at the ground map's floor (rakectl.core.ground_map): "
+        "no deeper than the step below the highest soil within side_reach_m. Off until the "
+        "lane and the jog plan within it: they stall against the floor where no pass has "
+        "mapped the ground.")
+    ceiling_m: float = setting(
+        0.06, "Highest the soil's surface stands above ground level 0 anywhere in the "
+        "workspace (a site survey): the map's top where no pass has been.", unit="m",
+        ge=-0.5, le=1)
+    side_reach_m: float = setting(
+        0.01, "How far along the reach an object's edge can push descending tines (a mine's "
+        "rim 3 mm, a stone's edge 5 mm) plus the reach's error.", unit="m", ge=0.005, le=0.1)
+    mount_force_margin_n: float = setting(
+        3.0, "Added to the vertical force read from the currents before the tines' height "
+        "above the tip is taken as that force over clamp.contact_stiffness_n_per_m (the "
+        "estimate lags a sudden press by its filter).", unit="N", ge=0, le=90)
     min_step_m: float = setting(
         0.5e-3, "Smallest descent step worth taking; a strongest soil whose first step is "
         "smaller is refused at load.", unit="m", gt=0, le=0.1)

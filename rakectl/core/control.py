@@ -5,9 +5,12 @@
 
 ``TipController.step`` takes the measured joints and the reference and returns
 the clamped voltages; the requested (pre-clamp) ones stay readable for the
-flight recorder. Nothing here raises in normal operation: an unreachable
-reference holds the last reachable one (counted); a non-finite number sets
-``fault`` and gives 0 V, which the caller must turn into a fault state.
+flight recorder. With ``descent.enforce`` the impedance's output passes the
+descent limiter (:mod:`rakectl.core.ground_map`) before the joint loops: every
+reference, whatever made it, is held at the ground map's floor. Nothing here
+raises in normal operation: an unreachable reference holds the last reachable
+one (counted); a non-finite number sets ``fault`` and gives 0 V, which the
+caller must turn into a fault state.
 """
 
 from __future__ import annotations
@@ -17,6 +20,8 @@ import math
 from rakectl.config.settings import JointLoopSettings, Settings
 from rakectl.core import kinematics
 from rakectl.core.clamp import VoltageClamp
+from rakectl.core.descent import SoilBound
+from rakectl.core.ground_map import DescentLimiter, GroundMap
 from rakectl.core.impedance import DelayForceEstimator, ImpedanceController, ImpedanceFilter
 from rakectl.core.joint_control import JointPositionLoop, PidGains
 from rakectl.errors import KinematicsError
@@ -83,11 +88,23 @@ class JointServo:
                 self.loop_theta.step(q_ref[1], theta_vel_ref, theta_rad, theta_vel_rad_per_s))
 
 
+def build_descent(settings: Settings) -> DescentLimiter | None:
+    """The descent limiter over a ground map of the whole reach, or None when
+    ``descent.enforce`` is off."""
+    d = settings.descent
+    if not d.enforce:
+        return None
+    bound = SoilBound.from_settings(d, settings.clamp.force_limit_n, settings.clamp.model_margin)
+    return DescentLimiter(GroundMap(0.0, settings.geometry.r_max_m, d.ceiling_m,
+                                    bound.first_step_m, d.side_reach_m), 1.0 / settings.rate_hz)
+
+
 class TipController:
     """Impedance control on the depth axis, joint loops and the clamp, one tick at a time."""
 
-    __slots__ = ("_contact", "_contact_delay_s", "clamp", "depth_m", "fault", "impedance",
-                 "reach_m", "requested_v", "servo", "x_ref_m")
+    __slots__ = ("_contact", "_contact_delay_s", "_lift_m_per_n", "_lift_margin_n", "clamp",
+                 "depth_m", "descent", "fault", "impedance", "reach_m", "requested_v", "servo",
+                 "x_ref_m")
 
     def __init__(self, settings: Settings, clamp: VoltageClamp | None = None) -> None:
         """``clamp`` replaces the configured clamp: for tests only (no setting reaches it)."""
@@ -98,6 +115,9 @@ class TipController:
             settings.clamp, settings.motors.r, settings.motors.theta, dt_s)
         self._contact_delay_s = settings.estimator.delay_s
         self._contact = False
+        self.descent = build_descent(settings)
+        self._lift_m_per_n = 1.0 / settings.clamp.contact_stiffness_n_per_m
+        self._lift_margin_n = settings.descent.mount_force_margin_n
         self.impedance.estimator.set_delay(0.0)
         self.reach_m = self.depth_m = self.x_ref_m = 0.0
         self.requested_v = (0.0, 0.0)
@@ -115,6 +135,10 @@ class TipController:
         self.impedance.reset(self.depth_m)
         if not keep_servo:
             self.servo.reset(r_m, theta_rad)
+            if self.descent is not None:  # arming: the platform may have moved
+                self.descent.map.reset()
+        if self.descent is not None:
+            self.descent.reset()
         self.fault = ""
 
     def set_contact(self, contact: bool) -> None:
@@ -128,17 +152,28 @@ class TipController:
             self.impedance.estimator.set_delay(0.0)
 
     def step(self, reach_ref_m: float, depth_ref_m: float, r_m: float, theta_rad: float,
-             r_vel_m_per_s: float, theta_vel_rad_per_s: float, samples: int = 1
-             ) -> tuple[float, float]:
+             r_vel_m_per_s: float, theta_vel_rad_per_s: float, samples: int = 1, *,
+             mount_force_n: float) -> tuple[float, float]:
         """Clamped voltages (r, θ) for this tick from the measured joints and the reference;
         ``samples``: the sampling instants (SYNCs) the joints advanced since the last tick
-        (:attr:`rakectl.drive.health.Feedback.samples`), for the force estimate."""
+        (:attr:`rakectl.drive.health.Feedback.samples`), for the force estimate;
+        ``mount_force_n``: the vertical force the tine mount carries, as last read from the
+        currents (:attr:`rakectl.core.supervision.ForceSupervisor.f_current_n`), which
+        holds the tines above the tip for the ground map."""
         if not (math.isfinite(r_m) and math.isfinite(theta_rad) and r_m > 0.0):
             self.fault = "non-finite or impossible joint feedback"
             return 0.0, 0.0
         self.reach_m = r_m * math.cos(theta_rad)
         self.depth_m = r_m * math.sin(theta_rad) - self.servo.workspace.pivot_height_m
         self.x_ref_m = self.impedance.step(depth_ref_m, self.depth_m, samples)
+        descent = self.descent
+        if descent is not None:
+            if not math.isfinite(mount_force_n):
+                self.fault = "non-finite mount force for the ground map"
+                return 0.0, 0.0
+            lift_m = (max(0.0, mount_force_n) + self._lift_margin_n) * self._lift_m_per_n
+            descent.map.track(self.reach_m, lift_m - self.depth_m)
+            self.x_ref_m = descent.clip(self.x_ref_m, reach_ref_m, self.reach_m, self.depth_m)
         servo = self.servo
         integrals = (servo.loop_r.integral_v, servo.loop_theta.integral_v)
         requested = servo.step(reach_ref_m, self.x_ref_m, r_m, theta_rad, r_vel_m_per_s,

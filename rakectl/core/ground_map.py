@@ -108,32 +108,54 @@ class GroundMap:
                                   for j in range(max(0, k - side), min(n, k + side + 1)))
 
 
+# The joint loops hold the tip up to about 0.4 mm below a still reference (their
+# proportional term carries the load until the integrator takes it over): the limiter
+# raises its hold by an integral of how far the measured tip is below the floor, at this
+# rate (well under the loops' bandwidth), at most OFFSET_MAX_M.
+OFFSET_GAIN_PER_S = 30.0
+OFFSET_MAX_M = 0.005
+# A reference held at the floor leads the measured tip down by at most this much, so the
+# tip, however fast it came, approaches the floor as a step this small (its overshoot).
+LEAD_M = 0.001
+# The hold sits this far above the floor: the tip stopping there dips up to 0.24 mm below
+# its reference before the offset takes the load (plunges of 0.05-1 m/s, measured through
+# the full chain; tests/sim/test_descent_limit.py keeps it).
+TRACKING_MARGIN_M = 0.0003
+
+
 class DescentLimiter:
     """Holds a depth reference above the map's floor, at the reference's reach and at the
-    measured one; tines already below it may rise and move sideways, never go deeper."""
+    measured one (the higher of the two); tines below it, where the floor rose under them
+    (a pass moving toward higher soil, a map reset), are raised to it."""
 
-    __slots__ = ("_out_m", "clipped", "map")
+    __slots__ = ("_gain", "clipped", "map", "offset_m")
 
-    def __init__(self, ground: GroundMap) -> None:
+    def __init__(self, ground: GroundMap, dt_s: float) -> None:
         self.map = ground
-        self._out_m = -math.inf  # the last depth let through (none yet: the floor alone)
+        self._gain = OFFSET_GAIN_PER_S * dt_s
+        self.offset_m = 0.0  # how far above the floor the hold is raised
         self.clipped = 0  # ticks whose reference was held up
 
-    def reset(self, depth_m: float) -> None:
-        """Start from the tines' measured depth (arming)."""
-        self._out_m = depth_m
+    def reset(self) -> None:
+        """Start afresh (arming)."""
+        self.offset_m = 0.0
         self.clipped = 0
 
     def limit_depth_m(self, reach_ref_m: float, reach_m: float) -> float:
-        """The deepest the floor allows at both reaches (depth: below level 0, down positive)."""
-        return -max(self.map.floor_at_m(reach_ref_m), self.map.floor_at_m(reach_m))
+        """The deepest the floor allows at both reaches, less the tracking margin (depth:
+        below level 0, down positive)."""
+        return -max(self.map.floor_at_m(reach_ref_m),
+                    self.map.floor_at_m(reach_m)) - TRACKING_MARGIN_M
 
-    def clip(self, depth_ref_m: float, reach_ref_m: float, reach_m: float) -> float:
-        """``depth_ref_m`` or the deepest allowed: the floor's, or where the last output
-        already was when that is deeper (the latch)."""
-        allowed_m = max(self.limit_depth_m(reach_ref_m, reach_m), self._out_m)
+    def clip(self, depth_ref_m: float, reach_ref_m: float, reach_m: float,
+             depth_m: float) -> float:
+        """``depth_ref_m`` or the deepest allowed: the floor's, raised by the offset that
+        keeps the measured tip (``depth_m``) on it, and at most LEAD_M below the tip."""
+        limit_m = self.limit_depth_m(reach_ref_m, reach_m)
+        offset_m = self.offset_m + self._gain * (depth_m - limit_m)
+        self.offset_m = 0.0 if offset_m < 0.0 else min(offset_m, OFFSET_MAX_M)
+        allowed_m = limit_m - self.offset_m
         if depth_ref_m > allowed_m:
             self.clipped += 1
-            depth_ref_m = allowed_m
-        self._out_m = depth_ref_m
+            depth_ref_m = allowed_m if allowed_m < depth_m + LEAD_M else depth_m + LEAD_M
         return depth_ref_m

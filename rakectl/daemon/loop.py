@@ -252,7 +252,8 @@ class Daemon(StateChanges):
         fb, c = self.client.feedback, self.controller
         c.set_contact(contact)
         voltages = c.step(reach, depth, fb.r_m, fb.theta_rad, fb.r_vel_m_per_s,
-                          fb.theta_vel_rad_per_s, fb.samples)
+                          fb.theta_vel_rad_per_s, fb.samples,
+                          mount_force_n=self.supervisor.f_current_n)
         if c.fault or c.clamp.infeasible:
             self.fault(c.fault or "the voltage clamp cannot meet its bound: "
                        f"worst case {c.clamp.worst_case_n:.1f} N")

@@ -23,6 +23,7 @@ from typing import Any, TextIO
 
 from drivers.objects import Contact
 from drivers.soil import original_surface_height_m
+from rakectl.config.descent import DescentSettings
 from rakectl.config.settings import LaneSettings
 from rakectl.core.clamp import VoltageClamp
 from rakectl.core.lane import LanePlanner
@@ -88,9 +89,10 @@ def result_from_dict(data: dict[str, Any]) -> CaseResult:
 # --------------------------------------------------------------------------- running
 
 
-def scenario_of(case: FuzzCase) -> Scenario:
+def scenario_of(case: FuzzCase, descent: DescentSettings | None = None) -> Scenario:
+    """The case's scenario; ``descent`` replaces the default descent budget's settings."""
     c = case.command
-    base = Scenario()
+    base = Scenario() if descent is None else dataclasses.replace(Scenario(), descent=descent)
     lane = LaneSettings(reach_far_m=c.reach_far_m, reach_near_m=min(c.reach_near_m,
                                                                       c.reach_far_m - 0.01),
                         depth_step_m=c.depth_step_m if c.depth_step_m > 0 else 0.01,
@@ -137,10 +139,12 @@ def _reference(case: FuzzCase, settings: Scenario, loop: RakeLoop) -> Reference:
 
 
 def run_case(case: FuzzCase, clamp: VoltageClamp | None = None,
-             on_tick: Callable[[FaultyRakeLoop], None] | None = None) -> CaseResult:
+             on_tick: Callable[[FaultyRakeLoop], None] | None = None,
+             descent: DescentSettings | None = None) -> CaseResult:
     """Run one case through the full chain; ``clamp`` replaces the real one (tests);
-    ``on_tick`` sees the loop after every tick (a replay's telemetry)."""
-    settings = scenario_of(case)
+    ``on_tick`` sees the loop after every tick (a replay's telemetry); ``descent``
+    replaces the descent budget's settings (a site's declared soil, the limiter on)."""
+    settings = scenario_of(case, descent)
     loop = FaultyRakeLoop(settings, *_start(case, settings), case.faults, clamp)
     loop.reset()
     reference = _reference(case, settings, loop)

@@ -153,7 +153,8 @@ class FaultyRakeLoop(RakeLoop):
                 m, self.feedback_lost = self._last, self.feedback_lost + 1
             self._last = m
             voltages = self.controller.step(reach_ref_m, depth_ref_m, m.r_m, m.theta_rad,
-                                            m.r_vel_m_per_s, m.theta_vel_rad_per_s)
+                                            m.r_vel_m_per_s, m.theta_vel_rad_per_s,
+                                            mount_force_n=self.supervisor.f_current_n)
             if self.controller.clamp.infeasible and not self.fault:  # as the daemon does
                 self.fault = "the voltage clamp cannot meet its bound"
         else:

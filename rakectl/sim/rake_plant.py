@@ -105,7 +105,8 @@ class RakeLoop:
     def _tick(self, reach_ref_m: float, depth_ref_m: float) -> None:
         m = self.arm.measure()
         voltages = self.controller.step(reach_ref_m, depth_ref_m, m.r_m, m.theta_rad,
-                                        m.r_vel_m_per_s, m.theta_vel_rad_per_s)
+                                        m.r_vel_m_per_s, m.theta_vel_rad_per_s,
+                                        mount_force_n=self.supervisor.f_current_n)
         self.contact.peak_down_n = 0.0
         self.arm.step(self._pending_v[0], self._pending_v[1], self.contact, self.dt_s)
         self._pending_v = voltages

@@ -9,9 +9,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rakectl.core.ground_map import CELL_M, DescentLimiter, GroundMap
+from rakectl.core.ground_map import (
+    CELL_M,
+    LEAD_M,
+    OFFSET_GAIN_PER_S,
+    OFFSET_MAX_M,
+    TRACKING_MARGIN_M,
+    DescentLimiter,
+    GroundMap,
+)
 
 CEILING_M, STEP_M = 0.05, 0.002
+MARGIN = TRACKING_MARGIN_M
 
 
 def _map(side_reach_m: float = 0.01) -> GroundMap:
@@ -75,59 +84,87 @@ def test_back_and_forth_across_an_edge_lowers_nothing() -> None:
     assert ground.top_m == pytest.approx([CEILING_M] * 11)
 
 
+def _limiter(ground: GroundMap) -> DescentLimiter:
+    return DescentLimiter(ground, 1e-3)
+
+
 def test_the_limiter_passes_what_the_floor_allows_and_holds_the_rest() -> None:
     ground = _map()
-    limiter = DescentLimiter(ground)
-    limiter.reset(-0.1)
-    assert limiter.clip(-0.06, 1.02, 1.02) == -0.06  # above the floor: untouched
-    assert limiter.clip(0.0, 1.02, 1.02) == pytest.approx(-0.048)  # the floor: 48 mm up
+    limiter = _limiter(ground)
+    limiter.reset()
+    # the tip where the reference is (no lead, no offset): above the floor, untouched
+    assert limiter.clip(-0.06, 1.02, 1.02, -0.06) == -0.06
+    # below it: held 48 mm up (ceiling less the step), less the tracking margin
+    assert limiter.clip(0.0, 1.02, 1.02, -0.048 - MARGIN) == pytest.approx(-0.048 - MARGIN)
     assert limiter.clipped == 1
     for i in range(11):
         ground.lower(i, 0.0)
-    assert limiter.clip(0.01, 1.02, 1.02) == pytest.approx(0.002)  # level 0 less the step
+    assert limiter.clip(0.01, 1.02, 1.02, 0.002 - MARGIN) == pytest.approx(0.002 - MARGIN)
     # the reference's reach and the measured one: the higher floor of the two
-    ground.lower(10, -0.02)
-    ground.lower(9, -0.02)
-    ground.lower(8, -0.02)
-    assert limiter.clip(0.05, 1.049, 1.02) == pytest.approx(0.002)
+    for i in (8, 9, 10):
+        ground.lower(i, -0.02)
+    assert limiter.clip(0.05, 1.049, 1.02, 0.002 - MARGIN) == pytest.approx(0.002 - MARGIN)
 
 
-def test_tines_below_the_floor_may_rise_never_sink() -> None:
+def test_a_held_reference_leads_the_tip_down_by_a_millimetre_at_most() -> None:
+    limiter = _limiter(_map())
+    limiter.reset()
+    assert limiter.clip(0.0, 1.02, 1.02, -0.09) == pytest.approx(-0.09 + LEAD_M)
+    assert limiter.clip(-0.095, 1.02, 1.02, -0.09) == -0.095  # not held: as it is
+
+
+def test_the_hold_rises_while_the_tip_is_below_the_floor_and_settles_back() -> None:
+    limiter = _limiter(_map())
+    limiter.reset()
+    floor_depth = -0.048 - MARGIN
+    sag = 0.0004
+    out = limiter.clip(0.0, 1.02, 1.02, floor_depth + sag)
+    assert out == pytest.approx(floor_depth - OFFSET_GAIN_PER_S * 1e-3 * sag)
+    for _ in range(2000):  # a tip that stays below whatever the hold: the offset's cap
+        out = limiter.clip(0.0, 1.02, 1.02, floor_depth + sag)
+    assert limiter.offset_m == pytest.approx(OFFSET_MAX_M)
+    assert out == pytest.approx(floor_depth - OFFSET_MAX_M)
+    for _ in range(2000):  # on the floor's hold again, above the floor: back to none
+        out = limiter.clip(0.0, 1.02, 1.02, floor_depth - 0.001)
+    assert limiter.offset_m == 0.0
+    assert out == pytest.approx(floor_depth)
+
+
+def test_tines_below_a_floor_that_rose_are_raised_to_it() -> None:
     ground = _map()
-    limiter = DescentLimiter(ground)
-    limiter.reset(0.03)  # armed 30 mm deep, the floor 48 mm above level 0
-    assert limiter.clip(0.04, 1.02, 1.02) == pytest.approx(0.03)
-    assert limiter.clip(0.025, 1.02, 1.02) == pytest.approx(0.025)
-    assert limiter.clip(0.03, 1.02, 1.02) == pytest.approx(0.025)
-    assert limiter.clip(-0.06, 1.02, 1.02) == pytest.approx(-0.06)
-    assert limiter.clip(0.0, 1.02, 1.02) == pytest.approx(-0.048)
+    for i in range(11):
+        ground.lower(i, -0.03)
+    limiter = _limiter(ground)
+    assert limiter.clip(0.04, 1.02, 1.02, 0.032 - MARGIN) == pytest.approx(0.032 - MARGIN)
+    ground.reset()  # the floor back at 48 mm above level 0, the tip 32 mm below it
+    out = limiter.clip(0.04, 1.02, 1.02, 0.032 - MARGIN)
+    assert out < -0.048 - MARGIN  # held at the floor, raised further by the offset
+    assert limiter.offset_m > 0.0
 
 
 def test_a_limiter_never_reset_holds_the_floor() -> None:
-    assert DescentLimiter(_map()).clip(0.0, 1.02, 1.02) == pytest.approx(-0.048)
+    assert _limiter(_map()).clip(0.0, 1.02, 1.02, -0.0485) == pytest.approx(-0.048 - MARGIN)
 
 
 @settings(max_examples=200, deadline=None)
 @given(refs=st.lists(st.tuples(st.floats(-0.08, 0.08), st.floats(0.99, 1.06),
-                               st.floats(0.99, 1.06)), min_size=1, max_size=60),
-       lowered=st.lists(st.tuples(st.integers(0, 10), st.floats(-0.05, 0.05)), max_size=20),
-       start=st.floats(-0.08, 0.08))
-def test_no_output_is_deeper_than_the_floor_or_the_last_output(
-        refs: list[tuple[float, float, float]], lowered: list[tuple[int, float]],
-        start: float) -> None:
+                               st.floats(0.99, 1.06), st.floats(-0.08, 0.08)),
+                     min_size=1, max_size=60),
+       lowered=st.lists(st.tuples(st.integers(0, 10), st.floats(-0.05, 0.05)), max_size=20))
+def test_no_output_is_deeper_than_the_floor_or_a_lead_below_the_tip(
+        refs: list[tuple[float, float, float, float]], lowered: list[tuple[int, float]]
+        ) -> None:
     ground = _map()
-    limiter = DescentLimiter(ground)
-    limiter.reset(start)
-    last = start
-    for k, (depth, reach_ref, reach) in enumerate(refs):
+    limiter = _limiter(ground)
+    limiter.reset()
+    for k, (depth, reach_ref, reach, tip) in enumerate(refs):
         if k < len(lowered):
             ground.lower(*lowered[k])
-        out = limiter.clip(depth, reach_ref, reach)
-        floor_depth = -max(ground.floor_at_m(reach_ref), ground.floor_at_m(reach))
+        out = limiter.clip(depth, reach_ref, reach, tip)
+        floor_depth = -max(ground.floor_at_m(reach_ref), ground.floor_at_m(reach)) - MARGIN
         assert out <= depth
-        assert out <= max(floor_depth, last) + 1e-15
-        assert out == depth or out == pytest.approx(max(floor_depth, last))
-        last = out
+        assert out <= floor_depth + 1e-15
+        assert out <= tip + LEAD_M + 1e-15 or out == depth
 
 
 def test_a_map_that_cannot_be_is_refused() -> None:
