@@ -75,7 +75,8 @@ def descent_checks(descent: DescentSettings, force_limit_n: float, model_margin:
     """The budget must leave the cutting resistance something, the tine's face must admit
     a failure wedge, and the strongest soil's first step must be worth taking:
     (dotted key, message) for each violation."""
-    from rakectl.core.descent import SoilBound  # the derivation; config imports it lazily
+    # the derivation, imported here: rakectl.core.descent imports this module's types
+    from rakectl.core.descent import TRACKING_MARGIN_M, SoilBound
     budget_n = force_limit_n * model_margin
     if descent.drag_margin_n >= budget_n:
         return [("descent.drag_margin_n", f"must be < clamp.force_limit_n · clamp.model_margin "
@@ -84,6 +85,12 @@ def descent_checks(descent: DescentSettings, force_limit_n: float, model_margin:
         bound = SoilBound.from_settings(descent, force_limit_n, model_margin)
     except ConfigError as error:
         return [("descent.rake_angle_rad", f"leaves {error}")]
+    if descent.enforce and bound.first_step_m - TRACKING_MARGIN_M < descent.min_step_m:
+        return [("descent.enforce", "leaves no step: the declared soil (descent.*_max, "
+                 f"strength_factor) allows {bound.first_step_m * 1e3:.3g} mm below the soil "
+                 f"beside the tines, less the limiter's {TRACKING_MARGIN_M * 1e3:g} mm "
+                 f"tracking margin is under descent.min_step_m "
+                 f"({descent.min_step_m * 1e3:g} mm): declare the site's soil")]
     if bound.first_step_m < descent.min_step_m:
         return [("descent.min_step_m", "leaves no step within the bound: the strongest "
                  "admitted soil (descent.*_max, strength_factor) reaches the cutting "

@@ -173,7 +173,10 @@ class TipController:
                 return 0.0, 0.0
             lift_m = (max(0.0, mount_force_n) + self._lift_margin_n) * self._lift_m_per_n
             descent.map.track(self.reach_m, lift_m - self.depth_m)
-            self.x_ref_m = descent.clip(self.x_ref_m, reach_ref_m, self.reach_m, self.depth_m)
+            depth_rate = (r_vel_m_per_s * math.sin(theta_rad)
+                          + r_m * math.cos(theta_rad) * theta_vel_rad_per_s)
+            self.x_ref_m = descent.clip(self.x_ref_m, reach_ref_m, self.reach_m, self.depth_m,
+                                        depth_rate)
         servo = self.servo
         integrals = (servo.loop_r.integral_v, servo.loop_theta.integral_v)
         requested = servo.step(reach_ref_m, self.x_ref_m, r_m, theta_rad, r_vel_m_per_s,

@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import math
 
+from rakectl.core.descent import TRACKING_MARGIN_M
+
 CELL_M = 0.005  # the map's resolution along the reach: the width of an edge's sideways push
 
 
@@ -114,13 +116,11 @@ class GroundMap:
 # rate (well under the loops' bandwidth), at most OFFSET_MAX_M.
 OFFSET_GAIN_PER_S = 30.0
 OFFSET_MAX_M = 0.005
-# A reference held at the floor leads the measured tip down by at most this much, so the
-# tip, however fast it came, approaches the floor as a step this small (its overshoot).
+# A reference held at the floor leads the measured tip down by at most this much, and is
+# held above it by the distance the tip needs to stop from its measured descent at
+# BRAKE_M_PER_S2: the tip, however fast it came, approaches the floor in small steps.
 LEAD_M = 0.001
-# The hold sits this far above the floor: the tip stopping there dips up to 0.24 mm below
-# its reference before the offset takes the load (plunges of 0.05-1 m/s, measured through
-# the full chain; tests/sim/test_descent_limit.py keeps it).
-TRACKING_MARGIN_M = 0.0003
+BRAKE_M_PER_S2 = 0.5
 
 
 class DescentLimiter:
@@ -148,13 +148,16 @@ class DescentLimiter:
                     self.map.floor_at_m(reach_m)) - TRACKING_MARGIN_M
 
     def clip(self, depth_ref_m: float, reach_ref_m: float, reach_m: float,
-             depth_m: float) -> float:
+             depth_m: float, depth_rate_m_per_s: float) -> float:
         """``depth_ref_m`` or the deepest allowed: the floor's, raised by the offset that
-        keeps the measured tip (``depth_m``) on it, and at most LEAD_M below the tip."""
+        keeps the measured tip (``depth_m``) on it and by the tip's braking distance from
+        its descent (``depth_rate_m_per_s``, > 0 down), and at most LEAD_M below the tip."""
         limit_m = self.limit_depth_m(reach_ref_m, reach_m)
         offset_m = self.offset_m + self._gain * (depth_m - limit_m)
         self.offset_m = 0.0 if offset_m < 0.0 else min(offset_m, OFFSET_MAX_M)
         allowed_m = limit_m - self.offset_m
+        if depth_rate_m_per_s > 0.0:
+            allowed_m -= depth_rate_m_per_s * depth_rate_m_per_s / (2.0 * BRAKE_M_PER_S2)
         if depth_ref_m > allowed_m:
             self.clipped += 1
             depth_ref_m = allowed_m if allowed_m < depth_m + LEAD_M else depth_m + LEAD_M

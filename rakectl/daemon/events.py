@@ -19,7 +19,8 @@ LOG_EVERY_S = 1.0  # a rate-limited event is written at most this often
 
 
 WARNINGS = frozenset({"arm_refused", "timing_warning", "clamp_warning", "recorder_dump_failed",
-                      "reset_failed", "force_limit", "object_found", "trace_failed"})
+                      "reset_failed", "force_limit", "object_found", "trace_failed",
+                      "descent_limit"})
 ERROR_STATES = frozenset({"FAULT", "ESTOP"})
 
 

@@ -64,6 +64,7 @@ RECORDER_COLUMNS = (
 NMT_RETRY_TICKS = 300  # in INIT, NMT start is repeated this often to a drive not OPERATIONAL
 SEND_FAILURE_STREAK = 3  # ticks in a row with a failed send: fault
 HEARTBEAT_CHECK_TICKS = 10
+DESCENT_QUIET_TICKS = 2000  # a descent-limit event again only after 2 s without a hold
 
 log = structlog.get_logger("rakectl")
 
@@ -112,6 +113,8 @@ class Daemon(StateChanges):
         self._next_watchdog_tick = 0
         self._next_starved_tick = 0
         self._ref = (0.0, 0.0)
+        self._descent_clipped = 0  # the descent limiter's count of held ticks, last tick
+        self._descent_free_ticks = DESCENT_QUIET_TICKS  # ticks since it last held one
         self.slack_hook: Callable[[float], object] | None = None  # the command server's poll
         self.trace: TraceRecorder | None = None  # bus trace, drained in the slack
         self.inputs: InputLog | None = None  # the trace's sidecar (rakectl.daemon.inputs)
@@ -260,6 +263,8 @@ class Daemon(StateChanges):
             return 0.0, 0.0
         if c.f_hat_n > self.f_hat_max_n:
             self.f_hat_max_n = c.f_hat_n
+        if c.descent is not None:
+            self._report_descent(reach)
         previous = self.supervisor.level
         level = self.supervisor.step(c.f_hat_n, fb.r_m, fb.theta_rad, fb.current_r_a,
                                      fb.current_theta_a)
@@ -272,6 +277,30 @@ class Daemon(StateChanges):
             sup = self.supervisor  # an adaptive stroke follows the larger estimate
             planner.govern(max(c.f_hat_n, sup.f_current_n), sup.caution_n)
         return voltages
+
+    def _report_descent(self, reach_ref_m: float) -> None:
+        """One event when the descent limiter starts holding references at the ground
+        map's floor after DESCENT_QUIET_TICKS without (docs/safety.md, "Not covered"),
+        naming where and how deep."""
+        descent = self.controller.descent
+        if descent is None:
+            return
+        holding = descent.clipped != self._descent_clipped
+        self._descent_clipped = descent.clipped
+        if not holding:
+            self._descent_free_ticks += 1
+            return
+        quiet = self._descent_free_ticks >= DESCENT_QUIET_TICKS
+        self._descent_free_ticks = 0
+        if quiet:
+            c = self.controller
+            limit_m = descent.limit_depth_m(reach_ref_m, c.reach_m)
+            self.event("descent_limit", reach_m=c.reach_m, depth_m=c.depth_m,
+                       limit_depth_m=limit_m,
+                       message=f"descent limit here: the tines are held at "
+                               f"{-limit_m * 1e3:+.1f} mm from ground level 0 at reach "
+                               f"{c.reach_m:.3f} m (the soil beside them may stand no more "
+                               "than the declared soil's step above them)")
 
     def _back_off(self) -> None:
         """Hard force level: stop where the tip is and back off upward; report it."""

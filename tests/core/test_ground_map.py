@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rakectl.core.ground_map import (
+    BRAKE_M_PER_S2,
     CELL_M,
     LEAD_M,
     OFFSET_GAIN_PER_S,
@@ -93,24 +94,33 @@ def test_the_limiter_passes_what_the_floor_allows_and_holds_the_rest() -> None:
     limiter = _limiter(ground)
     limiter.reset()
     # the tip where the reference is (no lead, no offset): above the floor, untouched
-    assert limiter.clip(-0.06, 1.02, 1.02, -0.06) == -0.06
+    assert limiter.clip(-0.06, 1.02, 1.02, -0.06, 0.0) == -0.06
     # below it: held 48 mm up (ceiling less the step), less the tracking margin
-    assert limiter.clip(0.0, 1.02, 1.02, -0.048 - MARGIN) == pytest.approx(-0.048 - MARGIN)
+    assert limiter.clip(0.0, 1.02, 1.02, -0.048 - MARGIN, 0.0) == pytest.approx(-0.048 - MARGIN)
     assert limiter.clipped == 1
     for i in range(11):
         ground.lower(i, 0.0)
-    assert limiter.clip(0.01, 1.02, 1.02, 0.002 - MARGIN) == pytest.approx(0.002 - MARGIN)
+    assert limiter.clip(0.01, 1.02, 1.02, 0.002 - MARGIN, 0.0) == pytest.approx(0.002 - MARGIN)
     # the reference's reach and the measured one: the higher floor of the two
     for i in (8, 9, 10):
         ground.lower(i, -0.02)
-    assert limiter.clip(0.05, 1.049, 1.02, 0.002 - MARGIN) == pytest.approx(0.002 - MARGIN)
+    assert limiter.clip(0.05, 1.049, 1.02, 0.002 - MARGIN, 0.0) == pytest.approx(0.002 - MARGIN)
 
 
 def test_a_held_reference_leads_the_tip_down_by_a_millimetre_at_most() -> None:
     limiter = _limiter(_map())
     limiter.reset()
-    assert limiter.clip(0.0, 1.02, 1.02, -0.09) == pytest.approx(-0.09 + LEAD_M)
-    assert limiter.clip(-0.095, 1.02, 1.02, -0.09) == -0.095  # not held: as it is
+    assert limiter.clip(0.0, 1.02, 1.02, -0.09, 0.0) == pytest.approx(-0.09 + LEAD_M)
+    assert limiter.clip(-0.095, 1.02, 1.02, -0.09, 0.0) == -0.095  # not held: as it is
+
+
+def test_a_descending_tip_is_held_its_braking_distance_above_the_floor() -> None:
+    limiter = _limiter(_map())
+    braking = 0.1 ** 2 / (2.0 * BRAKE_M_PER_S2)
+    assert braking == pytest.approx(0.01)
+    tip = -0.048 - MARGIN - 0.005  # 5 mm above the hold, descending at 0.1 m/s
+    assert limiter.clip(0.0, 1.02, 1.02, tip, 0.1) == pytest.approx(-0.048 - MARGIN - braking)
+    assert limiter.clip(0.0, 1.02, 1.02, tip, -0.1) == pytest.approx(tip + LEAD_M)  # rising
 
 
 def test_the_hold_rises_while_the_tip_is_below_the_floor_and_settles_back() -> None:
@@ -118,14 +128,14 @@ def test_the_hold_rises_while_the_tip_is_below_the_floor_and_settles_back() -> N
     limiter.reset()
     floor_depth = -0.048 - MARGIN
     sag = 0.0004
-    out = limiter.clip(0.0, 1.02, 1.02, floor_depth + sag)
+    out = limiter.clip(0.0, 1.02, 1.02, floor_depth + sag, 0.0)
     assert out == pytest.approx(floor_depth - OFFSET_GAIN_PER_S * 1e-3 * sag)
     for _ in range(2000):  # a tip that stays below whatever the hold: the offset's cap
-        out = limiter.clip(0.0, 1.02, 1.02, floor_depth + sag)
+        out = limiter.clip(0.0, 1.02, 1.02, floor_depth + sag, 0.0)
     assert limiter.offset_m == pytest.approx(OFFSET_MAX_M)
     assert out == pytest.approx(floor_depth - OFFSET_MAX_M)
     for _ in range(2000):  # on the floor's hold again, above the floor: back to none
-        out = limiter.clip(0.0, 1.02, 1.02, floor_depth - 0.001)
+        out = limiter.clip(0.0, 1.02, 1.02, floor_depth - 0.001, 0.0)
     assert limiter.offset_m == 0.0
     assert out == pytest.approx(floor_depth)
 
@@ -135,32 +145,34 @@ def test_tines_below_a_floor_that_rose_are_raised_to_it() -> None:
     for i in range(11):
         ground.lower(i, -0.03)
     limiter = _limiter(ground)
-    assert limiter.clip(0.04, 1.02, 1.02, 0.032 - MARGIN) == pytest.approx(0.032 - MARGIN)
+    assert limiter.clip(0.04, 1.02, 1.02, 0.032 - MARGIN, 0.0) == pytest.approx(0.032 - MARGIN)
     ground.reset()  # the floor back at 48 mm above level 0, the tip 32 mm below it
-    out = limiter.clip(0.04, 1.02, 1.02, 0.032 - MARGIN)
+    out = limiter.clip(0.04, 1.02, 1.02, 0.032 - MARGIN, 0.0)
     assert out < -0.048 - MARGIN  # held at the floor, raised further by the offset
     assert limiter.offset_m > 0.0
 
 
 def test_a_limiter_never_reset_holds_the_floor() -> None:
-    assert _limiter(_map()).clip(0.0, 1.02, 1.02, -0.0485) == pytest.approx(-0.048 - MARGIN)
+    hold = -0.048 - MARGIN
+    assert _limiter(_map()).clip(0.0, 1.02, 1.02, hold, 0.0) == pytest.approx(hold)
 
 
 @settings(max_examples=200, deadline=None)
 @given(refs=st.lists(st.tuples(st.floats(-0.08, 0.08), st.floats(0.99, 1.06),
-                               st.floats(0.99, 1.06), st.floats(-0.08, 0.08)),
+                               st.floats(0.99, 1.06), st.floats(-0.08, 0.08),
+                               st.floats(-1.0, 1.0)),
                      min_size=1, max_size=60),
        lowered=st.lists(st.tuples(st.integers(0, 10), st.floats(-0.05, 0.05)), max_size=20))
 def test_no_output_is_deeper_than_the_floor_or_a_lead_below_the_tip(
-        refs: list[tuple[float, float, float, float]], lowered: list[tuple[int, float]]
+        refs: list[tuple[float, float, float, float, float]], lowered: list[tuple[int, float]]
         ) -> None:
     ground = _map()
     limiter = _limiter(ground)
     limiter.reset()
-    for k, (depth, reach_ref, reach, tip) in enumerate(refs):
+    for k, (depth, reach_ref, reach, tip, rate) in enumerate(refs):
         if k < len(lowered):
             ground.lower(*lowered[k])
-        out = limiter.clip(depth, reach_ref, reach, tip)
+        out = limiter.clip(depth, reach_ref, reach, tip, rate)
         floor_depth = -max(ground.floor_at_m(reach_ref), ground.floor_at_m(reach)) - MARGIN
         assert out <= depth
         assert out <= floor_depth + 1e-15

@@ -47,7 +47,8 @@ def _step_m(descent: DescentSettings) -> float:
 def test_a_plunge_is_held_at_the_floor_at_any_speed(speed_m_per_s: float) -> None:
     """A plunge in air from 60 mm above a 40 mm ceiling at 0.05–1 m/s (the clamp holds a
     descent to about 0.28 m/s): the tip stops on the floor (ceiling less the step, the
-    tracking margin above it), never below it. Measured: 0.06–0.29 mm above."""
+    1 mm tracking margin above it, which the tip dips into as it stops), never below it.
+    Measured: 0.75–0.80 mm above, 1.26 mm from a 1 m/s reference."""
     descent = _declared(SoilLayer(cohesion_pa=12e3), 1.0, 0.04)
     floor_m = descent.ceiling_m - _step_m(descent)
     command = MotionCommand(CommandKind.PLUNGE, 1.0, 1.0, 0.15, 0.15, speed_m_per_s, 0.0,
@@ -61,7 +62,7 @@ def test_a_plunge_is_held_at_the_floor_at_any_speed(speed_m_per_s: float) -> Non
 
     result = campaign.run_case(case, on_tick=on_tick, descent=descent)
     assert not result.controller_fault
-    assert floor_m <= lowest_m[0] < floor_m + 0.001
+    assert floor_m <= lowest_m[0] < floor_m + 0.002
 
 
 def test_passes_carve_the_ground_no_deeper_than_the_step_beside_the_tines() -> None:
@@ -71,9 +72,11 @@ def test_passes_carve_the_ground_no_deeper_than_the_step_beside_the_tines() -> N
     where the tines crossed whole cells). On every tick the emulator's true soil within
     the side reach of the tines stands at most the step above them, and after the last
     pass the map's top is nowhere below the true soil. Measured: step 4.38 mm, the soil
-    beside the tines at most 3.46 mm above them (at the passes' near end, beside soil no
-    pass has crossed), the tines 4.88 mm deep after three passes. Tines kept at a floor
-    that rose under them (the former latch) stood 5.05 mm under that soil."""
+    beside the tines at most 2.13 mm above them, the tines 3.07 mm deep after four passes
+    (each pass loses to the step the tracking margin, 1 mm, and the tines' height above the
+    tip the map allows for, (f + 3 N)/k: about 2 mm at the 7 N the currents read). Tines
+    kept at a floor that rose under them (a latch, since removed) stood 5.05 mm under the
+    soil beside them."""
     layer = SoilLayer(stiffness_n_per_m=2e5, collapse_force_n=10.0, cohesion_pa=6e3)
     soil = SoilParams(layers=(layer,), surface_slope=0.0, strength_rel_std=0.2)
     descent = _declared(layer, 1.7, 0.001)
@@ -100,7 +103,7 @@ def test_passes_carve_the_ground_no_deeper_than_the_step_beside_the_tines() -> N
         worst_cut_m = max(worst_cut_m, beside - tine_height)
         deepest_m = max(deepest_m, -tine_height)
 
-    for _ in range(3):
+    for _ in range(4):
         for _k in range(round(0.3 / dt)):  # down at the far end
             tick(far_m, 0.1)
         for k in range(round((far_m - near_m) / 0.05 / dt)):  # the pass
@@ -111,7 +114,7 @@ def test_passes_carve_the_ground_no_deeper_than_the_step_beside_the_tines() -> N
             tick(near_m + 0.15 * k * dt, above_m)
     assert not loop.fault
     assert worst_cut_m <= step_m + 1e-4
-    assert deepest_m > step_m  # the passes did carve the ground
+    assert deepest_m > 0.5 * step_m  # the passes did carve the ground
     ground_map = loop.controller.descent.map  # type: ignore[union-attr]
     surface = truth.surface_heights_m()
     for i in range(ground_map.cell(near_m), ground_map.cell(far_m) + 1):
