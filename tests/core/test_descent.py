@@ -120,6 +120,9 @@ def test_resistance_grows_with_every_property_the_bound_takes_the_largest_of(
     ("descent.min_step_m=0.002", "descent.min_step_m leaves no step within the bound: the "
      "strongest admitted soil"),
     ("descent.rake_angle_rad=1.45", "descent.rake_angle_rad leaves no admissible failure wedge"),
+    ("descent.enforce=true", "descent.enforce leaves no step: the declared soil (descent.*_max, "
+     "strength_factor) allows 0.783 mm below the soil beside the tines, less the limiter's 1 mm "
+     "tracking margin"),
 ])
 def test_a_bound_that_leaves_no_step_is_refused_naming_the_key(override: str,
                                                                named: str) -> None:
