@@ -181,6 +181,8 @@ def run_job(job: Job) -> RunResult:
     if not isinstance(planner, LanePlanner):
         raise TypeError(f"{scenario_path(job.soil)} is not a lane scenario")
     loop = RakeLoop(settings, planner.reach_m, planner.depth_m)
+    if loop.controller.descent is not None:
+        planner.plan_within(loop.controller.descent.limit_at_m)
     loop.reset()
     dt_s, target_m = loop.dt_s, settings.lane.target_depth_m
     max_ticks = round(settings.duration_s / dt_s)

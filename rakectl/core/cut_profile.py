@@ -33,6 +33,9 @@ SLIVER_SHARE = 0.5
 # tip really was within this of the target there, or after a second stroke at the target
 # (the tine rides up where the clamp caps its hold-down: one more pass, not a loop).
 FLOOR_TOLERANCE_M = 0.003
+# A bin is done to its descent cap (CutProfile.apply_caps) when it is within this of it and
+# the cap deepened by no more than this since the last stroke.
+STUCK_M = 1e-4
 
 
 class CutProfile:
@@ -57,8 +60,8 @@ class CutProfile:
     """
 
     __slots__ = ("_adaptive", "_at_target", "_force_n", "_lag_m", "_max_step_m", "_min_step_m",
-                 "_target_m", "_tip_m", "done_m", "left_m", "n_bins", "near_m", "plan_m",
-                 "start", "width_m")
+                 "_strokes", "_stuck", "_target_m", "_tip_m", "cap_m", "done_m", "left_m", "n_bins",
+                 "near_m", "plan_m", "start", "width_m")
 
     def __init__(self, lane: LaneSettings) -> None:
         span_m = lane.reach_far_m - lane.reach_near_m
@@ -79,6 +82,41 @@ class CutProfile:
         self._tip_m = [math.inf] * n  # this stroke's shallowest measured tip per bin
         self._force_n = [-math.inf] * n  # this stroke's peak force estimate per bin
         self._lag_m = [0.0] * n  # this stroke's peak lag per bin
+        self.cap_m = [math.inf] * n  # the deepest the descent limiter allows per bin
+        self._stuck = [False] * n  # can go no deeper within its cap (apply_caps)
+        self._strokes = [0] * n  # strokes through each bin
+
+    def apply_caps(self, cap_m: list[float]) -> None:
+        """The descent limiter's deepest allowed depth per bin (the ground map's floor, as
+        the strokes so far have lowered it): the plan goes no deeper. A bin that strokes
+        have been through, whose cap did not deepen since the last one and whose plan,
+        capped and shaped, takes it no deeper than done, can go no further (beside soil no
+        stroke crosses: the lane's ends, terraced) and is finished there."""
+        n = self.n_bins
+        deepened = [cap_m[b] > self.cap_m[b] + STUCK_M for b in range(n)]
+        self.cap_m = list(cap_m)
+        self._stuck = [False] * n
+        capped = [min(p, c) for p, c in zip(self.plan_m, cap_m, strict=True)]
+        rise_m = RISE_PER_M * self.width_m
+        for _ in range(n):
+            plan = list(capped)
+            start = n - 1
+            while start >= 0 and self._finished(start):
+                start -= 1
+            for b in range(1, start + 1):  # the shaping of finish() over the stroke's bins
+                plan[b] = min(plan[b], plan[b - 1] + rise_m)
+            for b in range(start - 1, -1, -1):
+                plan[b] = min(plan[b], plan[b + 1])
+            stuck = [b for b in range(start + 1)
+                     if self._strokes[b] and not deepened[b] and not self._stuck[b]
+                     and plan[b] <= self.done_m[b] + STUCK_M
+                     and self.done_m[b] < self._target_m - 1e-9]
+            if not stuck:
+                break
+            for b in stuck:
+                self._stuck[b] = True
+        self.plan_m = plan
+        self.start = start
 
     def bin_of(self, reach_m: float) -> int:
         b = int((reach_m - self.near_m) / self.width_m)
@@ -138,6 +176,7 @@ class CutProfile:
         n, target = self.n_bins, self._target_m
         seen = list(range(self.start + 1))  # the stroke ran from the start to the near end
         for b in seen:
+            self._strokes[b] += 1
             self.done_m[b] = max(self.done_m[b], self.plan_m[b])
             self._at_target[b] += self.plan_m[b] >= target - 1e-9
             if self._tip_m[b] == math.inf:  # not observed: taken to be on its reference
@@ -171,6 +210,8 @@ class CutProfile:
         self._lag_m = [0.0] * n
 
     def _finished(self, b: int) -> bool:
+        if self._stuck[b]:
+            return True
         if self.done_m[b] < self._target_m - 1e-9:
             return False
         return (not self._adaptive or self._at_target[b] >= 2

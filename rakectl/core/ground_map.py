@@ -141,6 +141,11 @@ class DescentLimiter:
         self.offset_m = 0.0
         self.clipped = 0
 
+    def limit_at_m(self, reach_m: float) -> float:
+        """The deepest the floor allows at one reach, less the tracking margin: where a
+        planner plans (a depth: below level 0, down positive)."""
+        return -self.map.floor_at_m(reach_m) - TRACKING_MARGIN_M
+
     def limit_depth_m(self, reach_ref_m: float, reach_m: float) -> float:
         """The deepest the floor allows at both reaches, less the tracking margin (depth:
         below level 0, down positive)."""

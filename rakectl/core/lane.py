@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Callable
 
 from rakectl.config.settings import LaneSettings
 from rakectl.core.cut_profile import FLOOR_TOLERANCE_M, CutProfile
@@ -74,6 +75,9 @@ BLOCKED_S = 2.0
 # and F̂ reads its descent (K_e·α·v, 40 N after a 20 mm/s plunge, gone in about 60 ms).
 # The depth of the next cut is judged on the stroke's force after this.
 PLUNGE_TAIL_S = 0.1
+# With a descent limit, each bin's cap is the limit's least over this many points across it
+# (its ends included: 5 mm apart in a 20 mm bin, the ground map's cell).
+CAP_SAMPLES = 5
 class LanePhase(enum.Enum):
     APPROACH = enum.auto()  # free space: to above where the next stroke starts
     LOWER = enum.auto()  # free space: down to just above the floor there
@@ -91,14 +95,20 @@ CONTACT_PHASES = frozenset({LanePhase.PLUNGE, LanePhase.STROKE})
 class LanePlanner:
     """Reference tip position for raking a lane, advanced one tick at a time."""
 
-    def __init__(self, lane: LaneSettings, dt_s: float, reach_m: float, depth_m: float) -> None:
+    def __init__(self, lane: LaneSettings, dt_s: float, reach_m: float, depth_m: float,
+                 depth_limit: Callable[[float], float] | None = None) -> None:
+        """``depth_limit``: the deepest the descent limiter allows at a reach (the
+        controller's ground map, :meth:`rakectl.core.ground_map.DescentLimiter.limit_at_m`),
+        or None without it: the lane plans within it instead of stalling against it."""
         self.lane = lane
+        self._depth_limit = depth_limit
         self.dt_s = dt_s
         self.reach_m = reach_m
         self.depth_m = depth_m
         self.phase = LanePhase.APPROACH
         self.cycle = 1
         self.profile = CutProfile(lane)
+        self._apply_caps()
         self.floor_m = 0.0  # shallowest depth the strokes have been along the whole lane
         self.found_at: tuple[float, float] | None = None  # (reach, depth) of a rigid object
         self.stopped_by_force = False
@@ -128,6 +138,23 @@ class LanePlanner:
                                                   lane.max_plunge_speed_m_per_s,
                                                   lane.governor_gain_per_s, dt_s,
                                                   lane.plunge_speed_m_per_s)
+
+    def plan_within(self, depth_limit: Callable[[float], float]) -> None:
+        """Plan within the descent limiter from now on (see ``__init__``)."""
+        self._depth_limit = depth_limit
+        self._apply_caps()
+
+    def _limit_m(self, reach_m: float) -> float:
+        return math.inf if self._depth_limit is None else self._depth_limit(reach_m)
+
+    def _apply_caps(self) -> None:
+        """Each bin's deepest allowed depth (the limit at CAP_SAMPLES points across it)."""
+        if self._depth_limit is None:
+            return
+        p, limit = self.profile, self._depth_limit
+        step = p.width_m / (CAP_SAMPLES - 1)
+        p.apply_caps([min(limit(p.near_m + b * p.width_m + k * step)
+                          for k in range(CAP_SAMPLES)) for b in range(p.n_bins)])
 
     @property
     def contact(self) -> bool:
@@ -279,12 +306,17 @@ class LanePlanner:
         if self.phase is LanePhase.APPROACH:
             return profile.start_reach_m, above, lane.travel_speed_m_per_s
         if self.phase is LanePhase.LOWER:
-            landing_m = profile.landing_m(LANDING_BAND_M)
-            return profile.start_reach_m, landing_m - PLUNGE_MARGIN_M, lane.travel_speed_m_per_s
+            reach_m = profile.start_reach_m
+            landing_m = min(profile.landing_m(LANDING_BAND_M) - PLUNGE_MARGIN_M,
+                            self._limit_m(reach_m))
+            return reach_m, landing_m, lane.travel_speed_m_per_s
         if self.phase is LanePhase.PLUNGE:
-            return profile.start_reach_m, profile.start_depth_m, self.plunge_speed_m_per_s
+            reach_m = profile.start_reach_m
+            return (reach_m, min(profile.start_depth_m, self._limit_m(reach_m)),
+                    self.plunge_speed_m_per_s)
         if self.phase is LanePhase.STROKE:
-            return lane.reach_near_m, profile.plan_m[0], self.stroke_speed_m_per_s
+            return (lane.reach_near_m, min(profile.plan_m[0], self._limit_m(lane.reach_near_m)),
+                    self.stroke_speed_m_per_s)
         return self.reach_m, above, lane.travel_speed_m_per_s  # LIFT, DONE
 
     def _tip_settled(self) -> bool:
@@ -318,6 +350,7 @@ class LanePlanner:
         lane = self.lane
         self.profile.finish(lane.force_target_share * self._caution_n,
                             LAG_TARGET_SHARE * lane.stall_error_m)
+        self._apply_caps()
         self.floor_m = self.profile.depth_reached_m
         self._stroke_ticks = 0
         self._caution_n = math.inf
@@ -353,7 +386,8 @@ class LanePlanner:
         if stroke:  # the path's speed, not the reach's, is the limit
             _, slope = self.profile.depth_and_slope_at(self.reach_m)
             self.reach_m -= travel / math.hypot(1.0, slope)
-            self.depth_m, _ = self.profile.depth_and_slope_at(self.reach_m)
+            depth_m, _ = self.profile.depth_and_slope_at(self.reach_m)
+            self.depth_m = min(depth_m, self._limit_m(self.reach_m))
             return
         self.reach_m += d_reach * travel / distance
         self.depth_m += d_depth * travel / distance

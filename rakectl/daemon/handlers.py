@@ -153,7 +153,8 @@ def _excavate(daemon: Daemon, request: Request) -> Reply:
         except KinematicsError as exc:
             raise CommandRejected(f"the lane leaves the workspace: {exc}") from None
     c = daemon.controller
-    daemon.planner = LanePlanner(lane, daemon.dt_s, c.reach_m, c.depth_m)
+    daemon.planner = LanePlanner(lane, daemon.dt_s, c.reach_m, c.depth_m,
+                                 None if c.descent is None else c.descent.limit_at_m)
     daemon.f_hat_max_n = 0.0
     daemon._transition(Event.EXCAVATE, "operator excavate")
     return {"state": daemon.state.name.lower()}

@@ -135,7 +135,9 @@ def _reference(case: FuzzCase, settings: Scenario, loop: RakeLoop) -> Reference:
         m = loop.arm.measure()
         return JogReference(case, settings, loop.workspace, m.r_m, m.theta_rad)
     lane = settings.lane
-    return LanePlanner(lane, dt_s, lane.reach_far_m, depth_m)
+    descent = loop.controller.descent
+    return LanePlanner(lane, dt_s, lane.reach_far_m, depth_m,
+                       None if descent is None else descent.limit_at_m)
 
 
 def run_case(case: FuzzCase, clamp: VoltageClamp | None = None,

@@ -118,11 +118,16 @@ def build_reference(settings: Scenario) -> Reference:
 
 
 def build_loop(settings: Scenario, reference: Reference) -> ClosedLoop:
+    """The closed loop for ``reference``; a lane plans within the loop's descent limiter."""
     if settings.plant.kind is PlantKind.FIRST_ORDER:
         return FirstOrderLoop(settings, reference.depth_m)
     from rakectl.sim.rake_plant import RakeLoop  # the emulator's physics, loaded only for it
 
-    return RakeLoop(settings, reference.reach_m, reference.depth_m)
+    loop = RakeLoop(settings, reference.reach_m, reference.depth_m)
+    descent = loop.controller.descent
+    if descent is not None and isinstance(reference, LanePlanner):
+        reference.plan_within(descent.limit_at_m)
+    return loop
 
 
 def run(settings: Scenario, progress: ProgressCallback | None = None) -> SimulationResult:
