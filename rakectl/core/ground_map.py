@@ -9,8 +9,9 @@ tines may take at cell i is
     floor_i = max over |j − i| ≤ side cells of (top_j − step_j),
 
 ``top_j`` the highest the soil can stand in cell j and ``step_j`` the cut at which
-its resistance reaches the budget there (d* of the strongest admitted soil until a
-stroke has measured the cell).
+its resistance reaches the budget there: the declared soil's d* (a step below the
+deepest cut meets a layer no stroke has measured, so no measured step may replace it;
+:meth:`GroundMap.set_step` takes a smaller one where a cell is known to be stronger).
 
 ``top`` starts at the configured ceiling (the highest the surface stands anywhere in
 the workspace) and only comes down, one way: tines that crossed a whole cell, in one
