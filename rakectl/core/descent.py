@@ -39,6 +39,13 @@ if TYPE_CHECKING:
 # It comes out of the step d*.
 TRACKING_MARGIN_M = 0.001
 
+# With the descent limiter on, supervision stops the motion (its hard level) when the drag
+# read from the currents exceeds the cutting resistance's budget by more than this: the
+# reading errs high by 2.2-3.4 N while the motors drive a stroke (tests/sim/
+# test_rake_plant.py), so the true drag is then at most about the budget. A drag over it
+# means soil stronger than declared, or an object the tines push.
+DRAG_TOLERANCE_N = 2.0
+
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 _SCAN_POINTS = 64  # the coarse scan that brackets β before the golden-section search
 
@@ -140,3 +147,12 @@ class SoilBound:
         """d*: the deepest the tines may go below the soil beside them before any stroke
         has measured it."""
         return self.depth_m(self.budget_n)
+
+
+def drag_limit_n(descent: DescentSettings, force_limit_n: float, model_margin: float) -> float:
+    """The drag read from the currents above which supervision stops the motion: the
+    cutting resistance's budget plus DRAG_TOLERANCE_N with ``descent.enforce``, else
+    none (inf)."""
+    if not descent.enforce:
+        return math.inf
+    return force_limit_n * model_margin - descent.drag_margin_n + DRAG_TOLERANCE_N

@@ -47,11 +47,14 @@ class ForceSupervisor:
     """
 
     __slots__ = ("_alpha", "_g", "_half_length_m", "_kt_r", "_kt_theta", "caution_n",
-                 "f_current_n", "f_hat_filtered_n", "f_max_n", "f_reach_current_n", "hard_n",
-                 "level")
+                 "drag_limit_n", "f_current_n", "f_hat_filtered_n", "f_max_n",
+                 "f_reach_current_n", "hard_n", "level")
 
     def __init__(self, supervision: SupervisionSettings, clamp: ClampSettings,
-                 motor_r: MotorParams, motor_theta: MotorParams, dt_s: float) -> None:
+                 motor_r: MotorParams, motor_theta: MotorParams, dt_s: float,
+                 drag_limit_n: float = math.inf) -> None:
+        """``drag_limit_n``: the drag (either way along the reach) above which the level is
+        HARD (:func:`rakectl.core.descent.drag_limit_n`; none by default)."""
         self._alpha = 1.0 - math.exp(-dt_s / supervision.current_filter_s)
         self._kt_r = motor_r.torque_constant_nm_per_a / joint_per_motor_rad(motor_r)
         self._kt_theta = motor_theta.torque_constant_nm_per_a / joint_per_motor_rad(motor_theta)
@@ -60,6 +63,7 @@ class ForceSupervisor:
         self._half_length_m = 0.5 * clamp.rake_length_m
         self.caution_n = supervision.caution_force_n
         self.hard_n = supervision.hard_force_n
+        self.drag_limit_n = drag_limit_n
         self.f_current_n = 0.0
         self.f_reach_current_n = 0.0
         self.f_hat_filtered_n = 0.0
@@ -95,7 +99,9 @@ class ForceSupervisor:
         if force > self.f_max_n:
             self.f_max_n = force
         sustained = max(self.f_hat_filtered_n, self.f_current_n)
-        self.level = (ForceLevel.HARD if sustained > self.hard_n else
+        drag_n = self.f_reach_current_n
+        self.level = (ForceLevel.HARD if sustained > self.hard_n or drag_n > self.drag_limit_n
+                      or -drag_n > self.drag_limit_n else
                       ForceLevel.CAUTION if force > self.caution_n else ForceLevel.OK)
         return self.level
 

@@ -32,6 +32,7 @@ import structlog
 
 from rakectl.config.settings import Settings
 from rakectl.core.control import TipController
+from rakectl.core.descent import drag_limit_n
 from rakectl.core.jog import Jog
 from rakectl.core.lane import LanePlanner
 from rakectl.core.supervision import (
@@ -82,8 +83,10 @@ class Daemon(StateChanges):
         self.timer = TickTimer(self.dt_s, clock_ns)
         self.timing = LoopTiming(self.timer)
         self.controller = TipController(settings)
-        self.supervisor = ForceSupervisor(settings.supervision, settings.clamp, settings.motors.r,
-                                          settings.motors.theta, self.dt_s)
+        bound = settings.clamp
+        self.supervisor = ForceSupervisor(
+            settings.supervision, bound, settings.motors.r, settings.motors.theta, self.dt_s,
+            drag_limit_n(settings.descent, bound.force_limit_n, bound.model_margin))
         self.workspace = self.controller.servo.workspace
         capacity = round(settings.daemon.recorder_s * settings.rate_hz)
         self.recorder = FlightRecorder(RECORDER_COLUMNS, capacity)
@@ -307,13 +310,15 @@ class Daemon(StateChanges):
         c, sup = self.controller, self.supervisor
         reach, depth = c.reach_m, c.depth_m - self.settings.supervision.back_off_m
         self.event("force_limit", f_hat_n=c.f_hat_n, f_current_n=sup.f_current_n,
-                   reach_m=c.reach_m, depth_m=c.depth_m)
+                   f_reach_current_n=sup.f_reach_current_n, reach_m=c.reach_m,
+                   depth_m=c.depth_m)
         if self.state is DaemonState.EXCAVATE and self.planner is not None:
             self.planner.force_stop(c.reach_m, c.depth_m)
             return
         if self.state is DaemonState.CHECKING:  # its reference is the check's: end it
             self.fault(f"force limit during the checks before arming: F̂ {c.f_hat_n:.1f} N, "
-                       f"from the currents {sup.f_current_n:.1f} N")
+                       f"from the currents {sup.f_current_n:.1f} N down, "
+                       f"{sup.f_reach_current_n:.1f} N along the reach")
             return
         self.hold = (reach, depth)
         if self.state is DaemonState.JOG:

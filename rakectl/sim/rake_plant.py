@@ -19,6 +19,7 @@ from drivers.soil import VerticalLaw
 from rakectl.core import kinematics
 from rakectl.core.clamp import VoltageClamp
 from rakectl.core.control import TipController
+from rakectl.core.descent import drag_limit_n
 from rakectl.core.supervision import ForceLevel, ForceSupervisor
 from rakectl.sim.plants import BASE_COLUMNS
 from rakectl.sim.scenario import Scenario
@@ -76,8 +77,10 @@ class RakeLoop:
         emu = settings.emulator
         self.dt_s = 1.0 / settings.rate_hz
         self.controller = TipController(settings, clamp)
-        self.supervisor = ForceSupervisor(settings.supervision, settings.clamp, settings.motors.r,
-                                          settings.motors.theta, self.dt_s)
+        bound = settings.clamp
+        self.supervisor = ForceSupervisor(
+            settings.supervision, bound, settings.motors.r, settings.motors.theta, self.dt_s,
+            drag_limit_n(settings.descent, bound.force_limit_n, bound.model_margin))
         self.workspace = self.controller.servo.workspace
         self.arm = ArmPlant(emu.arm, emu.motor_r, emu.motor_theta, self.workspace,
                             emu.substep_s, emu.seed)

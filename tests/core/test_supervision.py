@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -9,8 +10,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from drivers.mechanics import ArmParams, gravity_joint_loads
+from rakectl.config.descent import DescentSettings
 from rakectl.config.settings import ClampSettings, SupervisionSettings
 from rakectl.core import kinematics
+from rakectl.core.descent import drag_limit_n
 from rakectl.core.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, joint_per_motor_rad
 from rakectl.core.supervision import ForceLevel, ForceSupervisor
 
@@ -133,3 +136,24 @@ def test_a_non_finite_input_leaves_the_filtered_estimates_as_they_were() -> None
         assert (sup.f_reach_current_n, sup.f_current_n) == before
     sup.step(0.0, 1.2, 0.3, i_r, i_theta)
     assert before[0] < sup.f_reach_current_n < 15.0 and before[1] < sup.f_current_n < 20.0
+
+
+@pytest.mark.parametrize(("ground_reach_n", "level"), [
+    (19.0, ForceLevel.OK), (21.0, ForceLevel.HARD), (-21.0, ForceLevel.HARD),
+    (-19.0, ForceLevel.OK)])
+def test_a_drag_over_the_limit_either_way_is_the_hard_level(ground_reach_n: float,
+                                                            level: ForceLevel) -> None:
+    """With the descent limiter's drag limit (the budget 18 N plus 2 N), the settled drag
+    read from the currents stops the motion past 20 N, toward the far end or the robot;
+    without a limit nothing changes."""
+    limit_n = drag_limit_n(dataclasses.replace(DescentSettings(), enforce=True), 90.0, 0.2)
+    assert limit_n == pytest.approx(20.0)
+    sup = ForceSupervisor(SUP, CLAMP, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, 1e-3, limit_n)
+    free = ForceSupervisor(SUP, CLAMP, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, 1e-3)
+    i_r, i_theta = _hand_currents(1.2, 0.3, ground_reach_n, 5.0)
+    for _ in range(300):
+        sup.step(0.0, 1.2, 0.3, i_r, i_theta)
+        free.step(0.0, 1.2, 0.3, i_r, i_theta)
+    assert sup.level is level
+    assert free.level is ForceLevel.OK
+    assert drag_limit_n(DescentSettings(), 90.0, 0.2) == math.inf

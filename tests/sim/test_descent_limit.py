@@ -187,3 +187,36 @@ def test_a_lane_plans_within_the_floor_and_finishes_at_its_terraced_ends(
     assert worst_cut_m <= step_m + 1e-4
     done = planner.profile.done_m
     assert max(done) > done[0] + 0.001 and max(done) > done[-1] + 0.001  # terraced ends
+
+
+@pytest.mark.slow
+def test_a_soil_stronger_than_declared_is_stopped_by_its_drag() -> None:
+    """A site declared 3 kPa (d* 8.6 mm) whose soil is 15 kPa: the lane's first stroke
+    meets more drag than the budget allows; supervision's drag limit (the budget 18 N plus
+    2 N, on the drag read from the currents) stops it, the true drag then at most the
+    limit. Measured: stopped 2.9 s in, the true drag at most 19.0 N (the same lane declared
+    6 kPa, d* 4.4 mm, cuts 1-2 mm a pass and is never stopped: 7.2 N)."""
+    overrides = [
+        "lane.reach_far_m=1.2", "lane.reach_near_m=1.05", "lane.target_depth_m=0.02",
+        "lane.depth_step_m=0.01", "lane.adaptive=false", "duration_s=20",
+        "emulator.ground.objects.mines=[]",
+        "emulator.ground.soil.layers=[{cohesion_pa: 15000.0, stiffness_n_per_m: 200000.0, "
+        "collapse_force_n: 10.0}]",
+        "descent.enforce=true", "descent.ceiling_m=0.001", "descent.cohesion_max_pa=3000",
+        "descent.friction_angle_max_rad=0.5236", "descent.tool_friction_angle_max_rad=0.3491",
+        "descent.unit_weight_max_n_per_m3=16000", "descent.strength_factor=1.7"]
+    settings = load_settings(SCENARIOS / "excavate-loam.yaml", overrides, root=Scenario)
+    planner = build_reference(settings)
+    assert isinstance(planner, LanePlanner)
+    loop = build_loop(settings, planner)
+    assert isinstance(loop, RakeLoop)
+    loop.reset()
+    drag_max_n = 0.0
+    for _ in range(round(settings.duration_s / loop.dt_s)):
+        loop.step(planner.reach_m, planner.depth_m, planner.contact)
+        advance_reference(planner, loop)
+        drag_max_n = max(drag_max_n, abs(loop.ground.truth.force_drag_n))
+        if planner.done:
+            break
+    assert planner.done and planner.stopped_by_force and planner.cycle == 1
+    assert 15.0 < drag_max_n <= 20.0
