@@ -127,6 +127,11 @@ class CutProfile:
         return self.start < 0
 
     @property
+    def held(self) -> bool:
+        """Whether a bin was finished short of the target, at its descent cap."""
+        return any(self._stuck)
+
+    @property
     def start_reach_m(self) -> float:
         return self.near_m + (self.start + 1) * self.width_m
 

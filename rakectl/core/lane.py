@@ -164,6 +164,11 @@ class LanePlanner:
     def done(self) -> bool:
         return self.phase is LanePhase.DONE
 
+    @property
+    def held_by_descent(self) -> bool:
+        """Whether the descent limiter kept part of the lane short of the target depth."""
+        return self.profile.held
+
     def observe(self, reach_m: float, depth_m: float, samples: int = 1) -> bool:
         """The measured tip, once per tick (see :meth:`check_stall` and :meth:`_blocked`);
         True at the tick a rigid object is found."""

@@ -117,6 +117,7 @@ def status(daemon: Daemon) -> dict[str, Any]:
             "phase": planner.phase.name.lower(), "cycle": planner.cycle,
             "depth_m": planner.floor_m, "target_depth_m": planner.lane.target_depth_m,
             "done": planner.done, "stopped_by_force": planner.stopped_by_force,
+            "held_by_descent": planner.held_by_descent,
             "object_found": ({"reach_m": planner.found_at[0], "depth_m": planner.found_at[1]}
                              if planner.found_at else None),
         }

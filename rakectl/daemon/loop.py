@@ -354,7 +354,10 @@ class Daemon(StateChanges):
                 self.hold = (planner.reach_m, planner.depth_m)
                 self._transition(Event.DONE, "object found" if planner.found_at else
                                  "stopped by the force limit" if planner.stopped_by_force
-                                 else "target depth reached")
+                                 else "held by the descent limit at "
+                                 f"{planner.floor_m * 1e3:.1f} mm (the declared soil's step "
+                                 "allows no deeper there: descent.*)"
+                                 if planner.held_by_descent else "target depth reached")
             return planner.reach_m, planner.depth_m, planner.contact
         return self.hold[0], self.hold[1], False
 

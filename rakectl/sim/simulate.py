@@ -190,6 +190,7 @@ def _lane_summary(planner: LanePlanner) -> dict[str, float | int | bool]:
         "object_reach_m": found[0] if found else math.nan,
         "object_depth_m": found[1] if found else math.nan,
         "stopped_by_force": planner.stopped_by_force,
+        "held_by_descent": planner.held_by_descent,
     }
 
 
