@@ -6,12 +6,11 @@ not stand more than that soil's step d* above them, or an edge forcing them into
 meets more cutting resistance than the clamp leaves for it. So the lowest height the
 tines may take at cell i is
 
-    floor_i = max over |j − i| ≤ side cells of (top_j − step_j),
+    floor_i = max over |j − i| ≤ side cells of top_j − d*,
 
-``top_j`` the highest the soil can stand in cell j and ``step_j`` the cut at which
-its resistance reaches the budget there: the declared soil's d* (a step below the
-deepest cut meets a layer no stroke has measured, so no measured step may replace it;
-:meth:`GroundMap.set_step` takes a smaller one where a cell is known to be stronger).
+``top_j`` the highest the soil can stand in cell j and d* the cut at which the
+declared soil's resistance reaches the budget (a step below the deepest cut meets a
+layer no stroke has measured, so no step measured from the strokes may replace it).
 
 ``top`` starts at the configured ceiling (the highest the surface stands anywhere in
 the workspace) and only comes down, one way: tines that crossed a whole cell, in one
@@ -32,11 +31,11 @@ CELL_M = 0.005  # the map's resolution along the reach: the width of an edge's s
 
 
 class GroundMap:
-    """Per cell of CELL_M along the reach: the highest soil (``top_m``), its step
-    (``step_m``) and the lowest height the tines may take (``floor_m``)."""
+    """Per cell of CELL_M along the reach: the highest soil (``top_m``) and the lowest
+    height the tines may take (``floor_m``), ``first_step_m`` (d*) below it."""
 
     __slots__ = ("_cell", "_entered_from", "_highest_m", "_reach_min_m", "_side_cells",
-                 "ceiling_m", "first_step_m", "floor_m", "n_cells", "step_m", "top_m")
+                 "ceiling_m", "first_step_m", "floor_m", "n_cells", "top_m")
 
     def __init__(self, reach_min_m: float, reach_max_m: float, ceiling_m: float,
                  first_step_m: float, side_reach_m: float) -> None:
@@ -50,7 +49,6 @@ class GroundMap:
         self.ceiling_m = ceiling_m
         self.first_step_m = first_step_m
         self.top_m = [ceiling_m] * self.n_cells
-        self.step_m = [first_step_m] * self.n_cells
         self.floor_m = [ceiling_m - first_step_m] * self.n_cells
         self._cell = -1  # the cell the tines are in, -1 before the first track()
         self._entered_from = 0  # -1: from the cell below, +1: from above, 0: not by an edge
@@ -60,7 +58,6 @@ class GroundMap:
         """Forget everything (the platform may have moved): the ceiling everywhere."""
         for i in range(self.n_cells):
             self.top_m[i] = self.ceiling_m
-            self.step_m[i] = self.first_step_m
             self.floor_m[i] = self.ceiling_m - self.first_step_m
         self._cell, self._entered_from, self._highest_m = -1, 0, -math.inf
 
@@ -98,17 +95,10 @@ class GroundMap:
             self.top_m[i] = height_m
             self._refresh(i)
 
-    def set_step(self, i: int, step_m: float) -> None:
-        """The cut at which cell ``i``'s resistance reaches the budget."""
-        if step_m != self.step_m[i]:
-            self.step_m[i] = step_m
-            self._refresh(i)
-
     def _refresh(self, i: int) -> None:
         side, n = self._side_cells, self.n_cells
         for k in range(max(0, i - side), min(n, i + side + 1)):
-            self.floor_m[k] = max(self.top_m[j] - self.step_m[j]
-                                  for j in range(max(0, k - side), min(n, k + side + 1)))
+            self.floor_m[k] = max(self.top_m[max(0, k - side):k + side + 1]) - self.first_step_m
 
 
 # The joint loops hold the tip up to about 0.4 mm below a still reference (their

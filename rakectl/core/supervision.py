@@ -99,9 +99,8 @@ class ForceSupervisor:
         if force > self.f_max_n:
             self.f_max_n = force
         sustained = max(self.f_hat_filtered_n, self.f_current_n)
-        drag_n = self.f_reach_current_n
-        self.level = (ForceLevel.HARD if sustained > self.hard_n or drag_n > self.drag_limit_n
-                      or -drag_n > self.drag_limit_n else
+        self.level = (ForceLevel.HARD if sustained > self.hard_n
+                      or abs(self.f_reach_current_n) > self.drag_limit_n else
                       ForceLevel.CAUTION if force > self.caution_n else ForceLevel.OK)
         return self.level
 

@@ -33,6 +33,7 @@ import structlog
 from rakectl.config.settings import Settings
 from rakectl.core.control import TipController
 from rakectl.core.descent import drag_limit_n
+from rakectl.core.ground_map import DescentLimiter
 from rakectl.core.jog import Jog
 from rakectl.core.lane import LanePlanner
 from rakectl.core.supervision import (
@@ -267,7 +268,7 @@ class Daemon(StateChanges):
         if c.f_hat_n > self.f_hat_max_n:
             self.f_hat_max_n = c.f_hat_n
         if c.descent is not None:
-            self._report_descent(reach)
+            self._report_descent(c.descent, reach)
         previous = self.supervisor.level
         level = self.supervisor.step(c.f_hat_n, fb.r_m, fb.theta_rad, fb.current_r_a,
                                      fb.current_theta_a)
@@ -281,13 +282,10 @@ class Daemon(StateChanges):
             planner.govern(max(c.f_hat_n, sup.f_current_n), sup.caution_n)
         return voltages
 
-    def _report_descent(self, reach_ref_m: float) -> None:
+    def _report_descent(self, descent: DescentLimiter, reach_ref_m: float) -> None:
         """One event when the descent limiter starts holding references at the ground
         map's floor after DESCENT_QUIET_TICKS without (docs/safety.md, "Not covered"),
         naming where and how deep."""
-        descent = self.controller.descent
-        if descent is None:
-            return
         holding = descent.clipped != self._descent_clipped
         self._descent_clipped = descent.clipped
         if not holding:

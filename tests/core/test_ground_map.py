@@ -44,12 +44,9 @@ def test_the_floor_is_the_step_below_the_highest_soil_within_the_side_reach() ->
     ground.reset()
     for i in range(11):
         ground.lower(i, 0.02 - 0.002 * i)  # a floor falling 2 mm per cell
-    ground.set_step(7, 0.001)
-    # by hand: floor_i = max over |j - i| <= 2 of (top_j - step_j)
+    # by hand: floor_i = max over |j - i| <= 2 of (top_j - step)
     tops = [0.02 - 0.002 * i for i in range(11)]
-    steps = [0.002] * 11
-    steps[7] = 0.001
-    expected = [max(tops[j] - steps[j] for j in range(max(0, i - 2), min(11, i + 3)))
+    expected = [max(tops[j] - STEP_M for j in range(max(0, i - 2), min(11, i + 3)))
                 for i in range(11)]
     assert ground.floor_m == pytest.approx(expected)
     assert expected[6] == pytest.approx(0.02 - 0.008 - 0.002)  # cell 4 two cells away rules
