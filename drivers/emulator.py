@@ -428,7 +428,8 @@ class Emulator:
         for node in self.nodes:
             for event, detail in node.notes:
                 self._log.info(event, node_id=node.node_id, detail=detail.name,
-                               state=node.state.name, nmt=node.nmt.name)
+                               state=node.state.name, nmt=node.nmt.name,
+                               t_s=round(self.time_s, 4))
             node.notes.clear()
         if now_s >= self._next_report_s:
             self._next_report_s = now_s + REPORT_INTERVAL_S
