@@ -28,9 +28,10 @@ from pathlib import Path
 from drivers import compiled
 from rakectl.bench.sections import markers, write_section
 from rakectl.errors import RakeError
-from rakectl.sim.campaign import CaseResult, run_case
+from rakectl.sim.campaign import run_case
 from rakectl.sim.cases import generate
 from rakectl.sim.rake_plant import SETTLE_S
+from rakectl.sim.results import CaseResult
 
 SEED, FIRST, CASES = 20261127, 9702, 60  # the CI sample (tests/sim/test_fuzz.py)
 

@@ -10,19 +10,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from rakectl.limits import FORCE_LIMIT_N
-from rakectl.sim.campaign import (
-    RESULTS_FILE,
-    WORST_CASE_FILE,
-    Report,
-    campaign,
-    read_case_file,
-    replay,
-)
+from rakectl.sim.campaign import campaign, read_case_file, replay
 from rakectl.sim.cases import Family
 from rakectl.sim.injection import FaultyRakeLoop
 from rakectl.sim.parallel import executor_for
 from rakectl.sim.plants import BASE_COLUMNS
 from rakectl.sim.progress import Progress
+from rakectl.sim.results import RESULTS_FILE, WORST_CASE_FILE, Report
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -41,6 +35,11 @@ def _parser() -> argparse.ArgumentParser:
                    help="how cases are drawn: random (default: everything an operator can "
                    "command, objects anywhere) or edge (plunges along an object's side into "
                    "its rounded top edge)")
+    p.add_argument("--declared-site", action="store_true",
+                   help="declare each case's site as its operator would (its strongest soil, "
+                   "its surveyed surface) and run with the descent limiter on "
+                   "(descent.enforce; docs/safety.md); a site whose soil leaves the limiter "
+                   "no step is refused, as the daemon refuses it at load, and counted")
     p.add_argument("--first", type=int, default=0,
                    help="index of the first case (default 0): a large campaign in parts")
     p.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
@@ -76,6 +75,9 @@ def human(report: Report) -> str:
              f"{s['unsafe_cases']}; mine activations: {s['mine_activations']}",
              f"controller faults: {s['controller_faults']}; drive watchdog trips: "
              f"{s['watchdog_trips']}"]
+    if s["refused_sites"]:
+        lines.append(f"sites refused at load (their declared soil leaves the descent limiter "
+                     f"no step; nothing ran): {s['refused_sites']}")
     lines += [f"  {group}: {k}" for group, k in s["by_kind"].items()]
     lines += [f"unsafe: {case}" for case in s["over_limit"]]
     lines.append(f"worst: {s['worst_case']} → ground {report.worst.f_true_z_max_n:.1f} N, "
@@ -141,11 +143,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     executor = executor_for(args.scheduler, args.workers)
     try:
+        site = ", sites declared, descent limiter on" if args.declared_site else ""
         print(f"fuzz: cases {args.first}..{args.first + args.scenarios - 1} of seed "
-              f"{args.seed} ({args.family}) on {executor.describe()}; {executor.physics()}",
-              file=sys.stderr)
+              f"{args.seed} ({args.family}{site}) on {executor.describe()}; "
+              f"{executor.physics()}", file=sys.stderr)
         report = campaign(args.scenarios, args.seed, args.workers, args.out, Progress("fuzz"),
-                          first=args.first, executor=executor, family=Family(args.family))
+                          first=args.first, executor=executor, family=Family(args.family),
+                          declared_site=args.declared_site)
     finally:
         executor.close()
     print(human(report))

@@ -8,7 +8,9 @@ between them (:class:`~rakectl.sim.injection.FaultyRakeLoop`). A case is safe wh
 vertical force on the ground exceeds 90 N, no force on a mine's plate or side
 exceeds 90 N and no mine fires. Side forces on stones and roots are reported.
 
-The command and the faults are injected by :mod:`rakectl.sim.injection`.
+The command and the faults are injected by :mod:`rakectl.sim.injection`. A case run
+with its site declared (:mod:`rakectl.sim.site`) has the controller's descent limiter
+on; its results and the report are :mod:`rakectl.sim.results`'.
 """
 
 from __future__ import annotations
@@ -17,9 +19,7 @@ import dataclasses
 import json
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TextIO
 
 from drivers.objects import Contact
 from drivers.soil import original_surface_height_m
@@ -29,69 +29,36 @@ from rakectl.core.clamp import VoltageClamp
 from rakectl.core.lane import LanePlanner
 from rakectl.core.supervision import ForceLevel
 from rakectl.limits import FORCE_LIMIT_N
-from rakectl.sim.cases import CommandKind, Family, FuzzCase, case_from_dict, from_plain, generate
+from rakectl.sim.cases import CommandKind, Family, FuzzCase, case_from_dict, generate
 from rakectl.sim.injection import FaultyRakeLoop, HoldReference, JogReference, PlungeReference
 from rakectl.sim.parallel import Executor, LocalExecutor
 from rakectl.sim.rake_plant import RakeLoop
+from rakectl.sim.results import (
+    RESULTS_FILE,
+    WORST_CASE_FILE,
+    CaseResult,
+    Report,
+    finished_results,
+    open_results,
+    result_from_dict,
+    write_case,
+)
 from rakectl.sim.scenario import PlantKind, PlantSettings, Scenario, TrajectoryKind
 from rakectl.sim.simulate import HOLD_AFTER_DONE_S, Reference
+from rakectl.sim.site import declared_descent, refusal
 
-WORST_CASE_FILE = "worst-case.json"
-RESULTS_FILE = "results.jsonl"  # one case's result a line, appended as cases finish
 AFTER_FAULT_S = 1.0  # simulated at 0 V after a latched fault
-
-
-@dataclass(frozen=True)
-class CaseResult:
-    seed: int
-    index: int
-    kind: str
-    f_true_z_max_n: float  # largest per-tick peak of the true vertical force
-    f_true_z_max_t_s: float
-    ticks_over_limit: int  # ticks whose true vertical force peak exceeds 90 N
-    mine_activated: bool
-    object_found: bool
-    duration_s: float
-    faults: tuple[str, ...]
-    feedback_lost_ticks: int
-    commands_lost_ticks: int
-    drive_fault_ticks: int
-    clamped_ticks: int
-    controller_fault: str
-    f_mine_plate_max_n: float = 0.0
-    f_mine_side_max_n: float = 0.0
-    f_stone_side_max_n: float = 0.0
-    f_root_side_max_n: float = 0.0
-    supervised: bool = False
-    stalled_ticks: int = 0  # ticks the controller did not run (stall, kill)
-    watchdog_tripped: bool = False
-    family: str = str(Family.RANDOM)  # how the case was drawn (rakectl.sim.cases.Family)
-
-    @property
-    def safe(self) -> bool:
-        """No vertical force over 90 N, none on a mine from any side, no mine fired."""
-        return (self.ticks_over_limit == 0 and not self.mine_activated
-                and max(self.f_mine_plate_max_n, self.f_mine_side_max_n) <= FORCE_LIMIT_N)
-
-    @property
-    def f_mine_max_n(self) -> float:
-        return max(self.f_mine_plate_max_n, self.f_mine_side_max_n)
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-
-def result_from_dict(data: dict[str, Any]) -> CaseResult:
-    result: CaseResult = from_plain(CaseResult, data)
-    return result
 
 
 # --------------------------------------------------------------------------- running
 
 
 def scenario_of(case: FuzzCase, descent: DescentSettings | None = None) -> Scenario:
-    """The case's scenario; ``descent`` replaces the default descent budget's settings."""
+    """The case's scenario; ``descent`` replaces the default descent budget's settings (a
+    case with its site declared: that declaration, rakectl.sim.site)."""
     c = case.command
+    if descent is None and case.declared_site:
+        descent = declared_descent(case)
     base = Scenario() if descent is None else dataclasses.replace(Scenario(), descent=descent)
     lane = LaneSettings(reach_far_m=c.reach_far_m, reach_near_m=min(c.reach_near_m,
                                                                       c.reach_far_m - 0.01),
@@ -145,8 +112,13 @@ def run_case(case: FuzzCase, clamp: VoltageClamp | None = None,
              descent: DescentSettings | None = None) -> CaseResult:
     """Run one case through the full chain; ``clamp`` replaces the real one (tests);
     ``on_tick`` sees the loop after every tick (a replay's telemetry); ``descent``
-    replaces the descent budget's settings (a site's declared soil, the limiter on)."""
+    replaces the descent budget's settings (a site's declared soil, the limiter on). A
+    declaration the daemon would refuse at load runs nothing: its result says why."""
     settings = scenario_of(case, descent)
+    refused = refusal(settings.descent, settings.clamp.force_limit_n,
+                      settings.clamp.model_margin) if settings.descent.enforce else ""
+    if refused:
+        return _refused(case, refused)
     loop = FaultyRakeLoop(settings, *_start(case, settings), case.faults, clamp)
     loop.reset()
     reference = _reference(case, settings, loop)
@@ -206,94 +178,28 @@ def _result(case: FuzzCase, loop: FaultyRakeLoop, reference: Reference,
                       f_stone_side_max_n=peak(Contact.STONE, "peak_side_n"),
                       f_root_side_max_n=peak(Contact.ROOT, "peak_side_n"),
                       supervised=case.supervised, stalled_ticks=loop.stalled_ticks,
-                      watchdog_tripped=loop.watchdog_tripped, family=str(case.family))
+                      watchdog_tripped=loop.watchdog_tripped, family=str(case.family),
+                      declared_site=case.declared_site)
+
+
+def _refused(case: FuzzCase, why: str) -> CaseResult:
+    kind = str(case.command.kind) + (" (adaptive)" if case.command.adaptive else "")
+    return CaseResult(case.seed, case.index, kind, 0.0, 0.0, 0, False, False, 0.0,
+                      case.faults.kinds(), 0, 0, 0, 0, "", supervised=case.supervised,
+                      family=str(case.family), declared_site=case.declared_site, refused=why)
 
 
 # --------------------------------------------------------------------------- campaign
 
 
-@dataclass(frozen=True)
-class Report:
-    scenarios: int
-    results: tuple[CaseResult, ...]
-    worst: CaseResult  # the largest force on the ground or a mine
-    worst_case: FuzzCase
-    wall_time_s: float
-    worst_case_path: str = ""
-    resumed: int = 0  # cases read back from an earlier run's results, not run again
-
-    @property
-    def f_true_z_max_n(self) -> float:
-        return max(r.f_true_z_max_n for r in self.results)
-
-    @property
-    def f_mine_max_n(self) -> float:
-        return max(r.f_mine_max_n for r in self.results)
-
-    @property
-    def ticks_over_limit(self) -> int:
-        return sum(r.ticks_over_limit for r in self.results)
-
-    @property
-    def mine_activations(self) -> int:
-        return sum(r.mine_activated for r in self.results)
-
-    @property
-    def unsafe(self) -> tuple[CaseResult, ...]:
-        return tuple(r for r in self.results if not r.safe)
-
-    @property
-    def safe(self) -> bool:
-        return not self.unsafe
-
-    def by_kind(self) -> dict[str, dict[str, float | int]]:
-        """Per command kind, fault kind and supervision: cases, worst forces, unsafe."""
-        out: dict[str, dict[str, float | int]] = {}
-        for r in self.results:
-            groups = [r.kind, *(f"fault: {f}" for f in r.faults or ("none",)),
-                      "supervision on" if r.supervised else "supervision off"]
-            for group in groups:
-                k = out.setdefault(group, {"cases": 0, "f_true_z_max_n": 0.0,
-                                           "f_mine_max_n": 0.0, "f_stone_side_max_n": 0.0,
-                                           "unsafe": 0})
-                k["cases"] += 1
-                k["f_true_z_max_n"] = max(k["f_true_z_max_n"], r.f_true_z_max_n)
-                k["f_mine_max_n"] = max(k["f_mine_max_n"], r.f_mine_max_n)
-                k["f_stone_side_max_n"] = max(k["f_stone_side_max_n"], r.f_stone_side_max_n)
-                k["unsafe"] += not r.safe
-        return dict(sorted(out.items(), key=lambda item: (item[0].startswith(("fault", "super")),
-                                                          item[0])))
-
-    def over_limit(self) -> list[str]:
-        """Every unsafe case: 'seed/index kind ground F N, mine F N [mine fired]'."""
-        return [f"{self.worst_case.seed}/{r.index} {r.kind} ground {r.f_true_z_max_n:.1f} N, "
-                f"mine {r.f_mine_max_n:.1f} N" + (" mine fired" if r.mine_activated else "")
-                for r in self.unsafe]
-
-    def summary(self) -> dict[str, Any]:
-        results = self.results
-        return {"scenarios": self.scenarios, "f_true_z_max_n": self.f_true_z_max_n,
-                "f_mine_max_n": self.f_mine_max_n,
-                "f_mine_side_max_n": max(r.f_mine_side_max_n for r in results),
-                "f_mine_plate_max_n": max(r.f_mine_plate_max_n for r in results),
-                "f_stone_side_max_n": max(r.f_stone_side_max_n for r in results),
-                "f_root_side_max_n": max(r.f_root_side_max_n for r in results),
-                "ticks_over_limit": self.ticks_over_limit,
-                "unsafe_cases": len(self.unsafe), "over_limit": self.over_limit(),
-                "mine_activations": self.mine_activations,
-                "controller_faults": sum(bool(r.controller_fault) for r in results),
-                "watchdog_trips": sum(r.watchdog_tripped for r in results),
-                "by_kind": self.by_kind(),
-                "worst": self.worst.to_dict(), "worst_case": self.worst_case.describe(),
-                "worst_case_path": self.worst_case_path, "wall_time_s": self.wall_time_s,
-                "resumed": self.resumed,  # read back, not run: the rate counts the others
-                "scenarios_per_min": 60.0 * (self.scenarios - self.resumed)
-                / max(self.wall_time_s, 1e-9)}
+def _case(seed: int, index: int, family: Family, declared_site: bool) -> FuzzCase:
+    case = generate(seed, index, family)
+    return dataclasses.replace(case, declared_site=True) if declared_site else case
 
 
-def _run_index(job: tuple[int, int, str]) -> CaseResult:
-    seed, index, family = job
-    return run_case(generate(seed, index, Family(family)))
+def _run_index(job: tuple[int, int, str, bool]) -> CaseResult:
+    seed, index, family, declared_site = job
+    return run_case(_case(seed, index, Family(family), declared_site))
 
 
 def _severity(r: CaseResult) -> float:
@@ -302,7 +208,8 @@ def _severity(r: CaseResult) -> float:
 
 def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None = None,
              progress: Callable[[int, int], None] | None = None, first: int = 0,
-             executor: Executor | None = None, family: Family = Family.RANDOM) -> Report:
+             executor: Executor | None = None, family: Family = Family.RANDOM,
+             declared_site: bool = False) -> Report:
     """Run cases ``first`` … ``first + scenarios − 1`` of ``seed``; write the worst one
     (the largest force on the ground or on a mine) to ``out_dir``.
 
@@ -312,16 +219,18 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
     one directory. Cases are deterministic from (seed, index), so the report is the same
     whichever run computed each case, and whatever ran it: ``executor`` (a Dask cluster,
     rakectl.sim.parallel) instead of ``workers`` local processes. ``family``: how the
-    cases are drawn (the random campaign, or the edge cases of rakectl.sim.cases)."""
+    cases are drawn (the random campaign, or the edge cases of rakectl.sim.cases).
+    ``declared_site``: each case's site declared and the descent limiter on
+    (rakectl.sim.site); a site it would refuse counts as refused, not run."""
     if scenarios < 1:
         raise ValueError("scenarios must be >= 1")
     started = time.perf_counter()
     wanted = range(first, first + scenarios)
-    done = _finished(out_dir / RESULTS_FILE, seed, wanted, family) \
+    done = finished_results(out_dir / RESULTS_FILE, seed, wanted, family, declared_site) \
         if out_dir is not None else {}
     results: list[CaseResult] = list(done.values())
-    jobs = [(seed, i, str(family)) for i in wanted if i not in done]
-    sink = _open_results(out_dir) if out_dir is not None and jobs else None
+    jobs = [(seed, i, str(family), declared_site) for i in wanted if i not in done]
+    sink = open_results(out_dir) if out_dir is not None and jobs else None
     try:
         if progress is not None and results:
             progress(len(results), scenarios)
@@ -338,49 +247,13 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
             sink.close()
     results.sort(key=lambda r: r.index)
     worst = max(results, key=_severity)
-    report = Report(scenarios, tuple(results), worst, generate(seed, worst.index, family),
+    report = Report(scenarios, tuple(results), worst,
+                    _case(seed, worst.index, family, declared_site),
                     time.perf_counter() - started, resumed=len(done))
     if out_dir is None:
         return report
     path = write_case(out_dir / WORST_CASE_FILE, report.worst_case, worst)
     return dataclasses.replace(report, worst_case_path=str(path))
-
-
-def _finished(path: Path, seed: int, wanted: range, family: Family = Family.RANDOM
-              ) -> dict[int, CaseResult]:
-    """The results already in ``path`` for these cases of ``family`` (a line cut short by
-    an interruption is ignored: that case runs again)."""
-    done: dict[int, CaseResult] = {}
-    if not path.is_file():
-        return done
-    for line in path.read_text(encoding="utf-8").splitlines():
-        try:
-            result = result_from_dict(json.loads(line))
-        except (ValueError, TypeError, KeyError):
-            continue
-        if result.seed == seed and result.index in wanted and result.family == family:
-            done[result.index] = result
-    return done
-
-
-def _open_results(out_dir: Path) -> TextIO:
-    """The results file, for appending; a line an interruption left unfinished is ended
-    first, so that the next result starts a line of its own."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / RESULTS_FILE
-    unfinished = path.is_file() and path.stat().st_size > 0 and \
-        path.read_bytes()[-1:] != b"\n"
-    sink = open(path, "a", encoding="utf-8")  # noqa: SIM115 (closed by the caller)
-    if unfinished:
-        sink.write("\n")
-    return sink
-
-
-def write_case(path: Path, case: FuzzCase, result: CaseResult) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"case": case.to_dict(), "result": result.to_dict()},
-                               indent=2) + "\n")
-    return path
 
 
 def replay(path: Path, on_tick: Callable[[FaultyRakeLoop], None] | None = None

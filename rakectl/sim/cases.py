@@ -136,6 +136,7 @@ class FuzzCase:
     duration_s: float
     supervised: bool = False  # the daemon's force supervision acts (holds, back-off)
     family: Family = Family.RANDOM
+    declared_site: bool = False  # its soil and surface declared: the descent limiter on
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -157,7 +158,8 @@ class FuzzCase:
                 f"{c.target_depth_m:.3f} m, contact={c.contact}; soil [{layers}]; "
                 f"{len(o.stones)} stones, {len(o.roots)} roots, {len(o.mines)} mines; "
                 f"faults {list(self.faults.kinds()) or 'none'}; "
-                f"supervision {'on' if self.supervised else 'off'}")
+                f"supervision {'on' if self.supervised else 'off'}"
+                + ("; site declared, descent limiter on" if self.declared_site else ""))
 
 
 # --------------------------------------------------------------------------- generation

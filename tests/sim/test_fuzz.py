@@ -17,7 +17,7 @@ from drivers.soil_params import SoilLayer, SoilParams
 from rakectl.cli import fuzz as fuzz_cli
 from rakectl.core.clamp import VoltageClamp
 from rakectl.limits import FORCE_LIMIT_N
-from rakectl.sim import campaign, cases
+from rakectl.sim import campaign, cases, results
 from rakectl.sim.cases import FAULT_KINDS, CommandKind, Faults, FuzzCase, MotionCommand
 from rakectl.sim.scenario import Scenario
 
@@ -129,13 +129,13 @@ def test_edge_cases_descend_along_an_objects_side() -> None:
 
 
 @pytest.fixture(scope="module")
-def ci_sample(tmp_path_factory: pytest.TempPathFactory) -> campaign.Report:
+def ci_sample(tmp_path_factory: pytest.TempPathFactory) -> results.Report:
     """The campaign's CI sample: cases 9702–9761 of seed 20261127."""
     return campaign.campaign(CI_SAMPLE, seed=CI_SEED, workers=2, first=CI_FIRST,
                              out_dir=tmp_path_factory.mktemp("ci-sample"))
 
 
-def test_small_campaign_is_safe_and_the_worst_case_replays(ci_sample: campaign.Report) -> None:
+def test_small_campaign_is_safe_and_the_worst_case_replays(ci_sample: results.Report) -> None:
     """The campaign's CI sample: 60 cases, every command kind under every fault kind,
     with and without supervision (any 48 consecutive cases hold them all). None may
     press the ground or a mine (plate or side) harder than 90 N on any tick or fire a
@@ -151,7 +151,7 @@ def test_small_campaign_is_safe_and_the_worst_case_replays(ci_sample: campaign.R
     assert now == recorded == report.worst
 
 
-def pin_differences(results: Sequence[campaign.CaseResult], pinned: dict[int, dict[str, Any]]
+def pin_differences(results: Sequence[results.CaseResult], pinned: dict[int, dict[str, Any]]
                     ) -> list[str]:
     """Where ``results`` differ from ``pinned`` (by case index): a peak force by more than
     PIN_TOLERANCE_N, or any outcome."""
@@ -170,7 +170,7 @@ def pin_differences(results: Sequence[campaign.CaseResult], pinned: dict[int, di
     return differences
 
 
-def test_the_ci_sample_gives_its_pinned_results(ci_sample: campaign.Report) -> None:
+def test_the_ci_sample_gives_its_pinned_results(ci_sample: results.Report) -> None:
     """The simulated chain (emulator, controller, clamp, supervision, faults) is the one
     the campaign's evidence in docs/safety.md was run on: the CI sample's peak forces
     (within PIN_TOLERANCE_N) and outcomes are the campaign's own for those cases, pinned
@@ -185,7 +185,7 @@ def test_the_ci_sample_gives_its_pinned_results(ci_sample: campaign.Report) -> N
     assert not differences, "\n".join(["the simulated chain changed:", *differences])
 
 
-def test_a_changed_result_is_named_by_the_pin_check(ci_sample: campaign.Report) -> None:
+def test_a_changed_result_is_named_by_the_pin_check(ci_sample: results.Report) -> None:
     """The check above can fail: a peak force moved by twice the tolerance, an outcome
     flipped, or a case missing are each named."""
     pinned = {r.index: json.loads(json.dumps(r.to_dict())) for r in ci_sample.results}
@@ -233,7 +233,7 @@ def test_the_clamp_is_what_holds() -> None:
     assert unclamped.ticks_over_limit > 100 and unclamped.mine_activated
     assert not unclamped.safe
     # a campaign's report names every unsafe case, not only the worst
-    report = campaign.Report(2, (clamped, unclamped), unclamped, case, 1.0)
+    report = results.Report(2, (clamped, unclamped), unclamped, case, 1.0)
     assert report.over_limit() == [
         f"{case.seed}/{case.index} plunge ground {unclamped.f_true_z_max_n:.1f} N, mine "
         f"{unclamped.f_mine_max_n:.1f} N mine fired"]

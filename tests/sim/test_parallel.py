@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from rakectl.errors import ConfigError
-from rakectl.sim.campaign import RESULTS_FILE, campaign
+from rakectl.sim.campaign import campaign
 from rakectl.sim.parallel import (
     DaskExecutor,
     LocalExecutor,
@@ -19,6 +19,7 @@ from rakectl.sim.parallel import (
     physics_status,
     workers_physics,
 )
+from rakectl.sim.results import RESULTS_FILE
 
 pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("dask_offload_thread")]
 SEED, FIRST, CASES = 20261125, 40, 4
