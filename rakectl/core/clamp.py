@@ -238,11 +238,13 @@ class VoltageClamp:
         out = []
         emf = self._envelope.emf
         for joint, k, emfs in ((self._r, 0, emf[0:2]), (self._theta, 1, emf[2:4])):
-            v0, v1 = anchor[k], request[k]
-            dv = v1 - v0
+            # Python floats (the caller's may be numpy's): a step dv of a few ulps sends t
+            # to inf, outside (0, 1), without numpy's overflow warning
+            v0 = float(anchor[k])
+            dv = float(request[k]) - v0
             if dv == 0.0:
                 continue
-            for s, e in ((1.0, emfs[0]), (-1.0, emfs[1])):
+            for s, e in ((1.0, float(emfs[0])), (-1.0, float(emfs[1]))):
                 # s·V − emf = R·i at i = ±I_lim and at k_t·i = −τ_c
                 for current_a in (joint.current_limit_a, -joint.current_limit_a,
                                   -joint.coulomb_nm / joint.kt_nm_per_a):

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -189,6 +190,17 @@ def test_a_request_safe_in_every_direction_is_not_cut() -> None:
     assert excess <= 0.0
     assert clamp.apply(1.0, 0.6, 0.0, 0.0, *hold) == hold
     assert clamp.clamped == 0
+
+
+def test_a_request_a_few_ulps_from_the_anchor_finds_no_kink_and_warns_nothing() -> None:
+    """The segment's kinks divide by the voltage step: a subnormal step sends them to
+    inf, outside (0, 1), silently (it once raised numpy's overflow warning)."""
+    clamp = VoltageClamp(CLAMP, R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, DT_S)
+    zero = np.float64(0.0)  # numpy scalars, as a caller may pass them
+    clamp.apply(1.0, 0.6, zero, zero, 0.0, 0.0)  # the envelope at this motion
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert clamp._kinks((zero, zero), (np.float64(5e-324), np.float64(-5e-324))) == []
 
 
 def test_the_default_robot_is_feasible_everywhere_at_rest() -> None:
