@@ -33,8 +33,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="campaign seed (default 0)")
     p.add_argument("--family", choices=[str(f) for f in Family], default=str(Family.RANDOM),
                    help="how cases are drawn: random (default: everything an operator can "
-                   "command, objects anywhere) or edge (plunges along an object's side into "
-                   "its rounded top edge)")
+                   "command, objects anywhere), edge (plunges along an object's side into "
+                   "its rounded top edge) or mapped (lanes with their sites declared and the "
+                   "descent limiter on, down beside a buried object; a lane held by the limit "
+                   "is asked again until the case ends)")
     p.add_argument("--declared-site", action="store_true",
                    help="declare each case's site as its operator would (its strongest soil, "
                    "its surveyed surface) and run with the descent limiter on "

@@ -101,9 +101,13 @@ def _reference(case: FuzzCase, settings: Scenario, loop: RakeLoop) -> Reference:
     if c.kind is CommandKind.JOG:
         m = loop.arm.measure()
         return JogReference(case, settings, loop.workspace, m.r_m, m.theta_rad)
-    lane = settings.lane
-    descent = loop.controller.descent
-    return LanePlanner(lane, dt_s, lane.reach_far_m, depth_m,
+    return _lane(settings, loop, depth_m)
+
+
+def _lane(settings: Scenario, loop: RakeLoop, depth_m: float) -> LanePlanner:
+    """The case's lane, from ``depth_m`` at its far end, planned within the descent limit."""
+    lane, descent = settings.lane, loop.controller.descent
+    return LanePlanner(lane, 1.0 / settings.rate_hz, lane.reach_far_m, depth_m,
                        None if descent is None else descent.limit_at_m)
 
 
@@ -156,8 +160,19 @@ def run_case(case: FuzzCase, clamp: VoltageClamp | None = None,
             reference.step()
         hold -= reference.done
         if hold < 0:
-            break
+            if not _asked_again(case, reference):
+                break
+            reference = _lane(settings, loop, depth_m)  # the operator asks again
+            hold = round(HOLD_AFTER_DONE_S / dt_s)
     return _result(case, loop, reference, (peak_n, peak_t_s, over, k * dt_s))
+
+
+def _asked_again(case: FuzzCase, reference: Reference) -> bool:
+    """A mapped lane held by the descent limit, with nothing found and no force stop, is
+    asked again (each pass maps the ground deeper) for as long as the case lasts."""
+    return (case.family is Family.MAPPED and isinstance(reference, LanePlanner)
+            and reference.held_by_descent and reference.found_at is None
+            and not reference.stopped_by_force)
 
 
 def _result(case: FuzzCase, loop: FaultyRakeLoop, reference: Reference,
@@ -224,6 +239,7 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
     (rakectl.sim.site); a site it would refuse counts as refused, not run."""
     if scenarios < 1:
         raise ValueError("scenarios must be >= 1")
+    declared_site = declared_site or family is Family.MAPPED  # its cases declare their sites
     started = time.perf_counter()
     wanted = range(first, first + scenarios)
     done = finished_results(out_dir / RESULTS_FILE, seed, wanted, family, declared_site) \

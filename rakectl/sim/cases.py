@@ -33,7 +33,9 @@ placement rarely does: a plunge whose path passes within 4 mm of an object's
 side (a mine in half the cases, a stone or a root in the others), so that the
 tines meet its rounded top edge, on the same soils; the band of paths where an
 edge forces the tines sideways through the soil is a few tenths of a
-millimetre wide (docs/safety.md, "Not covered").
+millimetre wide (docs/safety.md, "Not covered"). The ``mapped`` family
+(:mod:`rakectl.sim.mapped`) runs lanes with the descent limiter on, down beside a
+buried object.
 
 Faults: lost feedback and lost commands (per tick), a drive fault episode
 (both motors at 0 V for 20–200 ms), a controller stall (no tick for 5–60 ms:
@@ -72,6 +74,7 @@ class Family(enum.StrEnum):
 
     RANDOM = "random"  # everything an operator can command, objects anywhere
     EDGE = "edge"  # descents along an object's side, into its rounded top edge
+    MAPPED = "mapped"  # lanes with the descent limiter on, down beside a buried object
 
 
 class CommandKind(enum.StrEnum):
@@ -165,18 +168,18 @@ class FuzzCase:
 # --------------------------------------------------------------------------- generation
 
 
-def _loguniform(rng: np.random.Generator, low: float, high: float) -> float:
+def loguniform(rng: np.random.Generator, low: float, high: float) -> float:
     return float(math.exp(rng.uniform(math.log(low), math.log(high))))
 
 
 def _layer(rng: np.random.Generator, top_m: float, stiffness: tuple[float, float],
            strength: tuple[float, float]) -> SoilLayer:
-    return SoilLayer(from_depth_m=round(top_m, 4), stiffness_n_per_m=_loguniform(rng, *stiffness),
-                     collapse_force_n=_loguniform(rng, *strength),
+    return SoilLayer(from_depth_m=round(top_m, 4), stiffness_n_per_m=loguniform(rng, *stiffness),
+                     collapse_force_n=loguniform(rng, *strength),
                      cohesion_pa=float(rng.uniform(2e3, 15e3)))
 
 
-def _soil(rng: np.random.Generator) -> SoilParams:
+def draw_soil(rng: np.random.Generator) -> SoilParams:
     """Reference soils (2e4–2e6 N/m, 3–60 N); a fifth a hard crust over soft soil; a sixth
     out of that range."""
     draw = rng.uniform()
@@ -244,7 +247,7 @@ def _clear_of(objects: BuriedObjects, reach_m: float, depth_m: float,
                          tuple(o for o in objects.mines if clear(o)))
 
 
-def _height_clear_of(objects: BuriedObjects, reach_m: float, surface_m: float,
+def height_clear_of(objects: BuriedObjects, reach_m: float, surface_m: float,
                      margin_m: float = START_CLEARANCE_M) -> float:
     """The least height above the surface at ``surface_m`` from which a tip at ``reach_m``
     is ``margin_m`` above every object under it (objects' depths are from level 0)."""
@@ -281,7 +284,7 @@ def _command(rng: np.random.Generator, kind: CommandKind) -> MotionCommand:
     step_m = depth_m if kind is CommandKind.STROKE else float(rng.uniform(0.005, 0.03))
     low_speed = 0.01 if kind is CommandKind.LANE else 0.1
     command = MotionCommand(kind, far_m, near_m, step_m, depth_m,
-                            _loguniform(rng, low_speed, 1.0), _loguniform(rng, 0.002, 0.1),
+                            loguniform(rng, low_speed, 1.0), loguniform(rng, 0.002, 0.1),
                             float(rng.uniform(0.02, 0.06)), True)
     if kind is CommandKind.LANE and rng.uniform() < 0.25:  # the API's bounds
         command = dataclasses.replace(command, speed_m_per_s=1.0, plunge_speed_m_per_s=1.0,
@@ -290,7 +293,7 @@ def _command(rng: np.random.Generator, kind: CommandKind) -> MotionCommand:
     return command
 
 
-def _faults(rng: np.random.Generator, forced: int, duration_s: float) -> Faults:
+def draw_faults(rng: np.random.Generator, forced: int, duration_s: float) -> Faults:
     """``forced``: 0 none, else 1 + the index of a kind in FAULT_KINDS; the per-tick losses
     and the drive fault also at 20 % each. Episodes start in the first 70 % of the case
     (a lane that ends early may miss them)."""
@@ -313,6 +316,10 @@ def generate(seed: int, index: int, family: Family = Family.RANDOM) -> FuzzCase:
     consecutive cases cover every kind under every fault, with and without supervision."""
     if family is Family.EDGE:
         return _edge_case(seed, index)
+    if family is Family.MAPPED:
+        from rakectl.sim.mapped import mapped_case  # which draws with this module's parts
+
+        return mapped_case(seed, index)
     rng = np.random.default_rng([seed, index])
     kind = list(CommandKind)[index % 4]
     command = _command(rng, kind)
@@ -325,13 +332,13 @@ def generate(seed: int, index: int, family: Family = Family.RANDOM) -> FuzzCase:
         objects = _objects(rng, command.reach_far_m - 0.15, command.reach_far_m + 0.15)
     else:
         objects = _objects(rng, command.reach_near_m, command.reach_far_m, _cut_depths(command))
-    soil = _soil(rng)
+    soil = draw_soil(rng)
     surface_m = original_surface_height_m(soil, command.reach_far_m)
     if kind is CommandKind.JOG and command.start_height_m < 0.0:  # it starts in the soil
         objects = _clear_of(objects, command.reach_far_m, -(surface_m + command.start_height_m))
     else:  # above the ground, and above whatever sticks out of it there (a sloped surface)
         command = dataclasses.replace(command, start_height_m=max(
-            command.start_height_m, _height_clear_of(objects, command.reach_far_m, surface_m)))
+            command.start_height_m, height_clear_of(objects, command.reach_far_m, surface_m)))
     ground = GroundParams(soil, objects)
     if kind is CommandKind.PLUNGE:
         travel_m = command.start_height_m + PLUNGE_END_DEPTH_M + 0.1
@@ -340,7 +347,7 @@ def generate(seed: int, index: int, family: Family = Family.RANDOM) -> FuzzCase:
         duration_s = command.jog_s + JOG_HOLD_S
     else:
         duration_s = LANE_DURATION_S
-    faults = _faults(rng, (index // 4) % (len(FAULT_KINDS) + 1), duration_s)
+    faults = draw_faults(rng, (index // 4) % (len(FAULT_KINDS) + 1), duration_s)
     ground_seed = int(rng.integers(0, 2**32))
     if kind is CommandKind.LANE:  # half the lanes adaptive, drawn apart: the rest unchanged
         adaptive = bool(np.random.default_rng([seed, index, 1]).integers(0, 2))
@@ -352,7 +359,7 @@ def generate(seed: int, index: int, family: Family = Family.RANDOM) -> FuzzCase:
 EDGE_BAND_M = 0.004  # an edge case's path passes this close to the object's side, either way
 
 
-def _edge_object(rng: np.random.Generator, kind: int, side_m: float, toward_robot: bool,
+def edge_object(rng: np.random.Generator, kind: int, side_m: float, toward_robot: bool,
                  top_depth_m: float) -> BuriedObjects:
     """One mine (``kind`` 0), stone (1) or root (2) whose near (``toward_robot``) or far
     side is at reach ``side_m``."""
@@ -382,22 +389,22 @@ def _edge_case(seed: int, index: int) -> FuzzCase:
     rng = np.random.default_rng([seed, index, 2])
     kind = 0 if index % 4 < 2 else index % 4 - 1
     reach_m = float(rng.uniform(0.95, 1.35))
-    soil = _soil(rng)
+    soil = draw_soil(rng)
     surface_m = original_surface_height_m(soil, reach_m)
     top_depth_m = float(rng.uniform(0.005, 0.1))
     toward_robot = bool(rng.integers(0, 2))  # the object beyond the path, or before it
     # > 0: the path over it; a root's round side spans its radius (10 mm)
     inside_m = float(rng.uniform(-EDGE_BAND_M, 0.01 if kind == 2 else EDGE_BAND_M))
     side_m = reach_m - inside_m if toward_robot else reach_m + inside_m
-    objects = _edge_object(rng, kind, side_m, toward_robot, top_depth_m)
+    objects = edge_object(rng, kind, side_m, toward_robot, top_depth_m)
     command = MotionCommand(CommandKind.PLUNGE, reach_m, reach_m, PLUNGE_END_DEPTH_M,
                             PLUNGE_END_DEPTH_M, float(rng.uniform(0.05, 0.25)), 0.0,
                             float(rng.uniform(0.02, 0.1)), bool(rng.integers(0, 2)))
     command = dataclasses.replace(command, start_height_m=max(
-        command.start_height_m, _height_clear_of(objects, reach_m, surface_m)))
+        command.start_height_m, height_clear_of(objects, reach_m, surface_m)))
     duration_s = (command.start_height_m + PLUNGE_END_DEPTH_M + 0.1) \
         / command.speed_m_per_s + 1.0
-    faults = _faults(rng, (index // 4) % (len(FAULT_KINDS) + 1), duration_s)
+    faults = draw_faults(rng, (index // 4) % (len(FAULT_KINDS) + 1), duration_s)
     return FuzzCase(seed, index, GroundParams(soil, objects), int(rng.integers(0, 2**32)),
                     command, faults, duration_s, (index // 24) % 2 == 1, Family.EDGE)
 

@@ -20,12 +20,14 @@ from __future__ import annotations
 
 import math
 from statistics import NormalDist
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 from drivers.soil import original_surface_height_m
 from drivers.soil_params import SoilParams
 from rakectl.config.descent import DescentSettings, descent_checks
-from rakectl.sim.cases import FuzzCase
+
+if TYPE_CHECKING:  # cases draws its sites with this module
+    from rakectl.sim.cases import FuzzCase
 
 SPOT_QUANTILE: Final = 0.9999  # of a cell's strength over the soil's mean
 SURVEY_MARGIN_M: Final = 0.1  # beyond the commanded reach span, either side
@@ -51,7 +53,12 @@ def surveyed_ceiling_m(soil: SoilParams, reach_a_m: float, reach_b_m: float) -> 
 
 def declared_descent(case: FuzzCase) -> DescentSettings:
     """The case's site declared: its strongest soil, its surveyed surface, the limiter on."""
-    soil, command = case.ground.soil, case.command
+    command = case.command
+    return site_descent(case.ground.soil, command.reach_near_m, command.reach_far_m)
+
+
+def site_descent(soil: SoilParams, reach_a_m: float, reach_b_m: float) -> DescentSettings:
+    """A site of ``soil`` declared for work between two reaches (see the module)."""
     layers = soil.layers
     return DescentSettings(
         cohesion_max_pa=max(layer.cohesion_pa for layer in layers),
@@ -59,7 +66,7 @@ def declared_descent(case: FuzzCase) -> DescentSettings:
         tool_friction_angle_max_rad=max(layer.tool_friction_angle_rad for layer in layers),
         unit_weight_max_n_per_m3=max(layer.unit_weight_n_per_m3 for layer in layers),
         strength_factor=spot_factor(soil.strength_rel_std), enforce=True,
-        ceiling_m=surveyed_ceiling_m(soil, command.reach_near_m, command.reach_far_m))
+        ceiling_m=surveyed_ceiling_m(soil, reach_a_m, reach_b_m))
 
 
 def refusal(descent: DescentSettings, force_limit_n: float, model_margin: float) -> str:

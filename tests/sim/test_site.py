@@ -11,10 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from drivers.ground_params import RootParams
 from drivers.soil import original_surface_height_m
 from rakectl.cli import fuzz as fuzz_cli
 from rakectl.config.descent import DescentSettings
-from rakectl.sim import campaign, cases, site
+from rakectl.core.descent import SoilBound
+from rakectl.sim import campaign, cases, mapped, site
 from rakectl.sim.results import RESULTS_FILE, finished_results
 from rakectl.sim.scenario import Scenario
 
@@ -87,3 +89,37 @@ def test_the_cli_runs_declared_sites_counts_the_refused_and_replays_the_worst(
     assert worst["case"]["declared_site"] is True
     now, recorded = campaign.replay(tmp_path / "worst-case.json")
     assert now == recorded and now.declared_site
+
+
+@pytest.mark.parametrize("index", range(12))
+def test_a_mapped_case_is_a_declared_lane_over_one_object_under_the_soil(index: int) -> None:
+    """rakectl.sim.mapped: its site declared and admitted with a step of at least
+    MIN_STEP_M, one object (a mine at indices 0, 1 mod 4, a stone at 2, a root at 3) whose
+    top is 2–20 mm under the soil beside its side, that side at the lane's far end
+    (within the edge band) or along the lane, the lane starting clear above it."""
+    case = cases.generate(SEED, index, cases.Family.MAPPED)
+    assert case == cases.generate(SEED, index, cases.Family.MAPPED)
+    assert case.declared_site and case.family is cases.Family.MAPPED
+    assert case.command.kind is cases.CommandKind.LANE and case.duration_s == mapped.DURATION_S
+    s = Scenario()
+    descent = site.declared_descent(case)
+    assert site.refusal(descent, s.clamp.force_limit_n, s.clamp.model_margin) == ""
+    bound = SoilBound.from_settings(descent, s.clamp.force_limit_n, s.clamp.model_margin)
+    assert bound.first_step_m >= mapped.MIN_STEP_M
+    o = case.ground.objects
+    bodies = [*o.mines, *o.stones, *o.roots]
+    assert len(bodies) == 1
+    assert len(o.mines if index % 4 < 2 else o.stones if index % 4 == 2 else o.roots) == 1
+    body, c = bodies[0], case.command
+    band_m = 0.01 if isinstance(body, RootParams) else cases.EDGE_BAND_M  # a root's round side
+    soil = case.ground.soil
+    drawn = [x for x in (body.reach_m - 0.5 * body.width_m, body.reach_m + 0.5 * body.width_m)
+             if (abs(x - c.reach_far_m) <= band_m + 1e-12
+                 or c.reach_near_m + mapped.INSIDE_ENDS_M <= x <= c.reach_far_m
+                 - mapped.INSIDE_ENDS_M)
+             and mapped.TOP_BELOW_SOIL_M[0] - 1e-9 <= original_surface_height_m(soil, x)
+             + body.depth_m <= mapped.TOP_BELOW_SOIL_M[1] + 1e-9]
+    assert drawn  # the side it was drawn by
+    surface_m = original_surface_height_m(case.ground.soil, c.reach_far_m)
+    assert surface_m + c.start_height_m >= -body.depth_m or abs(
+        c.reach_far_m - body.reach_m) > 0.5 * body.width_m  # above it, or beside it
