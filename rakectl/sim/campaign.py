@@ -143,8 +143,8 @@ def run_case(case: FuzzCase, clamp: VoltageClamp | None = None,
             peak_n, peak_t_s = f_n, k * dt_s
         k += 1
         if loop.fault or loop.latched:  # 0 V from now on: see where the rake falls
-            ticks = min(ticks, k + after_fault) if after_fault else k
-            after_fault = 0
+            if after_fault:  # for AFTER_FAULT_S from the first such tick
+                ticks, after_fault = min(ticks, k + after_fault), 0
             continue
         reach_m, depth_m = loop.measured_tip()
         reference.observe(reach_m, depth_m)
