@@ -10,7 +10,7 @@ exceeds 90 N and no mine fires. Side forces on stones and roots are reported.
 
 The command and the faults are injected by :mod:`rakectl.sim.injection`. A case run
 with its site declared (:mod:`rakectl.sim.site`) has the controller's descent limiter
-on; its results and the report are :mod:`rakectl.sim.results`'.
+on; its results and the report are in :mod:`rakectl.sim.results`.
 """
 
 from __future__ import annotations
