@@ -12,11 +12,22 @@ clamp.force_limit_n; the budget keeps H(c) within the rest.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
 from rakectl.config.declare import setting
 from rakectl.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class SurveyPoint:
+    """One point of a survey of the undisturbed surface along the reach."""
+
+    reach_m: float = setting(1.0, "Reach of the point.", unit="m", ge=0, le=20)
+    height_m: float = setting(
+        0.0, "Height of the surface there above ground level 0, the survey's error added: "
+        "never below the true surface.", unit="m", ge=-0.5, le=1)
 
 
 @dataclass(frozen=True)
@@ -56,8 +67,14 @@ class DescentSettings:
         "mapped the ground.")
     ceiling_m: float = setting(
         0.06, "Highest the soil's surface stands above ground level 0 anywhere in the "
-        "workspace (a site survey): the map's top where no pass has been.", unit="m",
+        "workspace (a site survey): the map's top where no pass has been, outside the "
+        "survey's span.", unit="m",
         ge=-0.5, le=1)
+    survey: tuple[SurveyPoint, ...] = setting(
+        (), "The undisturbed surface along the reach, surveyed: points in increasing reach, "
+        "none above ceiling_m; between two consecutive points the higher stands for the "
+        "surface. Within its span it is the map's top where no pass has been, ceiling_m "
+        "outside it (empty: ceiling_m everywhere).")
     side_reach_m: float = setting(
         0.01, "How far along the reach an object's edge can push descending tines (a mine's "
         "rim 3 mm, a stone's edge 5 mm) plus the reach's error.", unit="m", ge=0.005, le=0.1)
@@ -78,6 +95,14 @@ def descent_checks(descent: DescentSettings, force_limit_n: float, model_margin:
     # the derivation, imported here: rakectl.core.descent imports this module's types
     from rakectl.core.descent import TRACKING_MARGIN_M, SoilBound
     budget_n = force_limit_n * model_margin
+    for i, (a, b) in enumerate(itertools.pairwise(descent.survey)):
+        if not b.reach_m > a.reach_m:
+            return [(f"descent.survey[{i + 1}].reach_m", f"must be > the previous point's "
+                     f"({a.reach_m:g} m), got {b.reach_m:g}")]
+    for i, point in enumerate(descent.survey):
+        if point.height_m > descent.ceiling_m:
+            return [(f"descent.survey[{i}].height_m", f"must be <= descent.ceiling_m "
+                     f"({descent.ceiling_m:g} m), got {point.height_m:g}")]
     if descent.drag_margin_n >= budget_n:
         return [("descent.drag_margin_n", f"must be < clamp.force_limit_n · clamp.model_margin "
                  f"({budget_n:g} N), got {descent.drag_margin_n:g}")]

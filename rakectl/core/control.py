@@ -95,8 +95,10 @@ def build_descent(settings: Settings) -> DescentLimiter | None:
     if not d.enforce:
         return None
     bound = SoilBound.from_settings(d, settings.clamp.force_limit_n, settings.clamp.model_margin)
+    survey = [(p.reach_m, p.height_m) for p in d.survey]
     return DescentLimiter(GroundMap(0.0, settings.geometry.r_max_m, d.ceiling_m,
-                                    bound.first_step_m, d.side_reach_m), 1.0 / settings.rate_hz)
+                                    bound.first_step_m, d.side_reach_m, survey),
+                          1.0 / settings.rate_hz)
 
 
 class TipController:

@@ -12,8 +12,10 @@ tines may take at cell i is
 declared soil's resistance reaches the budget (a step below the deepest cut meets a
 layer no stroke has measured, so no step measured from the strokes may replace it).
 
-``top`` starts at the configured ceiling (the highest the surface stands anywhere in
-the workspace) and only comes down, one way: tines that crossed a whole cell, in one
+``top`` starts at the surveyed surface where a survey covers the cell (the higher of
+the two survey points bracketing each part of it), at the configured ceiling (the
+highest the surface stands anywhere in the workspace) elsewhere, and only comes down,
+one way: tines that crossed a whole cell, in one
 pass from one of its edges to the other, cut away every soil above the highest point
 of that pass (:meth:`GroundMap.track`). A vertical plunge lowers nothing: the soil
 beside a tine's path stays. Heights are above ground level 0 (up positive); the
@@ -23,7 +25,9 @@ deflection) before handing it in.
 
 from __future__ import annotations
 
+import bisect
 import math
+from collections.abc import Sequence
 
 from rakectl.core.descent import TRACKING_MARGIN_M
 
@@ -34,11 +38,14 @@ class GroundMap:
     """Per cell of CELL_M along the reach: the highest soil (``top_m``) and the lowest
     height the tines may take (``floor_m``), ``first_step_m`` (d*) below it."""
 
-    __slots__ = ("_cell", "_entered_from", "_highest_m", "_reach_min_m", "_side_cells",
-                 "ceiling_m", "first_step_m", "floor_m", "n_cells", "top_m")
+    __slots__ = ("_cell", "_entered_from", "_highest_m", "_initial_top_m", "_reach_min_m",
+                 "_side_cells", "ceiling_m", "first_step_m", "floor_m", "n_cells", "top_m")
 
     def __init__(self, reach_min_m: float, reach_max_m: float, ceiling_m: float,
-                 first_step_m: float, side_reach_m: float) -> None:
+                 first_step_m: float, side_reach_m: float,
+                 survey: Sequence[tuple[float, float]] = ()) -> None:
+        """``survey``: (reach, height) points of the surface in increasing reach, none
+        above ``ceiling_m`` (rakectl.config.descent checks both)."""
         if not (reach_max_m > reach_min_m and first_step_m > 0.0 and side_reach_m >= 0.0
                 and math.isfinite(ceiling_m)):
             raise ValueError("GroundMap: needs reach_max_m > reach_min_m, first_step_m > 0, "
@@ -48,18 +55,34 @@ class GroundMap:
         self._side_cells = math.ceil(side_reach_m / CELL_M - 1e-9)
         self.ceiling_m = ceiling_m
         self.first_step_m = first_step_m
-        self.top_m = [ceiling_m] * self.n_cells
-        self.floor_m = [ceiling_m - first_step_m] * self.n_cells
+        self._initial_top_m = self._surveyed(survey)
+        self.top_m = list(self._initial_top_m)
+        self.floor_m = [0.0] * self.n_cells
+        self.reset()
+
+    def _surveyed(self, survey: Sequence[tuple[float, float]]) -> list[float]:
+        """Each cell's top before any pass: the highest survey point within it or
+        bracketing it, where the survey spans the whole cell; the ceiling elsewhere."""
+        reaches = [reach_m for reach_m, _ in survey]
+        tops = [self.ceiling_m] * self.n_cells
+        for i in range(self.n_cells):
+            low_m = self._reach_min_m + i * CELL_M
+            high_m = low_m + CELL_M
+            if not reaches or low_m < reaches[0] or high_m > reaches[-1]:
+                continue
+            first = max(0, bisect.bisect_right(reaches, low_m) - 1)
+            last = min(len(reaches) - 1, bisect.bisect_left(reaches, high_m))
+            tops[i] = min(self.ceiling_m, max(h for _, h in survey[first:last + 1]))
+        return tops
+
+    def reset(self) -> None:
+        """Forget every pass (the platform may have moved): the survey, or the ceiling."""
+        self.top_m[:] = self._initial_top_m
+        for i in range(self.n_cells):
+            self._refresh_floor(i)
         self._cell = -1  # the cell the tines are in, -1 before the first track()
         self._entered_from = 0  # -1: from the cell below, +1: from above, 0: not by an edge
         self._highest_m = -math.inf
-
-    def reset(self) -> None:
-        """Forget everything (the platform may have moved): the ceiling everywhere."""
-        for i in range(self.n_cells):
-            self.top_m[i] = self.ceiling_m
-            self.floor_m[i] = self.ceiling_m - self.first_step_m
-        self._cell, self._entered_from, self._highest_m = -1, 0, -math.inf
 
     def cell(self, reach_m: float) -> int:
         """The cell at ``reach_m`` (the end cells beyond the map)."""
@@ -96,9 +119,13 @@ class GroundMap:
             self._refresh(i)
 
     def _refresh(self, i: int) -> None:
-        side, n = self._side_cells, self.n_cells
-        for k in range(max(0, i - side), min(n, i + side + 1)):
-            self.floor_m[k] = max(self.top_m[max(0, k - side):k + side + 1]) - self.first_step_m
+        side = self._side_cells
+        for k in range(max(0, i - side), min(self.n_cells, i + side + 1)):
+            self._refresh_floor(k)
+
+    def _refresh_floor(self, k: int) -> None:
+        side = self._side_cells
+        self.floor_m[k] = max(self.top_m[max(0, k - side):k + side + 1]) - self.first_step_m
 
 
 # The joint loops hold the tip up to about 0.4 mm below a still reference (their

@@ -2,15 +2,17 @@
 
 With ``descent.enforce`` the controller needs two site inputs (docs/safety.md, "Not
 covered"): the strongest soil it may meet (the ``descent:`` section, checked in
-operation by the drag read from the currents) and the highest the surface stands (its
-``ceiling_m``, a survey). A case run with its site declared takes both from its own
-ground, as a survey would give them:
+operation by the drag read from the currents) and where the surface stands (its
+``survey`` along the reach, and ``ceiling_m`` beyond it). A case run with its site
+declared takes both from its own ground, as a survey would give them:
 
 - the soil: each parameter of the earthmoving equation at its strongest over the
   case's layers, and the spots' factor at the 99.99th percentile of the cells' lognormal
   spread (about one 5 mm cell in 10 000 stronger);
-- the ceiling: the highest the undisturbed surface stands over the commanded reach span
-  and :data:`SURVEY_MARGIN_M` either side, plus :data:`SURVEY_ERROR_M`.
+- the survey: the undisturbed surface every :data:`SURVEY_STEP_M` over the commanded
+  reach span and :data:`SURVEY_MARGIN_M` either side, :data:`SURVEY_ERROR_M` added
+  (between two points the surface stands less than that above the higher: its waves
+  bend it by microns over 2 mm); the ceiling the highest of those points.
 
 A site whose declared soil leaves the limiter no step is refused as the daemon refuses
 such a configuration at load: :func:`refusal` names why, and nothing moves.
@@ -24,7 +26,7 @@ from typing import TYPE_CHECKING, Final
 
 from drivers.soil import original_surface_height_m
 from drivers.soil_params import SoilParams
-from rakectl.config.descent import DescentSettings, descent_checks
+from rakectl.config.descent import DescentSettings, SurveyPoint, descent_checks
 
 if TYPE_CHECKING:  # cases draws its sites with this module
     from rakectl.sim.cases import FuzzCase
@@ -42,13 +44,16 @@ def spot_factor(strength_rel_std: float, quantile: float = SPOT_QUANTILE) -> flo
     return max(1.0, math.exp(-0.5 * sigma * sigma + NormalDist().inv_cdf(quantile) * sigma))
 
 
-def surveyed_ceiling_m(soil: SoilParams, reach_a_m: float, reach_b_m: float) -> float:
-    """The highest undisturbed surface over the span and SURVEY_MARGIN_M either side,
-    sampled every SURVEY_STEP_M, plus SURVEY_ERROR_M."""
+def surveyed_surface(soil: SoilParams, reach_a_m: float, reach_b_m: float
+                     ) -> tuple[SurveyPoint, ...]:
+    """The undisturbed surface over the span and SURVEY_MARGIN_M either side, every
+    SURVEY_STEP_M, SURVEY_ERROR_M added."""
     low_m = min(reach_a_m, reach_b_m) - SURVEY_MARGIN_M
-    points = round((max(reach_a_m, reach_b_m) + SURVEY_MARGIN_M - low_m) / SURVEY_STEP_M)
-    return SURVEY_ERROR_M + max(original_surface_height_m(soil, low_m + k * SURVEY_STEP_M)
-                                for k in range(points + 1))
+    points = math.ceil((max(reach_a_m, reach_b_m) + SURVEY_MARGIN_M - low_m) / SURVEY_STEP_M
+                       - 1e-9)  # the last at or past the span's end
+    reaches = (low_m + k * SURVEY_STEP_M for k in range(points + 1))
+    return tuple(SurveyPoint(x, original_surface_height_m(soil, x) + SURVEY_ERROR_M)
+                 for x in reaches)
 
 
 def declared_descent(case: FuzzCase) -> DescentSettings:
@@ -59,14 +64,14 @@ def declared_descent(case: FuzzCase) -> DescentSettings:
 
 def site_descent(soil: SoilParams, reach_a_m: float, reach_b_m: float) -> DescentSettings:
     """A site of ``soil`` declared for work between two reaches (see the module)."""
-    layers = soil.layers
+    layers, survey = soil.layers, surveyed_surface(soil, reach_a_m, reach_b_m)
     return DescentSettings(
         cohesion_max_pa=max(layer.cohesion_pa for layer in layers),
         friction_angle_max_rad=max(layer.friction_angle_rad for layer in layers),
         tool_friction_angle_max_rad=max(layer.tool_friction_angle_rad for layer in layers),
         unit_weight_max_n_per_m3=max(layer.unit_weight_n_per_m3 for layer in layers),
         strength_factor=spot_factor(soil.strength_rel_std), enforce=True,
-        ceiling_m=surveyed_ceiling_m(soil, reach_a_m, reach_b_m))
+        ceiling_m=max(point.height_m for point in survey), survey=survey)
 
 
 def refusal(descent: DescentSettings, force_limit_n: float, model_margin: float) -> str:

@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import pytest
+import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -15,6 +17,7 @@ from drivers.soil import cutting_factors, cutting_force_n
 from drivers.soil_params import SoilLayer, SoilParams
 from rakectl.config.descent import DescentSettings
 from rakectl.config.loader import load_settings
+from rakectl.core.control import build_descent
 from rakectl.core.descent import SoilBound, wedge_factors
 from rakectl.errors import ConfigError
 
@@ -139,3 +142,39 @@ def test_the_default_configuration_loads_with_its_first_step() -> None:
     s = load_settings()
     bound = SoilBound.from_settings(s.descent, s.clamp.force_limit_n, s.clamp.model_margin)
     assert bound.first_step_m >= s.descent.min_step_m
+
+
+@pytest.mark.parametrize(("points", "named"), [
+    ([(1.0, 0.0), (1.0, 0.01)], "descent.survey[1].reach_m must be > the previous point's "
+     "(1 m), got 1"),
+    ([(1.0, 0.0), (1.1, 0.07)], "descent.survey[1].height_m must be <= descent.ceiling_m "
+     "(0.06 m), got 0.07"),
+])
+def test_a_survey_out_of_order_or_above_the_ceiling_is_refused_naming_the_point(
+        tmp_path: Path, points: list[tuple[float, float]], named: str) -> None:
+    config = tmp_path / "rakectl.yaml"
+    config.write_text(yaml.safe_dump({"descent": {"survey": [
+        {"reach_m": r, "height_m": h} for r, h in points]}}))
+    with pytest.raises(ConfigError) as info:
+        load_settings(config, [])
+    assert named in str(info.value)
+    good = tmp_path / "good.yaml"
+    good.write_text(yaml.safe_dump({"descent": {"survey": [
+        {"reach_m": 1.0, "height_m": 0.0}, {"reach_m": 1.1, "height_m": 0.01}]}}))
+    assert load_settings(good, []).descent.survey[1].height_m == 0.01
+
+
+def test_the_controllers_ground_map_starts_from_the_configured_survey(tmp_path: Path) -> None:
+    """A site declared loam with a survey from 1.0 to 1.1 m: the controller's map stands
+    at the survey within its span and at the ceiling beyond it."""
+    config = tmp_path / "site.yaml"
+    config.write_text(yaml.safe_dump({"descent": {
+        "enforce": True, "cohesion_max_pa": 6e3, "friction_angle_max_rad": math.radians(28.0),
+        "tool_friction_angle_max_rad": math.radians(18.0), "unit_weight_max_n_per_m3": 18e3,
+        "strength_factor": 1.7, "ceiling_m": 0.05,
+        "survey": [{"reach_m": 1.0 + 0.01 * k, "height_m": 0.001 * k} for k in range(11)]}}))
+    limiter = build_descent(load_settings(config, []))
+    assert limiter is not None
+    ground = limiter.map
+    assert ground.top_m[ground.cell(1.0425)] == pytest.approx(0.005)  # 1.04–1.05 m: k = 5
+    assert ground.top_m[ground.cell(1.2)] == ground.top_m[ground.cell(0.9)] == 0.05

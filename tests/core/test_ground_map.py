@@ -181,3 +181,25 @@ def test_a_map_that_cannot_be_is_refused() -> None:
                  (1.0, 1.1, math.nan, 0.001, 0.01), (1.0, 1.1, 0.0, 0.001, -0.01)):
         with pytest.raises(ValueError):
             GroundMap(*args)
+
+
+def test_a_survey_is_the_top_where_it_spans_a_cell_and_the_ceiling_elsewhere() -> None:
+    """Points at 1.012, 1.018, 1.024, 1.031 m over cells of 5 mm from 1.0 m: cells 3–5
+    (1.015–1.030) are spanned whole, cell 3 by the points from 1.012 to 1.024, cell 4 from
+    1.018 to 1.031, cell 5 by 1.024 and 1.031; cell 2 (1.010–1.015) starts before the
+    survey, cell 6 ends after it. By hand: the highest point bracketing or within a
+    spanned cell, the ceiling elsewhere."""
+    survey = [(1.012, 0.010), (1.018, 0.014), (1.024, 0.011), (1.031, 0.013)]
+    ground = GroundMap(1.0, 1.05, CEILING_M, STEP_M, 0.01, survey)
+    tops = [CEILING_M] * 3 + [0.014, 0.014, 0.013] + [CEILING_M] * 5
+    assert ground.top_m == pytest.approx(tops)
+    assert ground.floor_m == pytest.approx(
+        [max(tops[max(0, i - 2):i + 3]) - STEP_M for i in range(11)])
+    ground.lower(3, 0.0)
+    ground.reset()  # the survey again, not the ceiling
+    assert ground.top_m == pytest.approx(tops)
+    # a lone point spans no cell; a point above the ceiling is held to it
+    assert GroundMap(1.0, 1.05, CEILING_M, STEP_M, 0.01, [(1.02, 0.0)]).top_m == \
+        [CEILING_M] * 11
+    high = GroundMap(1.0, 1.05, CEILING_M, STEP_M, 0.01, [(1.0, 0.0), (1.05, 0.09)])
+    assert high.top_m == [CEILING_M] * 11

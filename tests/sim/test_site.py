@@ -37,15 +37,24 @@ def test_the_spot_factor_is_the_quantile_of_the_cells_lognormal_spread(rel_std: 
 
 @pytest.mark.parametrize("index", range(8))
 def test_the_survey_stands_above_the_surface_over_the_reach_span(index: int) -> None:
-    """Sampled ten times finer than the survey, over the span and its margins."""
+    """Sampled ten times finer than the survey over the span and its margins: the
+    higher of the two survey points around each sample stands above it, by at most
+    twice the survey's error; the ceiling is the highest point."""
     case = cases.generate(SEED, index)
     soil, c = case.ground.soil, case.command
-    ceiling_m = site.declared_descent(case).ceiling_m
-    low_m = min(c.reach_near_m, c.reach_far_m) - site.SURVEY_MARGIN_M
-    high_m = max(c.reach_near_m, c.reach_far_m) + site.SURVEY_MARGIN_M
-    highest_m = max(original_surface_height_m(soil, float(x))
-                    for x in np.linspace(low_m, high_m, 2000))
-    assert highest_m < ceiling_m <= highest_m + 2 * site.SURVEY_ERROR_M
+    declared = site.declared_descent(case)
+    reaches = [p.reach_m for p in declared.survey]
+    heights = [p.height_m for p in declared.survey]
+    assert reaches[0] == pytest.approx(min(c.reach_near_m, c.reach_far_m)
+                                       - site.SURVEY_MARGIN_M)
+    end_m = max(c.reach_near_m, c.reach_far_m) + site.SURVEY_MARGIN_M
+    assert end_m - 1e-9 <= reaches[-1] < end_m + site.SURVEY_STEP_M
+    assert declared.ceiling_m == max(heights)
+    for x in np.linspace(reaches[0], reaches[-1], 10 * len(reaches)):
+        k = min(int(np.searchsorted(reaches, x, side="right")), len(reaches) - 1)
+        above_m = max(heights[max(0, k - 1)], heights[k]) - original_surface_height_m(soil,
+                                                                                     float(x))
+        assert 0.0 < above_m <= 2 * site.SURVEY_ERROR_M
 
 
 def test_a_declared_case_runs_with_its_declaration_and_the_limiter_on() -> None:
