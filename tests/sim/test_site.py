@@ -132,3 +132,16 @@ def test_a_mapped_case_is_a_declared_lane_over_one_object_under_the_soil(index: 
     surface_m = original_surface_height_m(case.ground.soil, c.reach_far_m)
     assert surface_m + c.start_height_m >= -body.depth_m or abs(
         c.reach_far_m - body.reach_m) > 0.5 * body.width_m  # above it, or beside it
+
+
+def test_a_mapped_lane_meets_its_buried_object_within_the_limit() -> None:
+    """Mapped case 2 of seed 20261128: a force-adaptive lane in its surveyed, declared
+    soil cuts down to a stone whose top is under the soil, meets its side and stops there
+    (found), the stone and the ground far under 90 N (the campaign's figures:
+    docs/safety-log.md)."""
+    case = cases.generate(SEED, 2, cases.Family.MAPPED)
+    assert case.ground.objects.stones and case.command.adaptive
+    result = campaign.run_case(case)
+    assert result.declared_site and not result.refused and result.safe
+    assert result.object_found and 0.0 < result.f_stone_side_max_n < 45.0
+    assert result.f_true_z_max_n < 45.0
