@@ -140,7 +140,7 @@ def truth_rows_to(pub: Publisher, truth: Path, every: int = 10,
 
 def truth_to_mcap(truth: Path, out: Path, every: int = 10, objects: Iterable[Box] = ()
                   ) -> int:
-    """The emulator's ground truth (drivers.emulator.TRUTH_COLUMNS) alone as MCAP."""
+    """The emulator's ground truth (drivers.records.TRUTH_COLUMNS) alone as MCAP."""
     check_columns(truth, TRUTH_KEYS)
     with recording(out) as pub:
         first = next(_rows(truth, TRUTH_KEYS), None)

@@ -58,7 +58,7 @@ def log_status(pub: Publisher, reply: Mapping[str, Any], time_ns: int,
 
 
 def log_truth_row(pub: Publisher, row: Mapping[str, str], time_ns: int) -> None:
-    """One row of the emulator's ground truth (drivers.emulator.TRUTH_COLUMNS)."""
+    """One row of the emulator's ground truth (drivers.records.TRUTH_COLUMNS)."""
     pub.json("/truth", time_ns, {
         "force_down_n": float(row["force_down_n"]), "force_drag_n": float(row["force_drag_n"]),
         "mine_plate_max_n": float(row["mine_plate_max_n"]),

@@ -23,7 +23,8 @@ import can
 import pytest
 
 from drivers.cli import load_config, main
-from drivers.emulator import TRUTH_COLUMNS, Emulator
+from drivers.emulator import Emulator
+from drivers.records import TRUTH_COLUMNS
 from drivers.settings import EmulatorConfig, TimingMode
 from drivers.stats import BadInput
 from rakectl.core.motor_model import MotorParams, joint_per_motor_rad, joint_resolution

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from drivers.emulator import TRUTH_COLUMNS
+from drivers.records import TRUTH_COLUMNS
 from rakectl.sim.demo import truth_figures
 
 
