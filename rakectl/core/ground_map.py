@@ -56,9 +56,8 @@ class GroundMap:
         self.ceiling_m = ceiling_m
         self.first_step_m = first_step_m
         self._initial_top_m = self._surveyed(survey)
-        self.top_m = list(self._initial_top_m)
-        self.floor_m = [0.0] * self.n_cells
-        self.reset()
+        self.top_m, self.floor_m = [0.0] * self.n_cells, [0.0] * self.n_cells
+        self.reset()  # both from the survey (or the ceiling)
 
     def _surveyed(self, survey: Sequence[tuple[float, float]]) -> list[float]:
         """Each cell's top before any pass: the highest survey point within it or

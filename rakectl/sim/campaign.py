@@ -178,13 +178,12 @@ def _asked_again(case: FuzzCase, reference: Reference) -> bool:
 def _result(case: FuzzCase, loop: FaultyRakeLoop, reference: Reference,
             figures: tuple[float, float, int, float]) -> CaseResult:
     found = isinstance(reference, LanePlanner) and reference.found_at is not None
-    kind = str(case.command.kind) + (" (adaptive)" if case.command.adaptive else "")
 
     def peak(kind: Contact, attribute: str) -> float:
         return max((getattr(b, attribute) for b in loop.ground.bodies if b.kind is kind),
                    default=0.0)
 
-    return CaseResult(case.seed, case.index, kind, figures[0], figures[1],
+    return CaseResult(case.seed, case.index, _kind(case), figures[0], figures[1],
                       figures[2], loop.ground.truth.mine_activated, found, figures[3],
                       case.faults.kinds(), loop.feedback_lost, loop.commands_lost,
                       loop.drive_fault_ticks, loop.controller.clamp.clamped, loop.fault,
@@ -197,9 +196,13 @@ def _result(case: FuzzCase, loop: FaultyRakeLoop, reference: Reference,
                       declared_site=case.declared_site)
 
 
+def _kind(case: FuzzCase) -> str:
+    """The command's kind as results name it: 'lane (adaptive)' for a force-adaptive lane."""
+    return str(case.command.kind) + (" (adaptive)" if case.command.adaptive else "")
+
+
 def _refused(case: FuzzCase, why: str) -> CaseResult:
-    kind = str(case.command.kind) + (" (adaptive)" if case.command.adaptive else "")
-    return CaseResult(case.seed, case.index, kind, 0.0, 0.0, 0, False, False, 0.0,
+    return CaseResult(case.seed, case.index, _kind(case), 0.0, 0.0, 0, False, False, 0.0,
                       case.faults.kinds(), 0, 0, 0, 0, "", supervised=case.supervised,
                       family=str(case.family), declared_site=case.declared_site, refused=why)
 
