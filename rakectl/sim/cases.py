@@ -28,14 +28,10 @@ waves; stones, roots and mines (80–100 N fuses) anywhere along the lane, and i
 half of the lanes and strokes a mine whose plate is at one of the cut depths or
 up to 5 mm above it; some mines partly exposed (plate above the ground).
 
-The ``edge`` family (``generate(seed, index, Family.EDGE)``) aims where random
-placement rarely does: a plunge whose path passes within 4 mm of an object's
-side (a mine in half the cases, a stone or a root in the others), so that the
-tines meet its rounded top edge, on the same soils; the band of paths where an
-edge forces the tines sideways through the soil is a few tenths of a
-millimetre wide (docs/safety.md, "Not covered"). The ``mapped`` family
-(:mod:`rakectl.sim.mapped`) runs lanes with the descent limiter on, down beside a
-buried object.
+Two more families aim where random placement rarely does
+(``generate(seed, index, family)``): ``edge`` (:mod:`rakectl.sim.edge`),
+plunges along an object's side, and ``mapped`` (:mod:`rakectl.sim.mapped`),
+lanes with the descent limiter on, down beside a buried object.
 
 Faults: lost feedback and lost commands (per tick), a drive fault episode
 (both motors at 0 V for 20–200 ms), a controller stall (no tick for 5–60 ms:
@@ -201,7 +197,8 @@ def draw_soil(rng: np.random.Generator) -> SoilParams:
                       strength_rel_std=float(rng.uniform(0.0, 0.5)))
 
 
-def _mine(rng: np.random.Generator, reach_m: float, depth_m: float) -> MineParams:
+def draw_mine(rng: np.random.Generator, reach_m: float, depth_m: float) -> MineParams:
+    """A mine at ``reach_m``, its top ``depth_m`` below level 0, its fuse 80–100 N."""
     return MineParams(reach_m, depth_m, float(rng.uniform(0.06, 0.12)),
                       float(rng.uniform(0.03, 0.08)),
                       activation_force_n=float(rng.uniform(80.0, 100.0)))
@@ -225,10 +222,10 @@ def _objects(rng: np.random.Generator, near_m: float, far_m: float,
                                float(rng.uniform(0.03, 0.15)), float(rng.uniform(0.03, 0.1)))
                    for _ in range(count()))
     roots = tuple(RootParams(reach(), float(rng.uniform(0.01, 0.1))) for _ in range(count()))
-    mines = [_mine(rng, reach(), mine_depth()) for _ in range(count())]
+    mines = [draw_mine(rng, reach(), mine_depth()) for _ in range(count())]
     if cut_depths_m and rng.uniform() < 0.5:
         depth_m = float(rng.choice(cut_depths_m)) - float(rng.uniform(0.0, 0.005))
-        mines.append(_mine(rng, float(rng.uniform(near_m, far_m)), depth_m))
+        mines.append(draw_mine(rng, float(rng.uniform(near_m, far_m)), depth_m))
     return BuriedObjects(stones, roots, tuple(mines))
 
 
@@ -314,10 +311,12 @@ def generate(seed: int, index: int, family: Family = Family.RANDOM) -> FuzzCase:
     """The ``index``-th case of campaign ``seed`` (pure, deterministic). Kinds cycle with
     the index, fault kinds with index // 4, supervision with index // 24: any 48
     consecutive cases cover every kind under every fault, with and without supervision."""
-    if family is Family.EDGE:
-        return _edge_case(seed, index)
+    if family is Family.EDGE:  # each family's module draws with this module's parts
+        from rakectl.sim.edge import edge_case
+
+        return edge_case(seed, index)
     if family is Family.MAPPED:
-        from rakectl.sim.mapped import mapped_case  # which draws with this module's parts
+        from rakectl.sim.mapped import mapped_case
 
         return mapped_case(seed, index)
     rng = np.random.default_rng([seed, index])
@@ -354,59 +353,6 @@ def generate(seed: int, index: int, family: Family = Family.RANDOM) -> FuzzCase:
         command = dataclasses.replace(command, adaptive=adaptive)
     supervised = (index // 24) % 2 == 1
     return FuzzCase(seed, index, ground, ground_seed, command, faults, duration_s, supervised)
-
-
-EDGE_BAND_M = 0.004  # an edge case's path passes this close to the object's side, either way
-
-
-def edge_object(rng: np.random.Generator, kind: int, side_m: float, toward_robot: bool,
-                 top_depth_m: float) -> BuriedObjects:
-    """One mine (``kind`` 0), stone (1) or root (2) whose near (``toward_robot``) or far
-    side is at reach ``side_m``."""
-    body: StoneParams | RootParams | MineParams
-    if kind == 2:
-        body = RootParams(0.0, top_depth_m)
-    elif kind == 1:
-        body = StoneParams(0.0, top_depth_m, float(rng.uniform(0.03, 0.15)),
-                           float(rng.uniform(0.03, 0.1)))
-    else:
-        body = _mine(rng, 0.0, top_depth_m)
-    half_m = 0.5 * body.width_m
-    body = dataclasses.replace(body, reach_m=side_m + half_m if toward_robot else side_m - half_m)
-    return BuriedObjects(stones=(body,) if isinstance(body, StoneParams) else (),
-                         roots=(body,) if isinstance(body, RootParams) else (),
-                         mines=(body,) if isinstance(body, MineParams) else ())
-
-
-def _edge_case(seed: int, index: int) -> FuzzCase:
-    """An edge case: a plunge (straight down from above the ground to 0.15 m deep at
-    0.05–0.25 m/s, the impedance on or off) whose path passes within
-    :data:`EDGE_BAND_M` of an object's side (or over a root's round side), over a mine
-    (indices 0, 1 mod 4), a stone (2 mod 4) or a root (3 mod 4), its top 5–100 mm below
-    ground level, on the campaign's soils; faults and supervision as in the random
-    family. (The operator's jog is left to the random family: in soil it descends a few
-    millimetres a second and stops where the force rises.)"""
-    rng = np.random.default_rng([seed, index, 2])
-    kind = 0 if index % 4 < 2 else index % 4 - 1
-    reach_m = float(rng.uniform(0.95, 1.35))
-    soil = draw_soil(rng)
-    surface_m = original_surface_height_m(soil, reach_m)
-    top_depth_m = float(rng.uniform(0.005, 0.1))
-    toward_robot = bool(rng.integers(0, 2))  # the object beyond the path, or before it
-    # > 0: the path over it; a root's round side spans its radius (10 mm)
-    inside_m = float(rng.uniform(-EDGE_BAND_M, 0.01 if kind == 2 else EDGE_BAND_M))
-    side_m = reach_m - inside_m if toward_robot else reach_m + inside_m
-    objects = edge_object(rng, kind, side_m, toward_robot, top_depth_m)
-    command = MotionCommand(CommandKind.PLUNGE, reach_m, reach_m, PLUNGE_END_DEPTH_M,
-                            PLUNGE_END_DEPTH_M, float(rng.uniform(0.05, 0.25)), 0.0,
-                            float(rng.uniform(0.02, 0.1)), bool(rng.integers(0, 2)))
-    command = dataclasses.replace(command, start_height_m=max(
-        command.start_height_m, height_clear_of(objects, reach_m, surface_m)))
-    duration_s = (command.start_height_m + PLUNGE_END_DEPTH_M + 0.1) \
-        / command.speed_m_per_s + 1.0
-    faults = draw_faults(rng, (index // 4) % (len(FAULT_KINDS) + 1), duration_s)
-    return FuzzCase(seed, index, GroundParams(soil, objects), int(rng.integers(0, 2**32)),
-                    command, faults, duration_s, (index // 24) % 2 == 1, Family.EDGE)
 
 
 # --------------------------------------------------------------------------- serialization

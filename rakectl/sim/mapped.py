@@ -15,7 +15,7 @@ limiter a step of at least :data:`MIN_STEP_M` (each pass deepens by about d* les
 3 mm: the limiter's tracking margin and the mount's compression), drawn again until one
 does. Under it one object (a mine at indices 0, 1 mod 4, a stone at 2, a root at 3),
 its top 2–12 mm below the soil beside its side; that side, in a quarter of the cases,
-within :data:`~rakectl.sim.cases.EDGE_BAND_M` of the lane's far end, where every cycle
+within :data:`~rakectl.sim.edge.EDGE_BAND_M` of the lane's far end, where every cycle
 plunges (the lane's passes terrace up toward its ends, beside soil they never cross), in
 the others at least :data:`INSIDE_ENDS_M` inside both ends. A lane the limit holds short
 of its target is asked again, as an operator would, until the case ends (60 s). Faults
@@ -35,7 +35,6 @@ from drivers.soil_params import SoilParams
 from rakectl.config.settings import ClampSettings
 from rakectl.core.descent import SoilBound
 from rakectl.sim.cases import (
-    EDGE_BAND_M,
     FAULT_KINDS,
     CommandKind,
     Family,
@@ -43,10 +42,10 @@ from rakectl.sim.cases import (
     MotionCommand,
     draw_faults,
     draw_soil,
-    edge_object,
     height_clear_of,
     loguniform,
 )
+from rakectl.sim.edge import EDGE_BAND_M, edge_object
 from rakectl.sim.site import site_descent
 
 DURATION_S: Final = 60.0  # simulated: the passes above the object take most of it

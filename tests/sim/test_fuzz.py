@@ -17,7 +17,7 @@ from drivers.soil_params import SoilLayer, SoilParams
 from rakectl.cli import fuzz as fuzz_cli
 from rakectl.core.clamp import VoltageClamp
 from rakectl.limits import FORCE_LIMIT_N
-from rakectl.sim import campaign, cases, results
+from rakectl.sim import campaign, cases, edge, results
 from rakectl.sim.cases import FAULT_KINDS, CommandKind, Faults, FuzzCase, MotionCommand
 from rakectl.sim.scenario import Scenario
 
@@ -122,7 +122,7 @@ def test_edge_cases_descend_along_an_objects_side() -> None:
         path_m = c.command.reach_far_m
         gap_m = min(abs(path_m - (body.reach_m - 0.5 * body.width_m)),
                     abs(path_m - (body.reach_m + 0.5 * body.width_m)))
-        assert gap_m <= max(cases.EDGE_BAND_M, 0.5 * body.width_m) + 1e-12
+        assert gap_m <= max(edge.EDGE_BAND_M, 0.5 * body.width_m) + 1e-12
     old_file = some[0].to_dict()
     del old_file["family"]  # a case file from before the families: the random one
     assert cases.case_from_dict(old_file).family is cases.Family.RANDOM

@@ -16,7 +16,7 @@ from drivers.soil import original_surface_height_m
 from rakectl.cli import fuzz as fuzz_cli
 from rakectl.config.descent import DescentSettings
 from rakectl.core.descent import SoilBound
-from rakectl.sim import campaign, cases, mapped, site
+from rakectl.sim import campaign, cases, edge, mapped, site
 from rakectl.sim.results import RESULTS_FILE, finished_results
 from rakectl.sim.scenario import Scenario
 
@@ -120,7 +120,7 @@ def test_a_mapped_case_is_a_declared_lane_over_one_object_under_the_soil(index: 
     assert len(bodies) == 1
     assert len(o.mines if index % 4 < 2 else o.stones if index % 4 == 2 else o.roots) == 1
     body, c = bodies[0], case.command
-    band_m = 0.01 if isinstance(body, RootParams) else cases.EDGE_BAND_M  # a root's round side
+    band_m = 0.01 if isinstance(body, RootParams) else edge.EDGE_BAND_M  # a root's round side
     soil = case.ground.soil
     drawn = [x for x in (body.reach_m - 0.5 * body.width_m, body.reach_m + 0.5 * body.width_m)
              if (abs(x - c.reach_far_m) <= band_m + 1e-12
