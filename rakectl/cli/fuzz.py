@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from rakectl.limits import FORCE_LIMIT_N
-from rakectl.sim.campaign import campaign, read_case_file, replay
+from rakectl.sim.campaign import campaign, declares_sites, read_case_file, replay
 from rakectl.sim.cases import Family
 from rakectl.sim.injection import FaultyRakeLoop
 from rakectl.sim.parallel import executor_for
@@ -60,6 +60,14 @@ def _parser() -> argparse.ArgumentParser:
                    help="with --replay: record the replay as MCAP (and its telemetry as "
                    "OUT.csv next to it; the [view] extra; docs/viewer.md)")
     return p
+
+
+def banner(args: argparse.Namespace, runs_on: str, physics: str) -> str:
+    """The line a campaign starts with: which cases, how drawn, on what."""
+    declared = declares_sites(Family(args.family), args.declared_site)
+    site = ", sites declared, descent limiter on" if declared else ""
+    return (f"fuzz: cases {args.first}..{args.first + args.scenarios - 1} of seed "
+            f"{args.seed} ({args.family}{site}) on {runs_on}; {physics}")
 
 
 def human(report: Report) -> str:
@@ -145,10 +153,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     executor = executor_for(args.scheduler, args.workers)
     try:
-        site = ", sites declared, descent limiter on" if args.declared_site else ""
-        print(f"fuzz: cases {args.first}..{args.first + args.scenarios - 1} of seed "
-              f"{args.seed} ({args.family}{site}) on {executor.describe()}; "
-              f"{executor.physics()}", file=sys.stderr)
+        print(banner(args, executor.describe(), executor.physics()), file=sys.stderr)
         report = campaign(args.scenarios, args.seed, args.workers, args.out, Progress("fuzz"),
                           first=args.first, executor=executor, family=Family(args.family),
                           declared_site=args.declared_site)

@@ -224,6 +224,12 @@ def _severity(r: CaseResult) -> float:
     return max(r.f_true_z_max_n, r.f_mine_max_n)
 
 
+def declares_sites(family: Family, declared_site: bool) -> bool:
+    """Whether a campaign's cases run with their sites declared: on request, and always in
+    the mapped family, whose cases are drawn for the descent limiter."""
+    return declared_site or family is Family.MAPPED
+
+
 def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None = None,
              progress: Callable[[int, int], None] | None = None, first: int = 0,
              executor: Executor | None = None, family: Family = Family.RANDOM,
@@ -237,12 +243,12 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
     one directory. Cases are deterministic from (seed, index), so the report is the same
     whichever run computed each case, and whatever ran it: ``executor`` (a Dask cluster,
     rakectl.sim.parallel) instead of ``workers`` local processes. ``family``: how the
-    cases are drawn (the random campaign, or the edge cases of rakectl.sim.cases).
-    ``declared_site``: each case's site declared and the descent limiter on
-    (rakectl.sim.site); a site it would refuse counts as refused, not run."""
+    cases are drawn (:class:`~rakectl.sim.cases.Family`). ``declared_site``: each case's
+    site declared and the descent limiter on (rakectl.sim.site), as the mapped family's
+    always are; a site it would refuse counts as refused, not run."""
     if scenarios < 1:
         raise ValueError("scenarios must be >= 1")
-    declared_site = declared_site or family is Family.MAPPED  # its cases declare their sites
+    declared_site = declares_sites(family, declared_site)
     started = time.perf_counter()
     wanted = range(first, first + scenarios)
     done = finished_results(out_dir / RESULTS_FILE, seed, wanted, family, declared_site) \

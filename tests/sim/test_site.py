@@ -76,6 +76,16 @@ def test_a_site_its_declared_soil_leaves_no_step_is_refused_naming_why() -> None
     assert campaign.run_case(cases.generate(SEED, 1)).refused == ""  # undeclared: it runs
 
 
+@pytest.mark.parametrize(("argv", "declared"), [
+    (["--family", "mapped"], True), (["--family", "random", "--declared-site"], True),
+    (["--family", "edge"], False), ([], False)])
+def test_the_cli_banner_says_when_sites_are_declared(argv: list[str], declared: bool) -> None:
+    args = fuzz_cli._parser().parse_args([*argv, "--scenarios", "3", "--first", "7"])
+    line = fuzz_cli.banner(args, "1 local process", "physics: Python")
+    assert line.startswith(f"fuzz: cases 7..9 of seed {args.seed} ({args.family}")
+    assert ("sites declared, descent limiter on" in line) is declared
+
+
 def test_the_cli_runs_declared_sites_counts_the_refused_and_replays_the_worst(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     status = fuzz_cli.main(["--declared-site", "--scenarios", "4", "--seed", str(SEED),
