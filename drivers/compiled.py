@@ -114,15 +114,25 @@ def activate(package_path: list[str]) -> Path | None:
     return where
 
 
-def status() -> str:
-    """One line: which physics this process runs."""
+def running() -> str:
+    """Which physics this process runs: ``"compiled"``, ``"python"``, or ``"mixed"`` (some
+    modules of each; cannot happen through :func:`activate`)."""
     import importlib
 
     modules = [importlib.import_module(name) for name in PHYSICS]
-    compiled = [m for m in modules if not str(m.__file__).endswith(".py")]
-    if compiled and len(compiled) == len(modules):
+    compiled = sum(not str(m.__file__).endswith(".py") for m in modules)
+    return "python" if compiled == 0 else "compiled" if compiled == len(modules) else "mixed"
+
+
+def status() -> str:
+    """One line: which physics this process runs, and from where."""
+    import importlib
+
+    kind = running()
+    if kind == "compiled":
         return f"physics: compiled (mypyc) from {_active}"
-    if compiled:  # cannot happen through activate(); said plainly if it does
+    if kind == "mixed":  # said plainly if it ever happens
+        modules = [importlib.import_module(name) for name in PHYSICS]
         return "physics: MIXED compiled and Python modules: " + ", ".join(
             f"{m.__name__}={m.__file__}" for m in modules)
     hint = "" if _mode() == "pure" else " (`rakectl compile` makes the campaign faster)"

@@ -49,10 +49,10 @@ def test_the_compiled_physics_gives_the_python_results_exactly(physics_build: Pa
 
 def test_auto_takes_the_build_only_when_there_is_one(physics_build: Path,
                                                      tmp_path: Path) -> None:
-    code = "from drivers import arm; print(arm.__file__)"
-    assert _python(code, "auto", physics_build).stdout.strip().endswith(".so")
-    assert _python(code, "auto", tmp_path).stdout.strip().endswith("arm.py")
-    assert _python(code, "pure", physics_build).stdout.strip().endswith("arm.py")
+    code = "from drivers import arm, compiled; print(arm.__file__, compiled.running())"
+    assert _python(code, "auto", physics_build).stdout.strip().endswith(".so compiled")
+    assert _python(code, "auto", tmp_path).stdout.strip().endswith("arm.py python")
+    assert _python(code, "pure", physics_build).stdout.strip().endswith("arm.py python")
 
 
 def test_a_build_serves_only_the_sources_it_was_made_from(tmp_path: Path) -> None:
@@ -89,8 +89,9 @@ def test_processes_a_compiled_one_starts_run_the_physics_asked_for(
     code = ("from drivers import compiled\n"
             "from rakectl.bench.throughput import compare_physics\n"
             "c = compare_physics(first=9704, cases=1)\n"  # 8 ms of a lane
-            "print(compiled.status(), c.python.physics, c.compiled.physics, sep='\\n')\n")
+            "print(compiled.status(), c.python.physics, c.compiled.physics, sep='\\n')\n"
+            "print(c.python.physics_kind, c.compiled.physics_kind)\n")
     out = _python(code, "auto", physics_build, cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     assert [line.split(" (")[0] for line in out.stdout.splitlines()] == [
-        "physics: compiled", "physics: Python", "physics: compiled"]
+        "physics: compiled", "physics: Python", "physics: compiled", "python compiled"]
