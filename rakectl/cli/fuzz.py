@@ -18,6 +18,8 @@ from rakectl.sim.plants import BASE_COLUMNS
 from rakectl.sim.progress import Progress
 from rakectl.sim.results import RESULTS_FILE, WORST_CASE_FILE, Report
 
+FORCES_PLOT = "forces.png"  # --plot's figure, in --out
+
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
@@ -50,6 +52,10 @@ def _parser() -> argparse.ArgumentParser:
                    help=f"directory for {WORST_CASE_FILE} and {RESULTS_FILE} (each case's "
                    "result as it finishes; cases already there are not run again: a "
                    "campaign resumes, or is run in parts into one directory)")
+    p.add_argument("--plot", action="store_true",
+                   help=f"with --out: also write OUT/{FORCES_PLOT} (how many cases read at least "
+                   "each force, by what carried it, by fault and by command, against the "
+                   "limit; the [plot] extra). On a finished --out it runs nothing and plots")
     p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT|local:N",
                    help="run the cases on a Dask cluster (the [cluster] extra): an existing "
                    "scheduler, or local:N to start N worker processes here; default: "
@@ -151,6 +157,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("rakectl fuzz: --scenarios and --workers must be >= 1, --first >= 0",
               file=sys.stderr)
         return 2
+    if args.plot and args.out is None:
+        print("rakectl fuzz: --plot needs --out DIR (the plot is written there)",
+              file=sys.stderr)
+        return 2
+    if args.plot:
+        from rakectl.sim.plot import pyplot
+
+        pyplot()  # matplotlib missing: said now, not after the campaign
     executor = executor_for(args.scheduler, args.workers)
     try:
         print(banner(args, executor.describe(), executor.physics()), file=sys.stderr)
@@ -159,6 +173,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                           declared_site=args.declared_site)
     finally:
         executor.close()
+    if args.plot:
+        from rakectl.sim.plot import plot_campaign
+
+        plot_campaign(report, args.out / FORCES_PLOT, f"seed {args.seed}, cases "
+                      f"{args.first}..{args.first + args.scenarios - 1} ({args.family})")
+        print(f"fuzz: plot written to {args.out / FORCES_PLOT}", file=sys.stderr)
     print(human(report))
     if args.json:
         print(json.dumps(report.summary()))

@@ -7,6 +7,7 @@ from typing import Any
 
 from rakectl.errors import RakeError
 from rakectl.limits import FORCE_LIMIT_N
+from rakectl.sim.results import CaseResult, Report
 from rakectl.sim.simulate import SimulationResult
 
 
@@ -132,6 +133,70 @@ def plot_bench_run(truth_csv: Path, path: Path,
     ax_f.legend(loc="upper left", fontsize="small")
     for ax in (ax_path, ax_f):
         ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# what carried each case's largest reading (a field of CaseResult), as the campaign plots it
+READINGS = (("ground, vertical", "f_true_z_max_n"), ("mine, plate", "f_mine_plate_max_n"),
+            ("mine, side", "f_mine_side_max_n"), ("stone, side", "f_stone_side_max_n"),
+            ("root, side", "f_root_side_max_n"))
+FAULTS = ("none", "feedback", "command", "drive", "stall", "kill")
+
+
+def _exceedance(ax: Any, values: list[float], **style: Any) -> None:
+    """How many cases read at least F, against F: a step down at each case's reading."""
+    import numpy as np
+
+    if not values:
+        return
+    f = np.sort(np.asarray(values))[::-1]
+    ax.step(f, np.arange(1, len(f) + 1), where="post", **style)
+
+
+def _bounded(r: CaseResult) -> float:
+    """A case's largest bounded reading: the ground's vertical force or a mine's."""
+    return max(r.f_true_z_max_n, r.f_mine_plate_max_n, r.f_mine_side_max_n)
+
+
+def plot_campaign(report: Report, path: Path, title: str = "") -> None:
+    """A campaign's margins at a glance: for each force (what carried it, the fault
+    injected, the command), how many cases read at least F, on a log scale, against the
+    limit. A case counts once per reading; refused sites ran nothing and are left out."""
+    plt = pyplot()
+    ran = [r for r in report.results if not r.refused]
+    fig, (ax_body, ax_fault, ax_kind) = plt.subplots(3, 1, figsize=(9, 11), sharex=True)
+    for label, field in READINGS:
+        values = [getattr(r, field) for r in ran if getattr(r, field) > 0.0]
+        _exceedance(ax_body, values, label=f"{label} ({len(values)} cases, largest "
+                    f"{max(values, default=0.0):.1f} N)")
+    ax_body.set_title("(a) each case's largest force, by what carried it")
+    for fault in FAULTS:
+        values = [_bounded(r) for r in ran if fault in (r.faults or ("none",))]
+        _exceedance(ax_fault, values, label=f"{fault} ({len(values)})")
+    for supervised, style in ((False, ":"), (True, "--")):
+        values = [_bounded(r) for r in ran if r.supervised is supervised]
+        _exceedance(ax_fault, values, color="0.3", ls=style,
+                    label=f"supervision {'on' if supervised else 'off'} ({len(values)})")
+    ax_fault.set_title("(b) the largest on the ground or a mine, by the fault injected")
+    for kind in sorted({r.kind for r in ran}):
+        values = [_bounded(r) for r in ran if r.kind == kind]
+        _exceedance(ax_kind, values, label=f"{kind} ({len(values)})")
+    ax_kind.set_title("(c) the largest on the ground or a mine, by command")
+    ax_kind.set_xlabel("force [N]")
+    largest = max((max(_bounded(r), r.f_stone_side_max_n, r.f_root_side_max_n) for r in ran),
+                  default=0.0)
+    for ax in (ax_body, ax_fault, ax_kind):
+        ax.axvline(FORCE_LIMIT_N, color="k", lw=1.5,
+                   label=f"{FORCE_LIMIT_N:g} N limit (ground, mines)")
+        ax.set_yscale("log")
+        ax.set_ylabel("cases reading ≥ F")
+        ax.set_xlim(0.0, 1.05 * max(largest, FORCE_LIMIT_N))
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(loc="upper right", fontsize="small")
+    fig.suptitle(f"{title}{': ' if title else ''}{len(ran)} cases run, "
+                 f"{len(report.unsafe)} over the limit, {report.mine_activations} mines fired")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

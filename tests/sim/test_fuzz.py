@@ -202,6 +202,26 @@ def test_a_changed_result_is_named_by_the_pin_check(ci_sample: results.Report) -
     assert f"case {flipped.index}: watchdog_tripped " in found[1:][flipped.index > moved.index]
 
 
+def test_the_cli_plots_a_finished_campaign_without_running_it(
+        ci_sample: results.Report, capsys: pytest.CaptureFixture[str]) -> None:
+    out = Path(ci_sample.worst_case_path).parent
+    argv = ["--scenarios", str(CI_SAMPLE), "--first", str(CI_FIRST), "--seed", str(CI_SEED),
+            "--out", str(out), "--json"]
+    assert fuzz_cli.main([*argv, "--plot"]) == 0
+    captured = capsys.readouterr()
+    summary = json.loads(captured.out.strip().splitlines()[-1])
+    assert summary["resumed"] == CI_SAMPLE  # every case read back: nothing ran
+    plot = out / fuzz_cli.FORCES_PLOT
+    assert f"plot written to {plot}" in captured.err
+    header = plot.read_bytes()[:24]
+    assert header[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (int.from_bytes(header[16:20], "big"), int.from_bytes(header[20:24], "big")) == (
+        990, 1210)  # 9 × 11 in at 110 dpi
+    plot.unlink()
+    assert fuzz_cli.main([*argv[:-3], "--plot"]) == 2  # no --out: nowhere to write it
+    assert "--plot needs --out" in capsys.readouterr().err and not plot.exists()
+
+
 def test_cli_json_last_line_and_exit_status(capsys: pytest.CaptureFixture[str]) -> None:
     assert fuzz_cli.main(["--scenarios", "1", "--seed", "1", "--json"]) == 0  # case 0: a lane
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
