@@ -46,6 +46,7 @@ def _add_simulate(sub: argparse._SubParsersAction[_Parser]) -> None:
 
 def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], int]]]:
     from rakectl.api import operator as cli_ops
+    from rakectl.api import survey as cli_survey
 
     parser = _Parser(prog="rakectl", description=__doc__.splitlines()[0] if __doc__ else None)
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -60,6 +61,7 @@ def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], i
     client.add_argument("--socket", help="the daemon's command socket")
     client.add_argument("--json", action="store_true", help="the reply as JSON on stdout")
     ops = cli_ops.add_parsers(sub, client)
+    ops.update(cli_survey.add_parser(sub, client))
     sub.add_parser("config-docs", help="print the configuration reference (Markdown)")
     sub.add_parser("api-docs", help="print the command API reference (Markdown)")
     sub.add_parser("fuzz", help="closed-loop safety campaign over random scenarios; "

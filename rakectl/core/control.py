@@ -129,6 +129,12 @@ class TipController:
     def f_hat_n(self) -> float:
         return self.impedance.f_hat_n
 
+    def tines_lift_m(self, mount_force_n: float) -> float:
+        """The most the tines may stand above the tip: the mount compressed by the vertical
+        force read from the currents, plus ``descent.mount_force_margin_n`` for that
+        reading's lag (what the ground map and a survey mark take)."""
+        return (max(0.0, mount_force_n) + self._lift_margin_n) * self._lift_m_per_n
+
     def reset(self, r_m: float, theta_rad: float, keep_servo: bool = False) -> None:
         """Start from rest at the measured pose (on arming); ``keep_servo`` keeps the joint
         loops' integrators (which carry the arm's weight) and only restarts the impedance."""
@@ -173,8 +179,7 @@ class TipController:
             if not math.isfinite(mount_force_n):
                 self.fault = "non-finite mount force for the ground map"
                 return 0.0, 0.0
-            lift_m = (max(0.0, mount_force_n) + self._lift_margin_n) * self._lift_m_per_n
-            descent.map.track(self.reach_m, lift_m - self.depth_m)
+            descent.map.track(self.reach_m, self.tines_lift_m(mount_force_n) - self.depth_m)
             depth_rate = (r_vel_m_per_s * math.sin(theta_rad)
                           + r_m * math.cos(theta_rad) * theta_vel_rad_per_s)
             self.x_ref_m = descent.clip(self.x_ref_m, reach_ref_m, self.reach_m, self.depth_m,

@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import csv
 import json
-import socket
 import subprocess
 import sys
-import threading
 from pathlib import Path
 
 import pytest
+
+from tests.scripted_daemon import ScriptedDaemon
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "config" / "scenarios" / "paper-fig5.yaml"
@@ -133,41 +133,6 @@ def test_the_progress_line_clears_what_a_longer_line_left() -> None:
     assert progress_line("cycle 2", tty=False, finished=False) == "cycle 2\n"
 
 
-class _ScriptedDaemon:
-    """A Unix socket that answers each request line with the next scripted reply (what
-    the daemon's status says as its checks before arming run), and records the requests."""
-
-    def __init__(self, path: Path, replies: list[dict[str, object]]) -> None:
-        self.requests: list[str] = []
-        self._replies = iter(replies)
-        self._server = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        self._server.bind(str(path))
-        self._server.listen(4)
-        self._server.settimeout(0.05)
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._serve, daemon=True)
-        self._thread.start()
-
-    def _serve(self) -> None:
-        while not self._stop.is_set():
-            try:
-                connection, _ = self._server.accept()
-            except TimeoutError:
-                continue
-            connection.settimeout(5.0)
-            with connection, connection.makefile("rwb") as stream:
-                for line in stream:
-                    self.requests.append(json.loads(line)["cmd"])
-                    stream.write(json.dumps({"ok": True, **next(self._replies)}).encode()
-                                 + b"\n")
-                    stream.flush()
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(5.0)
-        self._server.close()
-
-
 _W_RUNNING = {"passed": None, "message": "running"}
 _W_PASSED = {"passed": True, "message": "weight check: unbalanced weight 19.9 N measured "
                                         "matches 19.6 N configured"}
@@ -198,7 +163,7 @@ def test_arm_prints_each_check_as_it_starts_and_its_verdict(
     runs, each announced once and followed by its verdict; a check that passed before
     (the weight, after a reset) is not announced again."""
     path = tmp_path / "rakectl.sock"
-    daemon = _ScriptedDaemon(path, replies)
+    daemon = ScriptedDaemon(path, replies)
     try:
         done = _rakectl("arm", "--socket", str(path))
     finally:

@@ -1,0 +1,166 @@
+"""`rakectl survey`: a mark taken on the daemon driving the emulated rake stands at or
+above the true surface; the marks file, its errors, and the configuration it prints."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from drivers.objects import Contact
+from drivers.soil import original_surface_height_m
+from rakectl.api import survey
+from rakectl.api.schema import decode_request
+from rakectl.bench.tick import LockstepRig
+from rakectl.config.loader import load_settings
+from rakectl.config.settings import Settings
+from rakectl.daemon.handlers import make_handler
+from rakectl.daemon.states import DaemonState
+from rakectl.errors import ApiError, ConfigError
+from tests.scripted_daemon import ScriptedDaemon
+
+ROOT = Path(__file__).resolve().parents[2]
+# what the mark may stand above the truth besides the declared error: the tine mount's
+# compression by the currents' force reading and its 3 N margin (0.6 mm at 5 kN/m)
+SLACK_M = 1.5e-3
+
+
+def _command(rig: LockstepRig, line: bytes) -> dict[str, Any]:
+    request = decode_request(line)
+    assert not isinstance(request, str), request
+    return dict(make_handler(rig.daemon)(request))
+
+
+def _rakectl(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "rakectl", *args], capture_output=True,
+                          text=True, timeout=120, cwd=ROOT)
+
+
+@pytest.mark.parametrize("late_m", [0.0, 2e-3])
+def test_a_mark_stands_at_or_above_the_true_surface(tmp_path: Path, late_m: float) -> None:
+    """The engineer's part played by the emulator's truth: jog down (0.1 m/s, then 10 mm/s
+    in the last 20 mm) until the tines are ``late_m`` into the soil, stop, and mark with
+    that error declared. The point is at or above the soil's true surface there, by at
+    most the mount's share; a mark while jogging is refused, naming the state. The mark
+    goes through the CLI, over a real socket, from the daemon's own status reply."""
+    rig = LockstepRig(tmp_path)
+    try:
+        rig.bring_up()
+        rig.until(DaemonState.DISARMED, 3000)
+        _command(rig, b'{"cmd": "arm"}')
+        rig.until(DaemonState.ARMED, 8000)
+        emulator = rig.emulator
+        soil = emulator.config.physics.ground.soil
+        for k in range(20_000):
+            reach_m, height_m = emulator.plant.tine_m()
+            surface_m = original_surface_height_m(soil, reach_m)
+            speed = 0.1 if height_m - surface_m > 0.02 else 0.01
+            if k % 100 == 0:
+                _command(rig, json.dumps({"cmd": "jog", "space": "task",
+                                          "height_m_per_s": -speed}).encode())
+            rig.tick()
+            if height_m <= surface_m - late_m:
+                break
+        assert emulator.ground.truth.contact is Contact.SOIL
+        jogging = _command(rig, b'{"cmd": "status"}')
+        with pytest.raises(ApiError, match="the daemon is jog: mark with the rake held still"):
+            survey.mark_from_status(jogging, late_m)
+        _command(rig, b'{"cmd": "stop"}')
+        for _ in range(300):
+            rig.tick()
+        status = _command(rig, b'{"cmd": "status"}')
+        reach_m, tines_m = emulator.plant.tine_m()
+        surface_m = original_surface_height_m(soil, reach_m)
+    finally:
+        rig.close()
+    assert status["state"] == "hold" and tines_m <= surface_m  # in the soil, held
+    path, marks = tmp_path / "rakectl.sock", tmp_path / "survey.yaml"
+    daemon = ScriptedDaemon(path, [status])
+    try:
+        done = _rakectl("survey", "mark", "--socket", str(path), "--file", str(marks),
+                        "--error-mm", f"{late_m * 1e3:g}")
+    finally:
+        daemon.close()
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith(f"survey: mark 1 in {marks}: reach ")
+    (mark,) = survey.read_marks(marks)
+    assert mark.reach_m == pytest.approx(reach_m, abs=1e-4)  # the tip's: the tines' offset
+    assert surface_m <= mark.point.height_m <= surface_m + late_m + SLACK_M
+
+
+def _mark(reach_m: float, height_m: float, error_m: float = 1e-3) -> survey.Mark:
+    return survey.Mark(reach_m, height_m, error_m)
+
+
+def test_show_prints_the_configuration_the_daemon_loads(tmp_path: Path) -> None:
+    """Marks in any order; two at one reach keep the higher; the printed block is the
+    configuration's descent.survey, as load_settings reads it."""
+    marks = tmp_path / "survey.yaml"
+    for m in (_mark(1.2, 0.010), _mark(0.8, -0.004), _mark(1.0, 0.002), _mark(1.0, 0.006)):
+        survey.append_mark(marks, m)
+    assert len(survey.read_marks(marks)) == 4
+    done = _rakectl("survey", "show", "--file", str(marks))
+    assert done.returncode == 0, done.stderr
+    assert "3 points, reach 0.800–1.200 m, widest gap 200 mm" in done.stderr
+    config = tmp_path / "rakectl.yaml"
+    config.write_text(done.stdout)
+    loaded: Settings = load_settings(config)
+    assert [(p.reach_m, p.height_m) for p in loaded.descent.survey] == [
+        (0.8, -0.003), (1.0, 0.007), (1.2, 0.011)]
+
+
+def test_a_point_above_the_ceiling_is_named_and_nothing_is_printed(tmp_path: Path) -> None:
+    marks, config = tmp_path / "survey.yaml", tmp_path / "rakectl.yaml"
+    survey.append_mark(marks, _mark(0.9, 0.01))
+    survey.append_mark(marks, _mark(1.1, 0.03))
+    config.write_text("descent:\n  ceiling_m: 0.02\n")
+    done = _rakectl("survey", "show", "--file", str(marks), "--config", str(config))
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr.strip() == (f"rakectl: error: {marks}: descent.survey[1].height_m must "
+                                   "be <= descent.ceiling_m (0.02 m), got 0.031")
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("marks: 3\n", "no 'marks' list"),
+    ("marks:\n  - {reach_m: 1.0, tines_height_max_m: 0.0}\n", "marks[0]: expected reach_m"),
+    ("marks:\n  - {reach_m: .nan, tines_height_max_m: 0.0, error_m: 0.001}\n",
+     "marks[0]: a number is not finite"),
+    ("marks: [\n", "not a survey file"),
+])
+def test_a_bad_marks_file_is_named_and_not_written(tmp_path: Path, text: str,
+                                                   message: str) -> None:
+    marks = tmp_path / "survey.yaml"
+    marks.write_text(text)
+    with pytest.raises(ConfigError, match=f"^{marks}: .*{message}".replace("[", r"\[")):
+        survey.append_mark(marks, _mark(1.0, 0.0))
+    assert marks.read_text() == text  # the engineer's marks stay as they were
+
+
+@pytest.mark.parametrize(("reply", "error_m", "message"), [
+    ({"state": "hold", "tip": {"reach_m": 1.0, "tines_height_max_m": 0.0}}, -1e-3,
+     "--error-mm must be within 0–50 mm, got -1"),
+    ({"state": "hold", "tip": {"reach_m": 1.0, "tines_height_max_m": 0.0}}, math.nan,
+     "--error-mm must be within"),
+    ({"state": "fault", "tip": {"reach_m": 1.0, "tines_height_max_m": 0.0}}, 1e-3,
+     "the daemon is fault"),
+    ({"state": "armed", "tip": {"reach_m": None, "tines_height_max_m": None}}, 1e-3,
+     "reports no pose"),
+    ({"state": "armed", "tip": {"reach_m": 1.0, "depth_m": 0.0}}, 1e-3, "reports no pose"),
+])
+def test_a_mark_the_status_cannot_give_is_refused(reply: dict[str, Any], error_m: float,
+                                                  message: str) -> None:
+    with pytest.raises(ApiError, match=message):
+        survey.mark_from_status(reply, error_m)
+
+
+def test_marking_without_a_daemon_writes_nothing(tmp_path: Path) -> None:
+    marks = tmp_path / "survey.yaml"
+    done = _rakectl("survey", "mark", "--socket", str(tmp_path / "none.sock"),
+                    "--file", str(marks), "--error-mm", "2")
+    assert done.returncode == 1 and "cannot reach the rakectl daemon" in done.stderr
+    assert not marks.exists()
