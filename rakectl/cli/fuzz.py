@@ -78,9 +78,14 @@ def banner(args: argparse.Namespace, runs_on: str, physics: str) -> str:
 
 def human(report: Report) -> str:
     s = report.summary()
-    resumed = f", {s['resumed']} of them read back from an earlier run" if s["resumed"] else ""
-    lines = [f"{s['scenarios']} scenarios in {s['wall_time_s']:.0f} s "
-             f"({s['scenarios_per_min']:.0f}/min{resumed})",
+    if s["resumed"] == s["scenarios"]:  # nothing ran: no rate to give
+        ran = f"{s['scenarios']} scenarios, all read back from an earlier run (none ran)"
+    else:
+        resumed = f", {s['resumed']} of them read back from an earlier run" \
+            if s["resumed"] else ""
+        ran = (f"{s['scenarios']} scenarios in {s['wall_time_s']:.0f} s "
+               f"({s['scenarios_per_min']:.0f}/min{resumed})")
+    lines = [ran,
              f"largest true vertical force on the ground: {s['f_true_z_max_n']:.1f} N "
              f"(limit {FORCE_LIMIT_N:g} N)",
              f"largest force on a mine: plate {s['f_mine_plate_max_n']:.1f} N, side "

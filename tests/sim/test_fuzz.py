@@ -211,6 +211,7 @@ def test_the_cli_plots_a_finished_campaign_without_running_it(
     captured = capsys.readouterr()
     summary = json.loads(captured.out.strip().splitlines()[-1])
     assert summary["resumed"] == CI_SAMPLE  # every case read back: nothing ran
+    assert f"{CI_SAMPLE} scenarios, all read back from an earlier run (none ran)" in captured.out
     plot = out / fuzz_cli.FORCES_PLOT
     assert f"plot written to {plot}" in captured.err
     header = plot.read_bytes()[:24]
