@@ -7,6 +7,7 @@ from typing import Any
 
 from rakectl.errors import RakeError
 from rakectl.limits import FORCE_LIMIT_N
+from rakectl.sim.cases import FAULT_KINDS
 from rakectl.sim.results import CaseResult, Report
 from rakectl.sim.simulate import SimulationResult
 
@@ -142,7 +143,7 @@ def plot_bench_run(truth_csv: Path, path: Path,
 READINGS = (("ground, vertical", "f_true_z_max_n"), ("mine, plate", "f_mine_plate_max_n"),
             ("mine, side", "f_mine_side_max_n"), ("stone, side", "f_stone_side_max_n"),
             ("root, side", "f_root_side_max_n"))
-FAULTS = ("none", "feedback", "command", "drive", "stall", "kill")
+FAULTS = ("none", *FAULT_KINDS)
 
 
 def _exceedance(ax: Any, values: list[float], **style: Any) -> None:

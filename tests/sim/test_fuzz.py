@@ -223,6 +223,17 @@ def test_the_cli_plots_a_finished_campaign_without_running_it(
     assert "--plot needs --out" in capsys.readouterr().err and not plot.exists()
 
 
+@pytest.mark.filterwarnings("error")
+def test_a_campaign_whose_sites_were_all_refused_still_plots(tmp_path: Path) -> None:
+    from rakectl.sim.plot import plot_campaign
+
+    refused = results.CaseResult(1, 0, "plunge", 0.0, 0.0, 0, False, False, 0.0, (), 0, 0,
+                                 0, 0, "", declared_site=True, refused="leaves no step")
+    plot_campaign(results.Report(1, (refused,), refused, cases.generate(1, 0), 0.0),
+                  tmp_path / "forces.png")
+    assert (tmp_path / "forces.png").read_bytes()[:4] == b"\x89PNG"
+
+
 def test_cli_json_last_line_and_exit_status(capsys: pytest.CaptureFixture[str]) -> None:
     assert fuzz_cli.main(["--scenarios", "1", "--seed", "1", "--json"]) == 0  # case 0: a lane
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
