@@ -181,8 +181,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.plot:
         from rakectl.sim.plot import plot_campaign
 
+        declared = ", sites declared" if declares_sites(Family(args.family),
+                                                        args.declared_site) else ""
         plot_campaign(report, args.out / FORCES_PLOT, f"seed {args.seed}, cases "
-                      f"{args.first}..{args.first + args.scenarios - 1} ({args.family})")
+                      f"{args.first}..{args.first + args.scenarios - 1} "
+                      f"({args.family}{declared})")
         print(f"fuzz: plot written to {args.out / FORCES_PLOT}", file=sys.stderr)
     print(human(report))
     if args.json:
