@@ -54,11 +54,15 @@ class Mark:
         return SurveyPoint(self.reach_m, self.tines_height_max_m + self.error_m)
 
 
-def mark_from_status(reply: Mapping[str, Any], error_m: float) -> Mark:
-    """The mark a ``status`` reply gives, or an ApiError saying why it gives none."""
+def check_error(error_m: float) -> None:
     if not (math.isfinite(error_m) and 0.0 <= error_m <= MAX_ERROR_MM * 1e-3):
         raise ApiError(f"survey: --error-mm must be within 0–{MAX_ERROR_MM:g} mm, got "
                        f"{error_m * 1e3:g}")
+
+
+def mark_from_status(reply: Mapping[str, Any], error_m: float) -> Mark:
+    """The mark a ``status`` reply gives, or an ApiError saying why it gives none."""
+    check_error(error_m)
     state = reply.get("state")
     if state not in STILL_STATES:
         raise ApiError(f"survey: the daemon is {state}: mark with the rake held still "
@@ -135,6 +139,7 @@ def survey_yaml(points: Sequence[SurveyPoint]) -> str:
 
 
 def mark(args: argparse.Namespace) -> int:
+    check_error(args.error_mm * 1e-3)  # before anything is asked of the daemon
     reply = call(socket_path(args.socket), {"cmd": "status"})
     new = mark_from_status(reply, args.error_mm * 1e-3)
     count = append_mark(args.file, new)
