@@ -144,6 +144,7 @@ READINGS = (("ground, vertical", "f_true_z_max_n"), ("mine, plate", "f_mine_plat
             ("mine, side", "f_mine_side_max_n"), ("stone, side", "f_stone_side_max_n"),
             ("root, side", "f_root_side_max_n"))
 FAULTS = ("none", *FAULT_KINDS)
+AXIS_LIMITS = 3.0  # the force axis ends at this many times the limit
 
 
 def _exceedance(ax: Any, values: list[float], **style: Any) -> None:
@@ -186,18 +187,23 @@ def plot_campaign(report: Report, path: Path, title: str = "") -> None:
         _exceedance(ax_kind, values, label=f"{kind} ({len(values)})")
     ax_kind.set_title("(c) the largest on the ground or a mine, by command")
     ax_kind.set_xlabel("force [N]")
-    largest = max((max(_bounded(r), r.f_stone_side_max_n, r.f_root_side_max_n) for r in ran),
-                  default=0.0)
+    readings = [max(_bounded(r), r.f_stone_side_max_n, r.f_root_side_max_n) for r in ran]
+    cap_n = AXIS_LIMITS * FORCE_LIMIT_N  # beyond it the margins below the limit would not show
+    beyond = [f for f in readings if f > cap_n]
+    if beyond:
+        ax_body.set_title(f"(a) each case's largest force, by what carried it ({len(beyond)} "
+                          f"case(s) beyond the axis, up to {max(beyond):.0f} N)")
     for ax in (ax_body, ax_fault, ax_kind):
         ax.axvline(FORCE_LIMIT_N, color="k", lw=1.5,
                    label=f"{FORCE_LIMIT_N:g} N limit (ground, mines)")
         ax.set_yscale("log")
         ax.set_ylabel("cases reading ≥ F")
-        ax.set_xlim(0.0, 1.05 * max(largest, FORCE_LIMIT_N))
+        ax.set_xlim(0.0, 1.05 * max(FORCE_LIMIT_N, min(max(readings, default=0.0), cap_n)))
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(loc="upper right", fontsize="small")
     fig.suptitle(f"{title}{': ' if title else ''}{len(ran)} cases run, "
-                 f"{len(report.unsafe)} over the limit, {report.mine_activations} mines fired")
+                 f"{len(report.unsafe)} over the limit, {report.mine_activations} mines fired",
+                 fontsize="medium")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
