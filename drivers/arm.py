@@ -357,7 +357,10 @@ class ArmPlant:
                 height_m + k * tines.step_s * height_vel
             if parts > 1:
                 e, d = tines.solve(ground, at_reach, at_height, reach_vel, height_vel)
+            solved_d = d
             d = tines.hooked(ground, at_reach + e, at_height, height_vel, d)
+            if tines.under >= 0 and d != solved_d:  # a bottom holds them: balance e there
+                e = tines.rebalanced(ground, at_reach, at_height, reach_vel, height_vel, e, d)
             tine_vel = (reach_vel + (e - tines.offset_m) / tines.step_s,
                         height_vel + (d - tines.compression_m) / tines.step_s)
             side_n, down_n = tines.commit(e, d, reach_vel)

@@ -301,6 +301,34 @@ class TineMount:
         self.hooked_on = -1
         return d
 
+    def rebalanced(self, ground: Any, reach_m: float, height_m: float, reach_vel: float,
+                   height_vel: float, e: float, d: float) -> float:
+        """e for tines an object's bottom holds at ``d`` (:meth:`hooked` moved them there
+        from where :meth:`solve` balanced them sideways): the sideways balance solved
+        again at this d, every side or edge law taken again where the tines are until
+        they read what it assumed. A bottom is flat and pushes only down, so along the
+        reach the tines stay in balance between the mount, the soil's drag and any edge
+        below them; left at the offset solved for the higher d, a stone's corner under a
+        mine's bottom pushed them 1165 N along the reach while the mount carried 17 N
+        (20261130/2428)."""
+        h, start = self.step_s, (self.offset_m, self.compression_m)
+        v_lin = reach_vel + (e - self.offset_m) / h
+        coupled: list[_Coupled] | None = None  # None: not yet solved at this d
+        for _ in range(_SIDE_ROUNDS):
+            inside = {i: law for i, law in ground.normal_laws(reach_m + e, height_m + d, h)}
+            if coupled is not None and len(inside) == len(coupled) and all(
+                    c.index in inside
+                    and abs(c.penetration_m(e, d) - inside[c.index].depth_m) < _SETTLED_M
+                    for c in coupled):
+                break
+            kept = [c for c in coupled or () if c.index not in inside]
+            coupled = kept + [_Coupled(i, law, (e, d), start, reach_vel, height_vel, h)
+                              for i, law in inside.items()]
+            drag = _Drag(*ground.drag_law(reach_m + e, height_m + d, v_lin))
+            e = self._sideways(coupled, drag, reach_vel, d, e)
+            v_lin = reach_vel + (e - self.offset_m) / h
+        return e
+
     def commit(self, e: float, d: float, reach_vel: float) -> tuple[float, float]:
         """Take (e, d) as the new state; the mount's forces (sideways, vertical) on the arm."""
         h = self.step_s
