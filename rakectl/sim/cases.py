@@ -24,9 +24,11 @@ covered at its bounds:
 Grounds: one to three soil layers two decades of stiffness apart; a fifth
 of them a hard crust over soft soil, a sixth of them out of the reference
 range (ten times softer or stiffer, weaker or stronger); heterogeneity, slope,
-waves; stones, roots and mines (80–100 N fuses) anywhere along the lane, and in
+waves; stones, roots and mines (80–100 N fuses) anywhere along the lane, their
+depths drawn below the surface where each lies (:mod:`rakectl.sim.scene`: nothing
+floats), some stones and mines partly exposed (up to 20 mm out of the soil); and in
 half of the lanes and strokes a mine whose plate is at one of the cut depths or
-up to 5 mm above it; some mines partly exposed (plate above the ground).
+up to 5 mm above it (sunk, if need be, until its bottom is 10 mm in the soil).
 
 Two more families aim where random placement rarely does
 (``generate(seed, index, family)``): ``edge`` (:mod:`rakectl.sim.edge`),
@@ -57,6 +59,7 @@ import numpy as np
 from drivers.ground_params import BuriedObjects, GroundParams, MineParams, RootParams, StoneParams
 from drivers.soil import original_surface_height_m
 from drivers.soil_params import SoilLayer, SoilParams, SurfaceWave
+from rakectl.sim.scene import laid_in, standing
 
 PLUNGE_END_DEPTH_M = 0.15
 LANE_DURATION_S = 12.0  # cap of one lane or stroke case (simulated)
@@ -205,9 +208,11 @@ def draw_mine(rng: np.random.Generator, reach_m: float, depth_m: float) -> MineP
 
 
 def _objects(rng: np.random.Generator, near_m: float, far_m: float,
-             cut_depths_m: tuple[float, ...] = ()) -> BuriedObjects:
-    """Stones, roots and mines between ``near_m`` and ``far_m``; with ``cut_depths_m``,
-    half the time one more mine with its plate at one of them or up to 5 mm above."""
+             cut_depths_m: tuple[float, ...] = ()) -> tuple[BuriedObjects, MineParams | None]:
+    """Stones, roots and mines between ``near_m`` and ``far_m``, their depths below the
+    surface where they will lie (:func:`rakectl.sim.scene.laid_in`); with ``cut_depths_m``,
+    half the time one more mine with its plate at one of them (from level 0, as the lane
+    counts them) or up to 5 mm above, apart."""
     def reach() -> float:
         return float(rng.uniform(near_m - 0.03, far_m + 0.03))
 
@@ -218,15 +223,17 @@ def _objects(rng: np.random.Generator, near_m: float, far_m: float,
         return float(rng.uniform(-0.02, 0.0)) if rng.uniform() < 1 / 6 else \
             float(rng.uniform(0.01, 0.1))
 
-    stones = tuple(StoneParams(reach(), float(rng.uniform(0.0, 0.12)),
+    # a stone's top up to 20 mm out of the soil (a seventh of them), as a mine's
+    stones = tuple(StoneParams(reach(), float(rng.uniform(-0.02, 0.12)),
                                float(rng.uniform(0.03, 0.15)), float(rng.uniform(0.03, 0.1)))
                    for _ in range(count()))
     roots = tuple(RootParams(reach(), float(rng.uniform(0.01, 0.1))) for _ in range(count()))
-    mines = [draw_mine(rng, reach(), mine_depth()) for _ in range(count())]
+    mines = tuple(draw_mine(rng, reach(), mine_depth()) for _ in range(count()))
+    at_cut = None
     if cut_depths_m and rng.uniform() < 0.5:
         depth_m = float(rng.choice(cut_depths_m)) - float(rng.uniform(0.0, 0.005))
-        mines.append(draw_mine(rng, float(rng.uniform(near_m, far_m)), depth_m))
-    return BuriedObjects(stones, roots, tuple(mines))
+        at_cut = draw_mine(rng, float(rng.uniform(near_m, far_m)), depth_m)
+    return BuriedObjects(stones, roots, mines), at_cut
 
 
 def _clear_of(objects: BuriedObjects, reach_m: float, depth_m: float,
@@ -323,15 +330,19 @@ def generate(seed: int, index: int, family: Family = Family.RANDOM) -> FuzzCase:
     kind = list(CommandKind)[index % 4]
     command = _command(rng, kind)
     if kind is CommandKind.PLUNGE:
-        objects = _objects(rng, command.reach_far_m - 0.08, command.reach_far_m + 0.08)
+        objects, at_cut = _objects(rng, command.reach_far_m - 0.08, command.reach_far_m + 0.08)
         if objects.mines and rng.uniform() < 0.5:  # right above a mine
             command = dataclasses.replace(command, reach_far_m=objects.mines[0].reach_m,
                                           reach_near_m=objects.mines[0].reach_m)
     elif kind is CommandKind.JOG:
-        objects = _objects(rng, command.reach_far_m - 0.15, command.reach_far_m + 0.15)
+        objects, at_cut = _objects(rng, command.reach_far_m - 0.15, command.reach_far_m + 0.15)
     else:
-        objects = _objects(rng, command.reach_near_m, command.reach_far_m, _cut_depths(command))
+        objects, at_cut = _objects(rng, command.reach_near_m, command.reach_far_m,
+                                   _cut_depths(command))
     soil = draw_soil(rng)
+    objects = laid_in(objects, soil)  # a scene that can stand: nothing floats
+    if at_cut is not None:
+        objects = dataclasses.replace(objects, mines=(*objects.mines, standing(at_cut, soil)))
     surface_m = original_surface_height_m(soil, command.reach_far_m)
     if kind is CommandKind.JOG and command.start_height_m < 0.0:  # it starts in the soil
         objects = _clear_of(objects, command.reach_far_m, -(surface_m + command.start_height_m))

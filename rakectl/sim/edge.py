@@ -28,6 +28,7 @@ from rakectl.sim.cases import (
     draw_soil,
     height_clear_of,
 )
+from rakectl.sim.scene import laid_in
 
 EDGE_BAND_M = 0.004  # an edge case's path passes this close to the object's side, either way
 
@@ -56,9 +57,10 @@ def edge_case(seed: int, index: int) -> FuzzCase:
     0.05–0.25 m/s, the impedance on or off) whose path passes within
     :data:`EDGE_BAND_M` of an object's side (or over a root's round side), over a mine
     (indices 0, 1 mod 4), a stone (2 mod 4) or a root (3 mod 4), its top 5–100 mm below
-    ground level, on the campaign's soils; faults and supervision as in the random
-    family. (The operator's jog is left to the random family: in soil it descends a few
-    millimetres a second and stops where the force rises.)"""
+    the surface where it lies (:func:`~rakectl.sim.scene.laid_in`), on the campaign's
+    soils; faults and supervision as in the random family. (The operator's jog is left
+    to the random family: in soil it descends a few millimetres a second and stops where
+    the force rises.)"""
     rng = np.random.default_rng([seed, index, 2])
     kind = 0 if index % 4 < 2 else index % 4 - 1
     reach_m = float(rng.uniform(0.95, 1.35))
@@ -69,7 +71,7 @@ def edge_case(seed: int, index: int) -> FuzzCase:
     # > 0: the path over it; a root's round side spans its radius (10 mm)
     inside_m = float(rng.uniform(-EDGE_BAND_M, 0.01 if kind == 2 else EDGE_BAND_M))
     side_m = reach_m - inside_m if toward_robot else reach_m + inside_m
-    objects = edge_object(rng, kind, side_m, toward_robot, top_depth_m)
+    objects = laid_in(edge_object(rng, kind, side_m, toward_robot, top_depth_m), soil)
     command = MotionCommand(CommandKind.PLUNGE, reach_m, reach_m, PLUNGE_END_DEPTH_M,
                             PLUNGE_END_DEPTH_M, float(rng.uniform(0.05, 0.25)), 0.0,
                             float(rng.uniform(0.02, 0.1)), bool(rng.integers(0, 2)))
