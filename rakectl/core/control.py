@@ -132,8 +132,10 @@ class TipController:
     def tines_lift_m(self, mount_force_n: float) -> float:
         """The most the tines may stand above the tip: the mount compressed by the vertical
         force read from the currents, plus ``descent.mount_force_margin_n`` for that
-        reading's lag (what the ground map and a survey mark take)."""
-        return (max(0.0, mount_force_n) + self._lift_margin_n) * self._lift_m_per_n
+        reading's lag (what the ground map and a survey mark take); a non-finite reading
+        gives a non-finite lift (``max(0.0, nan)`` would read it as no force)."""
+        force_n = 0.0 if mount_force_n < 0.0 else mount_force_n
+        return (force_n + self._lift_margin_n) * self._lift_m_per_n
 
     def reset(self, r_m: float, theta_rad: float, keep_servo: bool = False) -> None:
         """Start from rest at the measured pose (on arming); ``keep_servo`` keeps the joint

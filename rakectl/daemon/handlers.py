@@ -78,11 +78,12 @@ def _tip(daemon: Daemon) -> dict[str, float | None]:
     """The tip's pose, and the highest the tines may stand above ground level 0 (the tip
     plus the mount's compression: what a survey mark takes, rakectl.api.survey)."""
     fb = daemon.client.feedback
-    lift_m = daemon.controller.tines_lift_m(daemon.supervisor.f_current_n)
-    if not (math.isfinite(fb.r_m) and math.isfinite(fb.theta_rad) and math.isfinite(lift_m)):
+    if not (math.isfinite(fb.r_m) and math.isfinite(fb.theta_rad)):
         return {"reach_m": None, "depth_m": None, "tines_height_max_m": None}
     reach_m, depth_m = daemon.tip_now()
-    return {"reach_m": reach_m, "depth_m": depth_m, "tines_height_max_m": lift_m - depth_m}
+    lift_m = daemon.controller.tines_lift_m(daemon.supervisor.f_current_n)
+    return {"reach_m": reach_m, "depth_m": depth_m,
+            "tines_height_max_m": _finite(lift_m - depth_m)}  # the pose stands without it
 
 
 def status(daemon: Daemon) -> dict[str, Any]:

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -22,9 +20,9 @@ from rakectl.config.settings import Settings
 from rakectl.daemon.handlers import make_handler
 from rakectl.daemon.states import DaemonState
 from rakectl.errors import ApiError, ConfigError
+from tests.cli_run import run_rakectl
 from tests.scripted_daemon import ScriptedDaemon
 
-ROOT = Path(__file__).resolve().parents[2]
 # what the mark may stand above the truth besides the declared error: the tine mount's
 # compression by the currents' force reading and its 3 N margin (0.6 mm at 5 kN/m)
 SLACK_M = 1.5e-3
@@ -34,11 +32,6 @@ def _command(rig: LockstepRig, line: bytes) -> dict[str, Any]:
     request = decode_request(line)
     assert not isinstance(request, str), request
     return dict(make_handler(rig.daemon)(request))
-
-
-def _rakectl(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "rakectl", *args], capture_output=True,
-                          text=True, timeout=120, cwd=ROOT)
 
 
 @pytest.mark.parametrize("late_m", [0.0, 2e-3])
@@ -82,8 +75,8 @@ def test_a_mark_stands_at_or_above_the_true_surface(tmp_path: Path, late_m: floa
     path, marks = tmp_path / "rakectl.sock", tmp_path / "survey.yaml"
     daemon = ScriptedDaemon(path, [status])
     try:
-        done = _rakectl("survey", "mark", "--socket", str(path), "--file", str(marks),
-                        "--error-mm", f"{late_m * 1e3:g}")
+        done = run_rakectl("survey", "mark", "--socket", str(path), "--file", str(marks),
+                           "--error-mm", f"{late_m * 1e3:g}")
     finally:
         daemon.close()
     assert done.returncode == 0, done.stderr
@@ -104,7 +97,7 @@ def test_show_prints_the_configuration_the_daemon_loads(tmp_path: Path) -> None:
     for m in (_mark(1.2, 0.010), _mark(0.8, -0.004), _mark(1.0, 0.002), _mark(1.0, 0.006)):
         survey.append_mark(marks, m)
     assert len(survey.read_marks(marks)) == 4
-    done = _rakectl("survey", "show", "--file", str(marks))
+    done = run_rakectl("survey", "show", "--file", str(marks))
     assert done.returncode == 0, done.stderr
     assert "3 points, reach 0.800–1.200 m, widest gap 200 mm" in done.stderr
     config = tmp_path / "rakectl.yaml"
@@ -119,7 +112,7 @@ def test_a_point_above_the_ceiling_is_named_and_nothing_is_printed(tmp_path: Pat
     survey.append_mark(marks, _mark(0.9, 0.01))
     survey.append_mark(marks, _mark(1.1, 0.03))
     config.write_text("descent:\n  ceiling_m: 0.02\n")
-    done = _rakectl("survey", "show", "--file", str(marks), "--config", str(config))
+    done = run_rakectl("survey", "show", "--file", str(marks), "--config", str(config))
     assert done.returncode == 2 and done.stdout == ""
     assert done.stderr.strip() == (f"rakectl: error: {marks}: descent.survey[1].height_m must "
                                    "be <= descent.ceiling_m (0.02 m), got 0.031")
@@ -165,8 +158,23 @@ def test_a_mark_the_status_cannot_give_is_refused(reply: dict[str, Any], error_m
 def test_marking_without_a_daemon_or_with_a_bad_error_writes_nothing(
         tmp_path: Path, error_mm: str, expected: str) -> None:
     marks = tmp_path / "survey.yaml"
-    done = _rakectl("survey", "mark", "--socket", str(tmp_path / "none.sock"),
-                    "--file", str(marks), "--error-mm", error_mm)
+    done = run_rakectl("survey", "mark", "--socket", str(tmp_path / "none.sock"),
+                       "--file", str(marks), "--error-mm", error_mm)
     assert done.returncode == 1 and done.stderr.startswith(f"rakectl: error: {expected}")
     assert len(done.stderr.strip().splitlines()) == 1
     assert not marks.exists()
+
+
+def test_a_non_finite_lift_withholds_only_the_mark_height(tmp_path: Path) -> None:
+    """The status reply's tip: a force reading gone non-finite leaves the tines' height
+    unknown (null: no mark can be taken) while the pose, from finite encoders, stands."""
+    rig = LockstepRig(tmp_path)
+    try:
+        rig.bring_up()
+        rig.until(DaemonState.DISARMED, 3000)
+        rig.daemon.supervisor.f_current_n = math.nan
+        tip = _command(rig, b'{"cmd": "status"}')["tip"]
+    finally:
+        rig.close()
+    assert tip["tines_height_max_m"] is None
+    assert math.isfinite(tip["reach_m"]) and math.isfinite(tip["depth_m"])

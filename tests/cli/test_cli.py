@@ -4,25 +4,19 @@ from __future__ import annotations
 
 import csv
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
+from tests.cli_run import run_rakectl
 from tests.scripted_daemon import ScriptedDaemon
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "config" / "scenarios" / "paper-fig5.yaml"
 
 
-def _rakectl(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "rakectl", *args], capture_output=True,
-                          text=True, timeout=120, cwd=ROOT)
-
-
 def test_simulate_the_paper_writes_telemetry_summary_and_plot(tmp_path: Path) -> None:
-    done = _rakectl("simulate", str(PAPER), "--out", str(tmp_path), "--plot", "--json")
+    done = run_rakectl("simulate", str(PAPER), "--out", str(tmp_path), "--plot", "--json")
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout.strip().splitlines()[-1])
     assert summary["f_hat_final_n"] == pytest.approx(14.00, abs=0.05)
@@ -39,8 +33,8 @@ def test_simulate_the_paper_writes_telemetry_summary_and_plot(tmp_path: Path) ->
 
 
 def test_set_changes_the_result(tmp_path: Path) -> None:
-    done = _rakectl("simulate", str(PAPER), "--out", str(tmp_path), "--json",
-                    "--set", "estimator.delay_s=0.02", "--set", "duration_s=10")
+    done = run_rakectl("simulate", str(PAPER), "--out", str(tmp_path), "--json",
+                       "--set", "estimator.delay_s=0.02", "--set", "duration_s=10")
     assert done.returncode == 0, done.stderr
     summary = json.loads(done.stdout.splitlines()[-1])
     assert summary["f_hat_final_n"] == pytest.approx(28.0, abs=0.1)  # K_e v α
@@ -60,7 +54,7 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(
     tmp_path: Path, args: tuple[str, ...], expected: str
 ) -> None:
     out = tmp_path / "out"
-    done = _rakectl("simulate", str(PAPER), "--out", str(out), *args)
+    done = run_rakectl("simulate", str(PAPER), "--out", str(out), *args)
     assert done.returncode == 2
     assert done.stderr.strip() == expected or expected in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1
@@ -70,7 +64,7 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(
 def test_bad_scenario_file_names_file_and_line(tmp_path: Path) -> None:
     bad = tmp_path / "bad.yaml"
     bad.write_text("impedance:\n  mass_kg: 1\n  damping_ns_per_m: -3\n")
-    done = _rakectl("simulate", str(bad), "--out", str(tmp_path / "o"))
+    done = run_rakectl("simulate", str(bad), "--out", str(tmp_path / "o"))
     assert done.returncode == 2
     assert done.stderr.strip() == (
         f"rakectl: error: {bad}:3: impedance.damping_ns_per_m must be > 0, got -3"
@@ -78,29 +72,29 @@ def test_bad_scenario_file_names_file_and_line(tmp_path: Path) -> None:
 
 
 def test_usage_errors_are_one_line() -> None:
-    done = _rakectl("simulate")
+    done = run_rakectl("simulate")
     assert done.returncode == 2
     assert len(done.stderr.strip().splitlines()) == 1
     assert "required" in done.stderr
 
 
 def test_config_docs_and_bench_print_figures() -> None:
-    docs = _rakectl("config-docs")
+    docs = run_rakectl("config-docs")
     assert docs.returncode == 0 and "impedance.mass_kg" in docs.stdout
-    bench = _rakectl("bench", "--ticks", "20000")
+    bench = run_rakectl("bench", "--ticks", "20000")
     assert bench.returncode == 0, bench.stderr
     assert "median" in bench.stdout and "µs" in bench.stdout
 
 
 @pytest.mark.parametrize("command", ["emulator", "fuzz"])
 def test_pass_through_commands_read_their_own_options(command: str) -> None:
-    done = _rakectl(command, "--help")
+    done = run_rakectl(command, "--help")
     assert done.returncode == 0, done.stderr
     assert "usage" in done.stdout.lower()
 
 
 def test_unknown_options_elsewhere_are_one_line_errors() -> None:
-    done = _rakectl("status", "--bogus")
+    done = run_rakectl("status", "--bogus")
     assert done.returncode == 2
     assert "unrecognized arguments: --bogus" in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1
@@ -118,7 +112,7 @@ def test_jog_arguments_are_checked_before_anything_is_sent(tmp_path: Path,
                                                            args: tuple[str, ...],
                                                            expected: str) -> None:
     """No daemon listens on this socket: a checked argument fails first, in one line."""
-    done = _rakectl("jog", "--socket", str(tmp_path / "none.sock"), *args)
+    done = run_rakectl("jog", "--socket", str(tmp_path / "none.sock"), *args)
     assert done.returncode != 0
     assert done.stderr.startswith(f"rakectl: error: {expected}")
     assert len(done.stderr.strip().splitlines()) == 1
@@ -165,7 +159,7 @@ def test_arm_prints_each_check_as_it_starts_and_its_verdict(
     path = tmp_path / "rakectl.sock"
     daemon = ScriptedDaemon(path, replies)
     try:
-        done = _rakectl("arm", "--socket", str(path))
+        done = run_rakectl("arm", "--socket", str(path))
     finally:
         daemon.close()
     assert done.returncode == status, done.stderr

@@ -14,8 +14,6 @@ import os
 import shutil
 import signal
 import socket
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -23,6 +21,7 @@ import pytest
 
 from rakectl.errors import ApiError
 from rakectl.sim.rig import Bench, emulated_bench, namespaces_unavailable
+from tests.cli_run import run_rakectl
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"
 EMULATOR = CONFIG / "emulator-demo.yaml"
@@ -129,11 +128,6 @@ def test_a_loop_that_cannot_keep_time_is_not_armed_in_enforce_mode(tmp_path: Pat
     print(f"\nenforce → {message}")
 
 
-def _cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "rakectl", *args], capture_output=True,
-                          text=True, timeout=60)
-
-
 def test_a_dump_to_a_path_it_cannot_write_is_refused_and_the_loop_goes_on(tmp_path: Path
                                                                           ) -> None:
     """A dump request is refused, with the file and why, when its path cannot be written
@@ -141,13 +135,13 @@ def test_a_dump_to_a_path_it_cannot_write_is_refused_and_the_loop_goes_on(tmp_pa
     with emulated_bench(tmp_path, EMULATOR, DAEMON) as bench:
         _armed(bench)
         socket_path = str(bench.socket)
-        bad = _cli("dump", "--socket", socket_path, "--path", "/nonexistent/x.csv")
+        bad = run_rakectl("dump", "--socket", socket_path, "--path", "/nonexistent/x.csv")
         assert bad.returncode != 0
         assert "cannot dump" in bad.stderr and "/nonexistent/x.csv" in bad.stderr
         assert "No such file or directory" in bad.stderr and len(bad.stderr.splitlines()) == 1
         with pytest.raises(ApiError, match="must be absolute"):
             bench.request("dump", path="relative.csv")
-        good = _cli("dump", "--socket", socket_path, "--path", str(tmp_path / "asked.csv"))
+        good = run_rakectl("dump", "--socket", socket_path, "--path", str(tmp_path / "asked.csv"))
         assert good.returncode == 0, good.stderr
         assert (tmp_path / "asked.csv").read_text().startswith("t_s,state,")
         assert not (tmp_path / "asked.csv.partial").exists()
@@ -175,7 +169,7 @@ def test_the_operator_flow_on_the_cli_with_its_exit_statuses(tmp_path: Path) -> 
             (("shutdown",), 0, "shutdown"),
         ]
         for args, status, text in steps:
-            done = _cli(args[0], *sock, *args[1:])
+            done = run_rakectl(args[0], *sock, *args[1:])
             assert done.returncode == status, (args, done.stdout, done.stderr)
             assert text in done.stdout + done.stderr, (args, done.stdout, done.stderr)
         bench.process.wait(20.0)
@@ -215,7 +209,7 @@ def test_a_drive_that_goes_silent_faults_the_controller(tmp_path: Path) -> None:
     with emulated_bench(tmp_path, EMULATOR, DAEMON, emulator_args=emulator_args) as bench:
         _armed(bench)
         final = bench.wait_for_state(["fault"], 20.0)
-        reset = _cli("reset", "--socket", str(bench.socket))  # the drive is still silent
+        reset = run_rakectl("reset", "--socket", str(bench.socket))  # the drive is still silent
     assert reset.returncode == 1, reset.stdout + reset.stderr
     assert "reset: fault (reset failed: " in reset.stdout and "θ drive" in reset.stdout
     assert "θ drive (node 2)" in final["fault"]
