@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -47,6 +46,7 @@ def _add_simulate(sub: argparse._SubParsersAction[_Parser]) -> None:
 def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], int]]]:
     from rakectl.api import operator as cli_ops
     from rakectl.api import survey as cli_survey
+    from rakectl.cli import bench as cli_bench
 
     parser = _Parser(prog="rakectl", description=__doc__.splitlines()[0] if __doc__ else None)
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -77,7 +77,7 @@ def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], i
                            "files are (installed with the package), or copy them")
     files.add_argument("--copy", type=Path, metavar="DIR", help="copy config/ and systemd/ "
                        "into DIR (refused if DIR already holds them)")
-    _add_bench(sub)
+    cli_bench.add_parser(sub)
     comp = sub.add_parser("compile", help="compile the emulator's physics with mypyc (the "
                           "[fast] extra and a C compiler): the same results, 2.6x less CPU a case; "
                           "used by every process started after it, until the sources change")
@@ -90,45 +90,6 @@ def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], i
     cli_drives.add_parser(sub)
     cli_replay.add_parser(sub)
     return parser, ops
-
-
-def _add_bench(sub: argparse._SubParsersAction[_Parser]) -> None:
-    bench = sub.add_parser("bench", help="benchmarks that print figures (default: the "
-                           "micro-benchmarks; --all: everything, written to BENCHMARKS.md)")
-    what = bench.add_mutually_exclusive_group()
-    what.add_argument("--all", action="store_true", help="loop latency vs cyclictest, "
-                      "cross-process bus, per-tick stages, excavation; writes "
-                      "REPORT/BENCHMARKS.md and one plot per soil")
-    what.add_argument("--loop", action="store_true",
-                      help="the daemon's loop on the emulated bench against cyclictest")
-    what.add_argument("--tick", action="store_true", help="the daemon's tick, stage by stage")
-    what.add_argument("--excavation", action="store_true", help="time to rake a lane to "
-                      "depth in three soils: adaptive vs position control vs fixed speed; "
-                      "rewrites its section of REPORT/BENCHMARKS.md alone")
-    what.add_argument("--profiles", action="store_true", help="the drive client's hot path "
-                      "per drive profile; rewrites its section of REPORT/BENCHMARKS.md alone")
-    what.add_argument("--campaign", action="store_true", help="the safety campaign's speed "
-                      "per core (--cases of its cases on one process); rewrites its section "
-                      "of REPORT/BENCHMARKS.md alone")
-    bench.add_argument("--ticks", type=int, default=200_000,
-                       help="ticks to time (the tick stages use a tenth)")
-    bench.add_argument("--seconds", type=float, default=60.0,
-                       help="per phase of the loop benchmark (--loop, --all)")
-    bench.add_argument("--quick", action="store_true", help="short phases and a short lane: "
-                       "a check that it all runs, not figures")
-    bench.add_argument("--cases", type=int, default=60,
-                       help="campaign cases to time (--campaign, --all)")
-    bench.add_argument("--workers", type=int, default=2, help="processes for excavation runs")
-    bench.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT|local:N",
-                       help="run the excavation runs on a Dask cluster (the [cluster] extra): "
-                       "an existing scheduler, or local:N to start N worker processes here; "
-                       "default: --workers local processes")
-    bench.add_argument("--out", type=Path, default=Path("out/bench-loop"),
-                       help="scratch: the loop benchmark's logs")
-    bench.add_argument("--report", type=Path, default=None, help="where --all writes "
-                       "BENCHMARKS.md (--excavation, --profiles and --campaign their sections) "
-                       "and --all/--excavation the plots (default: bench, out/bench with "
-                       "--quick)")
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -186,116 +147,6 @@ def _cmd_config_docs(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_bench(args: argparse.Namespace) -> int:
-    from rakectl.bench.micro import bench_controller_step, bench_emulator_step
-
-    if not 1 <= args.workers <= 64:
-        raise ConfigError("bench: --workers must be in [1, 64]")
-    if not 1 <= args.cases <= 100_000:
-        raise ConfigError("bench: --cases must be in [1, 100000]")
-    if args.scheduler is not None:
-        from rakectl.sim.parallel import local_workers
-
-        if not (args.all or args.excavation):
-            raise ConfigError("bench: --scheduler is for the excavation runs (--excavation, "
-                              "--all)")
-        local_workers(args.scheduler)  # a bad one is named now, not after the other parts
-    report = args.report or Path("bench" if (args.all or args.excavation or args.campaign)
-                                 and not args.quick else "out/bench")
-    if args.all or args.excavation or args.tick:
-        return _cmd_bench_parts(args, report)
-    if args.profiles:
-        return _cmd_bench_profiles(args, Path(args.report or "bench"))
-    if args.campaign:
-        return _cmd_bench_campaign(args, report)
-    if args.loop:
-        from rakectl.bench.loop import run_bench
-
-        if not 1.0 <= args.seconds <= 3600.0:
-            raise ConfigError("bench: --seconds must be in [1, 3600]")
-        print(run_bench(args.seconds, args.out))
-        return 0
-    if args.ticks < 1000:
-        raise ConfigError("bench: --ticks must be >= 1000")
-    from rakectl.bench.hot_path import bench_hot_path
-
-    print(bench_controller_step(args.ticks))
-    print(bench_emulator_step(max(1000, args.ticks // 50)))
-    print(bench_hot_path(max(1000, args.ticks // 10)))
-    return 0
-
-
-def _cmd_bench_profiles(args: argparse.Namespace, report: Path) -> int:
-    from rakectl.bench.hot_path import bench_hot_path, hot_path_section, write_hot_path_section
-    from rakectl.bench.report import BENCHMARKS_FILE, git_revision
-
-    if args.ticks < 1000:
-        raise ConfigError("bench: --ticks must be >= 1000")
-    text = bench_hot_path(args.ticks // 10)
-    print(text)
-    path = report / BENCHMARKS_FILE
-    started = time.strftime("%Y-%m-%d %H:%M %Z")
-    write_hot_path_section(path, hot_path_section("rakectl " + " ".join(args.argv), started,
-                                                  git_revision(), text))
-    print(f"written: section (e) of {path}")
-    return 0
-
-
-def _cmd_bench_campaign(args: argparse.Namespace, report: Path) -> int:
-    from rakectl.bench.report import BENCHMARKS_FILE, git_revision
-    from rakectl.bench.throughput import (
-        compare_physics,
-        format_comparison,
-        write_throughput_section,
-    )
-
-    started = time.strftime("%Y-%m-%d %H:%M %Z")
-    figures = compare_physics(cases=args.cases, progress=_echo_progress)
-    print(format_comparison(figures))
-    path = report / BENCHMARKS_FILE
-    write_throughput_section(path, "rakectl " + " ".join(args.argv), started, git_revision(),
-                             figures)
-    print(f"written: section (f) of {path}")
-    return 0
-
-
-def _cmd_bench_parts(args: argparse.Namespace, report: Path) -> int:
-    tick_ticks = 2000 if args.quick else max(1000, args.ticks // 10)
-    if args.tick:
-        from rakectl.bench.tick import bench_tick, format_tick
-
-        print(format_tick(bench_tick(tick_ticks)))
-        return 0
-    if args.excavation:
-        from rakectl.bench.report import excavate, format_excavation, git_revision, write_excavation
-        from rakectl.sim.plot import pyplot
-
-        pyplot()  # fail before the work, not after it
-        started = time.strftime("%Y-%m-%d %H:%M %Z")
-        result = excavate(args.scheduler, args.workers, args.quick, _echo_progress)
-        print(format_excavation(result))
-        path = write_excavation(result, report, "rakectl " + " ".join(args.argv), started,
-                                git_revision())
-        print(f"written: section (d) of {path} and the plots next to it")
-        return 0
-    from rakectl.bench.report import BenchOptions, run_all
-    from rakectl.sim.plot import pyplot
-
-    pyplot()
-    seconds = 5.0 if args.quick else args.seconds
-    if not 1.0 <= seconds <= 3600.0:
-        raise ConfigError("bench: --seconds must be in [1, 3600]")
-    command = "rakectl " + " ".join(args.argv)
-    run_all(BenchOptions(command, seconds, tick_ticks, args.quick, args.workers, args.out,
-                         report, args.scheduler, 6 if args.quick else args.cases),
-            lambda line: print(line, flush=True))
-    return 0
-
-
-def _echo_progress(line: str) -> None:
-    print(f"  {line}", file=sys.stderr, flush=True)
-
-
 def _cmd_compile(args: argparse.Namespace) -> int:
     from drivers import compiled
 
@@ -339,6 +190,12 @@ def _cmd_files(args: argparse.Namespace) -> int:
         shutil.copytree(root / name, target)
     print(f"files: config/ and systemd/ copied into {args.copy}")
     return 0
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from rakectl.cli.bench import cmd_bench
+
+    return cmd_bench(args)
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
