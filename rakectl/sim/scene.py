@@ -7,7 +7,7 @@ partly exposed mine drawn from level 0 stood 5–14 mm above a 9 % slope all alo
 bottom, over a stone's corner (20261130/2428). So the campaign draws a depth below
 the surface where the object lies, its lowest point across the object's extent
 (:func:`laid_in`), and a mine placed at a cut depth (counted from level 0, as the lane
-counts it) is sunk until its bottom is :data:`BURIED_BOTTOM_M` in the soil
+counts it) is sunk, if need be, until its bottom is :data:`BURIED_BOTTOM_M` in the soil
 (:func:`standing`).
 """
 
