@@ -39,8 +39,8 @@ from pathlib import Path
 
 from rakectl.errors import ConfigError, RakeError
 
-PHYSICS = ("drivers.arm", "drivers.mount", "drivers.mount_vertical", "drivers.objects",
-           "drivers.ground", "drivers.soil", "drivers.motor")
+PHYSICS = ("drivers.arm", "drivers.mount", "drivers.mount_sideways", "drivers.mount_vertical",
+           "drivers.objects", "drivers.ground", "drivers.soil", "drivers.motor")
 GROUP = "rakectl_physics"  # mypyc's shared library: rakectl_physics__mypyc
 MODE_ENV, CACHE_ENV = "RAKECTL_PHYSICS", "RAKECTL_PHYSICS_CACHE"
 MODES = ("auto", "pure", "compiled")

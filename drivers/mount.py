@@ -15,17 +15,17 @@ collapse, objects' tops with their yield), backward Euler, with an active set
 (:func:`drivers.mount_vertical.compression`).
 
 Sideways the tines' offset e along the reach is solved with it: the soil's drag
-−H·tanh(v/v_s) on the tines (linearized at their last speed: one Newton step of
-a monotone law, so implicit and stable) and every object whose side or rounded
-edge the tines are in (``drivers.objects.NormalLaw``, F = K·p + B·ṗ along the
-normal n). An edge couples the two: eliminating e from the sideways balance
-leaves, for each such object, a vertical law whose stiffness and damping are
-scaled by γ = 1 − n_reach·E₁/n_up (E₁: how e moves with d), which the vertical
-solve takes as it takes any other; e then follows exactly from the sideways
-balance at the solved d (objects piecewise linear, never pulling). Objects the
-solution reaches that were not in the set join it and the substep is solved
-again (a side met within a substep is never read as a penetration spike).
-A side stiffness of 0 keeps the tines rigid sideways (the model before it).
+−H·tanh(v/v_s) on the tines (linearized at their last speed: one Newton step of a
+monotone law, so implicit and stable) and every object whose side or rounded edge
+the tines are in (``drivers.objects.NormalLaw``, F = K·p + B·ṗ along the normal n;
+:func:`drivers.mount_sideways.offset`). An edge couples the two: eliminating e from
+the sideways balance leaves, for each such object, a vertical law whose stiffness
+and damping are scaled by γ = 1 − n_reach·E₁/n_up (E₁: how e moves with d), which
+the vertical solve takes as it takes any other; e then follows exactly from the
+sideways balance at the solved d (objects piecewise linear, never pulling). Objects
+the solution reaches that were not in the set join it and the substep is solved
+again (a side met within a substep is never read as a penetration spike). A side
+stiffness of 0 keeps the tines rigid sideways (the model before it).
 
 Massless tines on a lightly damped mount move fast once let go (F/c: a few m/s
 sideways); the laws are linearized where the tines were, and a rounded edge
@@ -39,6 +39,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from drivers.mount_sideways import SETTLED_M, Coupled, Drag, offset, read_as_assumed, relinearized
 from drivers.mount_vertical import compression
 from drivers.objects import NormalLaw
 from drivers.soil import VerticalLaw
@@ -49,12 +50,9 @@ MAX_SLIDE_M = 2e-5
 MAX_PARTS = 64
 # Rounds of taking the objects' laws again where the sideways solution put the tines.
 _SIDE_ROUNDS = 6
-# A linearized penetration this close to the ground's own reading is taken as settled
-# (0.1 µm: 1 N on a stone), and the drag's linearization once the tines' speed moved less
-# than this between rounds.
-_SETTLED_M = 1e-7
+# The drag's linearization is taken as settled once the tines' speed moved less than this
+# between rounds (the laws' penetrations: mount_sideways.SETTLED_M).
 _SETTLED_M_PER_S = 1e-4
-_NEWTON_STEPS = 60
 # The least force the laws below must put on the mount for tines in an object's bottom to
 # be pushed there by them rather than pulled up by the extended mount alone.
 _PUSHED_N = 1e-6
@@ -63,61 +61,6 @@ _PUSHED_N = 1e-6
 def _bottom_of(law: tuple[int, float, float, float]) -> float:
     """A bottom law's height (``Ground.bottom_laws``: index, bottom, K, B)."""
     return law[1]
-
-
-class _Coupled:
-    """An object's side or edge law linearized where the tines were: its force along the
-    normal is α − β·(n_reach·e + n_up·d), clipped to [0, cap]."""
-
-    __slots__ = ("_reference_m", "alpha", "beta", "cap_n", "damping_ns_per_m", "index",
-                 "n_reach", "n_up", "stiffness_n_per_m")
-
-    def __init__(self, index: int, law: NormalLaw, at: tuple[float, float],
-                 start: tuple[float, float], reach_vel: float, height_vel: float, h: float
-                 ) -> None:
-        """``law`` as read with the tines at offset ``at`` = (e, d); ``start``: the mount's
-        state at the start of the substep (the rate is taken from there)."""
-        n_x, n_z = law.n_reach, law.n_up
-        (e_at, d_at), (e0, d0) = at, start
-        k, b = law.stiffness_n_per_m, law.damping_ns_per_m
-        approach = -(n_x * reach_vel + n_z * height_vel)  # the arm's, before the mount
-        approach_x = max(0.0, -n_x * reach_vel)  # only INTO the face (see Body.vertical_law)
-        approach = approach_x - n_z * height_vel if n_z > 0.0 else approach
-        self.index, self.n_reach, self.n_up, self.cap_n = index, n_x, n_z, law.cap_n
-        self.stiffness_n_per_m, self.damping_ns_per_m = k, b
-        self.beta = k + b / h
-        self.alpha = (k * (law.depth_m + n_x * e_at + n_z * d_at) + b * approach
-                      + b * (n_x * e0 + n_z * d0) / h)
-        self._reference_m = law.depth_m + n_x * e_at + n_z * d_at
-
-    def penetration_m(self, e: float, d: float) -> float:
-        """The penetration this linearization gives with the tines at (e, d)."""
-        return self._reference_m - self.n_reach * e - self.n_up * d
-
-
-class _Drag:
-    """The soil's drag on the tines, −H·tanh(v/v_s), and what a linear solve takes of it."""
-
-    __slots__ = ("resist_n", "smooth_m_per_s")
-
-    def __init__(self, resist_n: float, smooth_m_per_s: float) -> None:
-        self.resist_n, self.smooth_m_per_s = resist_n, smooth_m_per_s
-
-    def at(self, v: float) -> tuple[float, float]:
-        """The drag at speed v and its slope there (≤ 0)."""
-        if self.resist_n <= 0.0:
-            return 0.0, 0.0
-        t = math.tanh(v / self.smooth_m_per_s)
-        return -self.resist_n * t, -self.resist_n * (1.0 - t * t) / self.smooth_m_per_s
-
-    def balance(self, k_h: float, c_h: float, e0: float, reach_vel: float, v_lin: float,
-                h: float) -> tuple[float, float]:
-        """(a, b) of the sideways balance a·e = b (+ Σ n_reach·f of the objects), the drag
-        linearized at the tines' speed ``v_lin``."""
-        force, slope = self.at(v_lin)
-        a = k_h + (c_h - slope) / h
-        b = (c_h - slope) * e0 / h + force + slope * (reach_vel - v_lin)
-        return a, b
 
 
 class TineMount:
@@ -158,13 +101,13 @@ class TineMount:
         """(e, d) at the end of this substep; the state is not yet updated (see commit)."""
         e0, d0, h = self.offset_m, self.compression_m, self.step_s
         start = (e0, d0)
-        coupled = [_Coupled(i, law, start, start, reach_vel, height_vel, h)
+        coupled = [Coupled(i, law, start, start, reach_vel, height_vel, h)
                    for i, law in ground.normal_laws(reach_m + e0, height_m + d0, h)]
         v_lin = self.tine_reach_vel_m_per_s
         d, e = d0, e0
         laws_at = math.nan  # where the vertical laws were taken (the tines' reach)
         for _ in range(_SIDE_ROUNDS):
-            drag = _Drag(*ground.drag_law(reach_m + e, height_m + d, v_lin))
+            drag = Drag(*ground.drag_law(reach_m + e, height_m + d, v_lin))
             a_e, b_e = drag.balance(self.k_h, self.c_h, e0, reach_vel, v_lin, h)
             if math.isnan(laws_at):  # first round: where the linear solve puts the tines
                 e_0, e_1 = self._elimination(coupled, a_e, b_e)
@@ -173,23 +116,17 @@ class TineMount:
                 laws_at = reach_m + e
             d = self._coupled_vertical(ground, coupled, a_e, b_e, laws_at, height_m,
                                        reach_vel, height_vel)
-            e = self._sideways(coupled, drag, reach_vel, d, e)
+            e = offset(self.k_h, self.c_h, h, e0, coupled, drag, reach_vel, d, e)
             v_new = reach_vel + (e - e0) / h
             same_cell = ground.soil.cell_index(laws_at) == ground.soil.cell_index(reach_m + e)
             # the edges are curved and the drag is not linear: take every law again where
             # the tines now are (objects they reach join; ones they left keep their last
             # linearization) until what the solve assumed is what the ground will read
             inside = {i: law for i, law in ground.normal_laws(reach_m + e, height_m + d, h)}
-            settled = (same_cell and len(inside) == len(coupled)
-                       and abs(v_new - v_lin) < _SETTLED_M_PER_S
-                       and all(c.index in inside and abs(c.penetration_m(e, d)
-                                                         - inside[c.index].depth_m) < _SETTLED_M
-                               for c in coupled))
-            if settled:
+            if (same_cell and abs(v_new - v_lin) < _SETTLED_M_PER_S
+                    and read_as_assumed(coupled, inside, e, d)):
                 break
-            kept = [c for c in coupled if c.index not in inside]
-            coupled = kept + [_Coupled(i, law, (e, d), start, reach_vel, height_vel, h)
-                              for i, law in inside.items()]
+            coupled = relinearized(coupled, inside, (e, d), start, reach_vel, height_vel, h)
             v_lin = v_new
         else:  # not settled: the tines sit on a soil cell's edge; hold them in the laws' cell
             soil = ground.soil
@@ -245,7 +182,7 @@ class TineMount:
                       if law.n_up > 0.0}
             settled = read.keys() == inside.keys() and all(
                 abs(law.depth_m - (read[i][0].depth_m - read[i][0].n_up * (d_new - read[i][1])))
-                < _SETTLED_M for i, law in inside.items())
+                < SETTLED_M for i, law in inside.items())
             d = d_new
             if settled:
                 break
@@ -313,19 +250,15 @@ class TineMount:
         (20261130/2428)."""
         h, start = self.step_s, (self.offset_m, self.compression_m)
         v_lin = reach_vel + (e - self.offset_m) / h
-        coupled: list[_Coupled] | None = None  # None: not yet solved at this d
+        coupled: list[Coupled] | None = None  # None: not yet solved at this d
         for _ in range(_SIDE_ROUNDS):
             inside = {i: law for i, law in ground.normal_laws(reach_m + e, height_m + d, h)}
-            if coupled is not None and len(inside) == len(coupled) and all(
-                    c.index in inside
-                    and abs(c.penetration_m(e, d) - inside[c.index].depth_m) < _SETTLED_M
-                    for c in coupled):
+            if coupled is not None and read_as_assumed(coupled, inside, e, d):
                 break
-            kept = [c for c in coupled or () if c.index not in inside]
-            coupled = kept + [_Coupled(i, law, (e, d), start, reach_vel, height_vel, h)
-                              for i, law in inside.items()]
-            drag = _Drag(*ground.drag_law(reach_m + e, height_m + d, v_lin))
-            e = self._sideways(coupled, drag, reach_vel, d, e)
+            coupled = relinearized(coupled or [], inside, (e, d), start, reach_vel, height_vel,
+                                   h)
+            drag = Drag(*ground.drag_law(reach_m + e, height_m + d, v_lin))
+            e = offset(self.k_h, self.c_h, h, self.offset_m, coupled, drag, reach_vel, d, e)
             v_lin = reach_vel + (e - self.offset_m) / h
         return e
 
@@ -348,7 +281,7 @@ class TineMount:
             return mount_n
         return mount_n if mount_n > 0.0 else 0.0
 
-    def _elimination(self, coupled: list[_Coupled], a_e: float, b_e: float
+    def _elimination(self, coupled: list[Coupled], a_e: float, b_e: float
                      ) -> tuple[float, float]:
         """(E₀, E₁) with e = E₀ − E₁·d, every coupled law taken as pressing and elastic."""
         a, b, b_d = a_e, b_e, 0.0
@@ -358,7 +291,7 @@ class TineMount:
             b_d += c.beta * c.n_reach * c.n_up
         return b / a, b_d / a
 
-    def _coupled_vertical(self, ground: Any, coupled: list[_Coupled], a_e: float, b_e: float,
+    def _coupled_vertical(self, ground: Any, coupled: list[Coupled], a_e: float, b_e: float,
                           tine_reach_m: float, height_m: float, reach_vel: float,
                           height_vel: float) -> float:
         """d, with each edge's law folded through the sideways balance into a vertical one;
@@ -381,47 +314,6 @@ class TineMount:
             ref_m = height_m + (constant_n - b_z * (d0 / h - height_vel)) / k_z
             laws.append(VerticalLaw(ref_m, k_z, b_z, c.cap_n * c.n_up, False))
         return self._vertical(laws, height_m, height_vel)
-
-    def _sideways(self, coupled: list[_Coupled], drag: _Drag, reach_vel: float, d: float,
-                  guess: float) -> float:
-        """e from the sideways balance at this d, exactly: the mount, the drag (tanh) and the
-        coupled laws (each pressing, capped or slack). The residual rises strictly with e,
-        so Newton's steps are kept inside a bracket that always holds the root."""
-        e0, h = self.offset_m, self.step_s
-        stiff = self.k_h + self.c_h / h
-        lo, hi = -math.inf, math.inf
-        e = guess
-        for _ in range(_NEWTON_STEPS):
-            v = reach_vel + (e - e0) / h
-            force, slope = drag.at(v)
-            r = stiff * e - self.c_h * e0 / h - force
-            dr = stiff - slope / h
-            for c in coupled:
-                f = c.alpha - c.beta * (c.n_reach * e + c.n_up * d)
-                if f <= 0.0:
-                    continue
-                if f >= c.cap_n:
-                    r -= c.n_reach * c.cap_n
-                else:
-                    r -= c.n_reach * f
-                    dr += c.beta * c.n_reach * c.n_reach
-            if r == 0.0:
-                return e
-            if r > 0.0:
-                hi = e
-            else:
-                lo = e
-            step = e - r / dr
-            if not lo < step < hi:  # Newton left the bracket: halve it (widen it if open)
-                if math.isinf(lo) or math.isinf(hi):
-                    width = max(abs(r / dr), 1e-9)
-                    step = e - 2.0 * width if r > 0.0 else e + 2.0 * width
-                else:
-                    step = 0.5 * (lo + hi)
-            if abs(step - e) < 1e-13:
-                return step
-            e = step
-        return e
 
     def _vertical(self, laws: list[VerticalLaw], height_m: float, height_vel_m_per_s: float
                   ) -> float:

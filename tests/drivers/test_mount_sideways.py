@@ -1,0 +1,87 @@
+"""The tine mount's sideways solve against hand-worked balances (backward Euler, massless
+tines): the mount relaxing, a side pressing (elastic, then capped), the soil's drag
+(against a bisection of the balance), and the laws taken again where the tines are."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from drivers.mount_sideways import SETTLED_M, Coupled, Drag, offset, read_as_assumed, relinearized
+from drivers.objects import NormalLaw
+
+K_H, C_H, H_S = 5000.0, 7.5, 1e-4  # the mount's default, a 0.1 ms substep
+STIFF = K_H + C_H / H_S  # 80 000 N/m: what the mount opposes to e within one substep
+NO_DRAG = Drag(0.0, 0.01)
+
+
+def _side(depth_m: float, cap_n: float = math.inf, n_reach: float = -1.0) -> NormalLaw:
+    """A rigid-ish side (10⁶ N/m, undamped) whose outward normal points along the reach."""
+    return NormalLaw(depth_m, n_reach, 0.0, 1e6, 0.0, cap_n)
+
+
+def test_with_nothing_pressing_the_mount_relaxes() -> None:
+    """k·e + c·(e − e0)/h = 0: e = c·e0/(c + h·k)."""
+    e0 = 1e-3
+    e = offset(K_H, C_H, H_S, e0, [], NO_DRAG, 0.0, 0.0, e0)
+    assert e == pytest.approx(C_H * e0 / (C_H + H_S * K_H), rel=1e-12)
+
+
+def test_a_side_pressing_balances_the_mount() -> None:
+    """A side 0.1 mm into the tines, pushing them toward the robot: S·e + K·(p0 + e) = 0,
+    so e = −K·p0/(S + K), and the side carries what the mount does."""
+    p0, k = 1e-4, 1e6
+    coupled = [Coupled(0, _side(p0), (0.0, 0.0), (0.0, 0.0), 0.0, 0.0, H_S)]
+    e = offset(K_H, C_H, H_S, 0.0, coupled, NO_DRAG, 0.0, 0.0, 0.0)
+    assert e == pytest.approx(-k * p0 / (STIFF + k), rel=1e-12)
+    assert k * coupled[0].penetration_m(e, 0.0) == pytest.approx(-STIFF * e, rel=1e-9)
+    assert -STIFF * e == pytest.approx(7.407, abs=1e-3)
+
+
+def test_a_capped_side_pushes_with_its_cap() -> None:
+    """The same side yielding at 2 N (its elastic part would be 75 N): S·e = −2 N."""
+    coupled = [Coupled(0, _side(1e-4, cap_n=2.0), (0.0, 0.0), (0.0, 0.0), 0.0, 0.0, H_S)]
+    e = offset(K_H, C_H, H_S, 0.0, coupled, NO_DRAG, 0.0, 0.0, 0.0)
+    assert e == pytest.approx(-2.0 / STIFF, rel=1e-12)
+
+
+def test_the_drag_balances_the_mount_as_a_bisection_finds() -> None:
+    """The arm moving at 0.1 m/s along the reach through soil resisting with 10 N
+    (tanh over 0.01 m/s): S·e − c·e0/h + H·tanh((v + (e − e0)/h)/v_s) = 0, the root
+    bracketed and bisected here on its own."""
+    resist_n, smooth, v, e0 = 10.0, 0.01, 0.1, 2e-5
+    drag = Drag(resist_n, smooth)
+
+    def residual(e: float) -> float:
+        return STIFF * e - C_H * e0 / H_S + resist_n * math.tanh((v + (e - e0) / H_S) / smooth)
+
+    lo, hi = -1.0, 1.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if residual(mid) < 0.0 else (lo, mid)
+    e = offset(K_H, C_H, H_S, e0, [], drag, v, 0.0, e0)
+    assert e == pytest.approx(0.5 * (lo + hi), abs=1e-15)
+    assert abs(residual(e)) < 1e-6
+
+
+def test_the_laws_are_taken_again_where_the_tines_are() -> None:
+    """A law read where its linearization puts the tines is settled; a new object joins,
+    one the tines left keeps its last linearization, and a reading off by more than
+    SETTLED_M is not settled."""
+    at = (0.0, 0.0)
+    left, kept = _side(1e-4), _side(2e-4, n_reach=1.0)
+    coupled = [Coupled(1, left, at, at, 0.0, 0.0, H_S), Coupled(2, kept, at, at, 0.0, 0.0, H_S)]
+    e = 5e-6  # the tines moved away from the robot: into side 1 (its normal toward the
+    # robot) by e, out of side 2 by e
+    same = {1: left._replace(depth_m=1e-4 + e), 2: kept._replace(depth_m=2e-4 - e)}
+    assert read_as_assumed(coupled, same, e, 0.0)
+    off = {1: left._replace(depth_m=1e-4 + e + 2 * SETTLED_M), 2: same[2]}
+    assert not read_as_assumed(coupled, off, e, 0.0)
+    joined = {2: same[2], 3: _side(3e-5)}
+    assert not read_as_assumed(coupled, joined, e, 0.0)
+    again = relinearized(coupled, joined, (e, 0.0), at, 0.0, 0.0, H_S)
+    assert [c.index for c in again] == [1, 2, 3]
+    assert again[0] is coupled[0]  # left: its last linearization
+    assert again[1].penetration_m(e, 0.0) == pytest.approx(2e-4 - e, abs=1e-18)
+    assert read_as_assumed(again, {**joined, 1: same[1]}, e, 0.0)
