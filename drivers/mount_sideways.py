@@ -99,11 +99,18 @@ def offset(k_h: float, c_h: float, h: float, e0: float, coupled: list[Coupled], 
            reach_vel: float, d: float, guess: float) -> float:
     """e from the sideways balance at compression d, exactly: the mount (k_h, c_h; e0 at
     the start of a substep of h), the drag (tanh) and the coupled laws (each pressing,
-    capped or slack). The residual rises strictly with e, so Newton's steps are kept
-    inside a bracket that always holds the root."""
+    capped or slack). The residual rises strictly with e and is continuous, so Newton's
+    steps are kept inside a bracket that always holds the root, and the bracket is
+    halved instead where Newton does not converge: a step that leaves it, or one not
+    under half the step before the last (safeguarded Newton, as ``rtsafe``). Where the
+    drag turns over within a micron (its tanh: v_s·h = 0.5 µm at 0.01 m/s and 50 µs)
+    just as an edge's contact ends, Newton alone jumps to and fro across the root
+    forever and stopped 22 N out of balance (20261128/6387, a stone read 35.6 N up
+    with the mount carrying 17.0 N)."""
     stiff = k_h + c_h / h
     lo, hi = -math.inf, math.inf
     e = guess
+    step_m = step_before_m = math.inf  # the last step and the one before it
     for _ in range(_NEWTON_STEPS):
         v = reach_vel + (e - e0) / h
         force, slope = drag.at(v)
@@ -131,6 +138,9 @@ def offset(k_h: float, c_h: float, h: float, e0: float, coupled: list[Coupled], 
                 step = e - 2.0 * width if r > 0.0 else e + 2.0 * width
             else:
                 step = 0.5 * (lo + hi)
+        elif abs(step - e) > 0.5 * abs(step_before_m) and not math.isinf(lo + hi):
+            step = 0.5 * (lo + hi)  # Newton not converging: halve the bracket
+        step_before_m, step_m = step_m, step - e
         if abs(step - e) < 1e-13:
             return step
         e = step

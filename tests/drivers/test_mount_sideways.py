@@ -1,10 +1,12 @@
 """The tine mount's sideways solve against hand-worked balances (backward Euler, massless
 tines): the mount relaxing, a side pressing (elastic, then capped), the soil's drag
-(against a bisection of the balance), and the laws taken again where the tines are."""
+(against a bisection of the balance, also where the drag turns over just as an edge lets
+go), and the laws taken again where the tines are."""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import pytest
 
@@ -63,6 +65,44 @@ def test_the_drag_balances_the_mount_as_a_bisection_finds() -> None:
     e = offset(K_H, C_H, H_S, e0, [], drag, v, 0.0, e0)
     assert e == pytest.approx(0.5 * (lo + hi), abs=1e-15)
     assert abs(residual(e)) < 1e-6
+
+
+def _bisected(residual: Callable[[float], float], lo: float, hi: float) -> float:
+    """The root of a rising residual in [lo, hi], by bisection alone."""
+    assert residual(lo) < 0.0 < residual(hi)
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if residual(mid) < 0.0 else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def test_where_the_drag_turns_over_as_an_edge_lets_go_the_balance_is_still_found() -> None:
+    """20261128/6387's substep, as its solve met it: tines on a stone's rounded edge
+    (normal 27° from vertical, met anew: 5·10⁷ N/m), the arm moving on at 0.057 m/s, the
+    soil's 4.51 N drag turning over within 0.5 µm of offset (v_s = 0.01 m/s, h = 50 µs)
+    near where the edge lets go. Newton alone jumps between the two sides of the root
+    for all its steps and stops 22 N out of balance with the stone pressing 39.8 N; the
+    balance, bisected here on its own, has it pressing 4.0 N."""
+    k, n_x, n_z, h = 5e7, 0.446476, 0.894796, 5e-5  # the arm's substep
+    e0, d, v_arm, guess, drag_n = 182.0505e-6, 3456.2718e-6, 0.0568157, 177.7546e-6, 4.5079
+    reference_m = 158640.82 / k  # the edge's penetration is reference − n·(e, d)
+    edge = NormalLaw(reference_m, n_x, n_z, k, 0.0, math.inf)
+    coupled = [Coupled(1, edge, (0.0, 0.0), (e0, d), v_arm, 0.0, h)]
+
+    def pressing(e: float) -> float:
+        return max(0.0, k * (reference_m - n_x * e - n_z * d))
+
+    def residual(e: float) -> float:
+        v = v_arm + (e - e0) / h
+        return K_H * e + C_H * (e - e0) / h + drag_n * math.tanh(v / 0.01) - n_x * pressing(e)
+
+    assert pressing(guess) == pytest.approx(39.8, abs=0.1)
+    root = _bisected(residual, 170e-6, 190e-6)
+    e = offset(K_H, C_H, h, e0, coupled, Drag(drag_n, 0.01), v_arm, d, guess)
+    assert e == pytest.approx(root, abs=1e-12)
+    assert abs(residual(e)) < 1e-4
+    assert k * coupled[0].penetration_m(e, d) == pytest.approx(pressing(root), abs=1e-3)
+    assert 0.0 < pressing(root) < 5.0
 
 
 def test_the_laws_are_taken_again_where_the_tines_are() -> None:
