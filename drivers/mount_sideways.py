@@ -138,7 +138,7 @@ def offset(k_h: float, c_h: float, h: float, e0: float, coupled: list[Coupled], 
                 step = e - 2.0 * width if r > 0.0 else e + 2.0 * width
             else:
                 step = 0.5 * (lo + hi)
-        elif abs(step - e) > 0.5 * abs(step_before_m) and not math.isinf(lo + hi):
+        elif abs(step - e) > 0.5 * abs(step_before_m) and math.isfinite(lo) and math.isfinite(hi):
             step = 0.5 * (lo + hi)  # Newton not converging: halve the bracket
         step_before_m, step_m = step_m, step - e
         if abs(step - e) < 1e-13:

@@ -23,6 +23,15 @@ def _side(depth_m: float, cap_n: float = math.inf, n_reach: float = -1.0) -> Nor
     return NormalLaw(depth_m, n_reach, 0.0, 1e6, 0.0, cap_n)
 
 
+def _bisected(residual: Callable[[float], float], lo: float, hi: float) -> float:
+    """The root of a rising residual in [lo, hi], by bisection alone."""
+    assert residual(lo) < 0.0 < residual(hi)
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if residual(mid) < 0.0 else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
 def test_with_nothing_pressing_the_mount_relaxes() -> None:
     """k·e + c·(e − e0)/h = 0: e = c·e0/(c + h·k)."""
     e0 = 1e-3
@@ -58,22 +67,9 @@ def test_the_drag_balances_the_mount_as_a_bisection_finds() -> None:
     def residual(e: float) -> float:
         return STIFF * e - C_H * e0 / H_S + resist_n * math.tanh((v + (e - e0) / H_S) / smooth)
 
-    lo, hi = -1.0, 1.0
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if residual(mid) < 0.0 else (lo, mid)
     e = offset(K_H, C_H, H_S, e0, [], drag, v, 0.0, e0)
-    assert e == pytest.approx(0.5 * (lo + hi), abs=1e-15)
+    assert e == pytest.approx(_bisected(residual, -1.0, 1.0), abs=1e-15)
     assert abs(residual(e)) < 1e-6
-
-
-def _bisected(residual: Callable[[float], float], lo: float, hi: float) -> float:
-    """The root of a rising residual in [lo, hi], by bisection alone."""
-    assert residual(lo) < 0.0 < residual(hi)
-    for _ in range(200):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if residual(mid) < 0.0 else (lo, mid)
-    return 0.5 * (lo + hi)
 
 
 def test_where_the_drag_turns_over_as_an_edge_lets_go_the_balance_is_still_found() -> None:
