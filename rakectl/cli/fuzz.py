@@ -10,7 +10,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from rakectl.limits import FORCE_LIMIT_N
-from rakectl.sim.campaign import campaign, declares_sites, read_case_file, replay
+from rakectl.sim.campaign import campaign, declares_sites, replay
+from rakectl.sim.case_files import read_case_file
 from rakectl.sim.cases import Family
 from rakectl.sim.injection import FaultyRakeLoop
 from rakectl.sim.parallel import executor_for

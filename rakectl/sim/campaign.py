@@ -29,7 +29,8 @@ from rakectl.core.clamp import VoltageClamp
 from rakectl.core.lane import LanePlanner
 from rakectl.core.supervision import ForceLevel
 from rakectl.limits import FORCE_LIMIT_N
-from rakectl.sim.cases import CommandKind, Family, FuzzCase, case_from_dict, generate
+from rakectl.sim.case_files import read_case_file, write_case
+from rakectl.sim.cases import CommandKind, Family, FuzzCase, generate
 from rakectl.sim.injection import FaultyRakeLoop, HoldReference, JogReference, PlungeReference
 from rakectl.sim.parallel import Executor, LocalExecutor
 from rakectl.sim.rake_plant import RakeLoop
@@ -40,8 +41,6 @@ from rakectl.sim.results import (
     Report,
     finished_results,
     open_results,
-    result_from_dict,
-    write_case,
 )
 from rakectl.sim.scenario import PlantKind, PlantSettings, Scenario, TrajectoryKind
 from rakectl.sim.simulate import HOLD_AFTER_DONE_S, Reference
@@ -287,10 +286,3 @@ def replay(path: Path, on_tick: Callable[[FaultyRakeLoop], None] | None = None
     result recorded in the file, if any)."""
     case, recorded = read_case_file(path)
     return run_case(case, on_tick=on_tick), recorded
-
-
-def read_case_file(path: Path) -> tuple[FuzzCase, CaseResult | None]:
-    """The case a case file holds, and the result recorded with it, if any."""
-    data = json.loads(Path(path).read_text())
-    recorded = result_from_dict(data["result"]) if "result" in data else None
-    return case_from_dict(data["case"]), recorded

@@ -1,10 +1,10 @@
 """The safety campaign's cases: what each one commands, on what ground, under which faults.
 
 A :class:`FuzzCase` is frozen and holds everything its run depends on, so its
-JSON (``to_dict``/``case_from_dict``) rebuilds the exact run; regression cases
-are such files (tests/data/fuzz/). :func:`generate` draws the ``index``-th case
-of a campaign ``seed``, deterministically. What an operator can command is
-covered at its bounds:
+JSON (``to_dict``; :mod:`rakectl.sim.case_files` reads it back) rebuilds the
+exact run; regression cases are such files (tests/data/fuzz/). :func:`generate`
+draws the ``index``-th case of a campaign ``seed``, deterministically. What an
+operator can command is covered at its bounds:
 
 * ``lane``: rake a lane with the :class:`~rakectl.core.lane.LanePlanner`
   (random reach range, depth step, target depth, stroke and plunge speed; a
@@ -47,11 +47,9 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-import json
 import math
 import typing
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -381,25 +379,3 @@ def from_plain(tp: Any, value: Any) -> Any:
     if isinstance(tp, type) and issubclass(tp, enum.Enum):
         return tp(value)
     return tp(value) if tp in (float, int, bool, str) else value
-
-
-def case_from_dict(data: dict[str, Any]) -> FuzzCase:
-    case: FuzzCase = from_plain(FuzzCase, data)
-    return case
-
-
-@dataclass(frozen=True)
-class RegressionCase:
-    """A case file of tests/data/fuzz/: the case, why it is kept, what it must show."""
-
-    path: Path
-    case: FuzzCase
-    why: str
-    expect: dict[str, Any]
-    open: str = ""  # non-empty: still over the limit, not yet fixed (why, what it needs)
-
-
-def load_regression_case(path: Path) -> RegressionCase:
-    data = json.loads(Path(path).read_text())
-    return RegressionCase(Path(path), case_from_dict(data["case"]), str(data["why"]),
-                          dict(data["expect"]), str(data.get("open", "")))

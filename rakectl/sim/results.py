@@ -182,10 +182,3 @@ def open_results(out_dir: Path) -> TextIO:
     if unfinished:
         sink.write("\n")
     return sink
-
-
-def write_case(path: Path, case: FuzzCase, result: CaseResult) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"case": case.to_dict(), "result": result.to_dict()},
-                               indent=2) + "\n")
-    return path

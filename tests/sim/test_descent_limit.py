@@ -20,7 +20,7 @@ from rakectl.config.loader import load_settings
 from rakectl.core.descent import SoilBound
 from rakectl.core.lane import LanePlanner
 from rakectl.limits import FORCE_LIMIT_N
-from rakectl.sim import campaign, cases
+from rakectl.sim import campaign, case_files
 from rakectl.sim.cases import CommandKind, Faults, FuzzCase, MotionCommand
 from rakectl.sim.rake_plant import RakeLoop
 from rakectl.sim.scenario import PlantKind, PlantSettings, Scenario
@@ -131,7 +131,7 @@ def test_the_open_rim_case_is_held_above_the_unmapped_soil() -> None:
     rim 30 mm down in soil strong to the rake's face) with the limiter on, the site's soil
     declared as the case's (12.2 kPa, cells ±3 %: factor 1.2) and the surface surveyed to
     within 1 mm: the plunge stops one step under the survey, above the rim."""
-    case = cases.load_regression_case(DATA / "open-mine-rim-9937.json").case
+    case = case_files.load_regression_case(DATA / "open-mine-rim-9937.json").case
     soil = case.ground.soil
     reach_m = case.command.reach_far_m
     ceiling_m = max(original_surface_height_m(soil, reach_m + 0.001 * k)
