@@ -21,6 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from rakectl.api.replies import error_reply, ok_reply, sentence
 from rakectl.api.schema import (
     MAX_REQUEST_BYTES,
     ErrorKind,
@@ -29,9 +30,6 @@ from rakectl.api.schema import (
     Refusal,
     Request,
     decode_request,
-    error_reply,
-    ok_reply,
-    sentence,
     too_large_message,
 )
 from rakectl.errors import ApiError, RakeError
