@@ -1,4 +1,5 @@
-"""The daemon's command API: its schema and wire format (pure).
+"""The daemon's command API: its schema and its requests on the wire (pure; the
+replies are :mod:`rakectl.api.replies`).
 
 One JSON object per line (UTF-8) each way. A request is ``{"cmd": NAME, ARG: VALUE …}``
 with an optional ``"id"`` (string or integer) that the reply echoes; a reply is
