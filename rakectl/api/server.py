@@ -2,25 +2,23 @@
 
 The 1 kHz loop owns the server's thread: it calls :meth:`CommandServer.poll` in the
 slack of a tick with a time budget, and poll never blocks. Requests are decoded and
-validated by :mod:`rakectl.api.schema`; peers are checked by their credentials.
+validated by :mod:`rakectl.api.schema`; the socket is set up, and its peers checked by
+their credentials, by :mod:`rakectl.api.endpoint`.
 """
 
 from __future__ import annotations
 
 import collections
 import contextlib
-import grp
 import os
-import pwd
 import select
 import socket
-import stat
-import struct
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from rakectl.api.endpoint import group_name, listen, peer_allowed, peer_of
 from rakectl.api.replies import error_reply, ok_reply, sentence
 from rakectl.api.schema import (
     MAX_REQUEST_BYTES,
@@ -32,37 +30,14 @@ from rakectl.api.schema import (
     decode_request,
     too_large_message,
 )
-from rakectl.errors import ApiError, RakeError
+from rakectl.errors import RakeError
 
 MAX_CLIENTS = 16
 MAX_BACKLOG_BYTES = 256 * 1024  # replies queued for a client that does not read them
 IDLE_TIMEOUT_S = 60.0  # a client silent this long is closed
 _RECV_BYTES = 8192
-_SO_PEERGROUPS = getattr(socket, "SO_PEERGROUPS", 59)  # Linux >= 4.13; 59 in asm-generic
 _POLLIN = select.POLLIN
 _POLLOUT = select.POLLOUT
-
-# --------------------------------------------------------------------------- credentials, paths
-
-
-def peer_allowed(peer: Peer, daemon_uid: int, socket_gid: int) -> bool:
-    """Root, the daemon's own user, or a member of the socket's group (pure)."""
-    return peer.uid in (0, daemon_uid) or peer.gid == socket_gid or socket_gid in peer.groups
-
-
-def _peer(sock: socket.socket) -> Peer:
-    pid, uid, gid = struct.unpack("3i", sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED,
-                                                        struct.calcsize("3i")))
-    try:  # the peer process's own groups at connect time, as the kernel saw them
-        raw = sock.getsockopt(socket.SOL_SOCKET, _SO_PEERGROUPS, 1024)  # Python: <= 1024
-        groups = frozenset(struct.unpack(f"{len(raw) // 4}I", raw))
-    except OSError:  # older kernel: the group database
-        try:
-            groups = frozenset(os.getgrouplist(pwd.getpwuid(uid).pw_name, gid))
-        except KeyError:
-            groups = frozenset()
-    return Peer(pid, uid, gid, groups)
-
 
 
 # --------------------------------------------------------------------------- server
@@ -113,10 +88,10 @@ class CommandServer:
         self._handler, self._clock = handler, clock
         self._max_clients, self._max_backlog_bytes = max_clients, max_backlog_bytes
         self._idle_timeout_s = idle_timeout_s
-        self._listener = _listen(self.path, group, max_clients)
+        self._listener = listen(self.path, group, max_clients)
         st = os.stat(self.path)
         self._identity, self._socket_gid = (st.st_dev, st.st_ino), st.st_gid
-        self._group_name, self._uid = _group_name(st.st_gid), os.geteuid()
+        self._group_name, self._uid = group_name(st.st_gid), os.geteuid()
         self._poller = select.poll()
         self._poller.register(self._listener.fileno(), _POLLIN)
         self._listen_fd = self._listener.fileno()
@@ -189,7 +164,7 @@ class CommandServer:
     def _admit(self, sock: socket.socket) -> None:
         try:
             sock.setblocking(False)
-            peer = _peer(sock)
+            peer = peer_of(sock)
         except OSError:
             self._count(ErrorKind.SOCKET)
             sock.close()
@@ -347,83 +322,3 @@ class CommandServer:
             self._watch(conn)
         if conn.closing and not conn.outbuf and not conn.lines:
             self._close(conn)
-
-
-def _group_name(gid: int) -> str:
-    try:
-        return grp.getgrgid(gid).gr_name
-    except KeyError:
-        return str(gid)
-
-
-def _listen(path: Path, group: str | None, backlog: int) -> socket.socket:
-    """A listening socket at ``path``: mode 0660, owned by ``group`` if given."""
-    gid = _group_id(group)
-    _prepare_directory(path.parent)
-    _remove_stale(path)
-    sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    try:
-        sock.bind(str(path))
-        os.chmod(path, 0o660)
-        if gid is not None and os.stat(path).st_gid != gid:
-            os.chown(path, -1, gid)
-        sock.listen(backlog)
-        sock.setblocking(False)
-    except OSError as exc:
-        sock.close()
-        with contextlib.suppress(OSError):
-            os.unlink(path)
-        hint = (f" (the daemon's user must be in group {group})"
-                if isinstance(exc, PermissionError) and group else "")
-        raise ApiError(f"cannot set up the command socket {path}: "
-                       f"{exc.strerror or exc}{hint}") from exc
-    return sock
-
-
-def _group_id(group: str | None) -> int | None:
-    if group is None:
-        return None
-    try:
-        return grp.getgrnam(group).gr_gid
-    except KeyError:
-        raise ApiError(f"the command socket's group {group!r} does not exist (create it with "
-                       "systemd-sysusers or groupadd)") from None
-
-
-def _prepare_directory(directory: Path) -> None:
-    try:
-        directory.mkdir(mode=0o750, parents=True, exist_ok=True)
-        st = os.lstat(directory)
-    except OSError as exc:
-        raise ApiError(f"cannot create the directory of the command socket {directory}: "
-                       f"{exc.strerror or exc}") from exc
-    if not stat.S_ISDIR(st.st_mode) or st.st_uid not in (0, os.geteuid()):
-        raise ApiError(f"refusing to put the command socket in {directory}: not a directory "
-                       f"owned by root or by uid {os.geteuid()}")
-
-
-def _remove_stale(path: Path) -> None:
-    """Remove a socket file that nobody listens on; refuse anything else."""
-    try:
-        st = os.lstat(path)
-    except FileNotFoundError:
-        return
-    if not stat.S_ISSOCK(st.st_mode):
-        raise ApiError(f"{path} exists and is not a socket; refusing to replace it")
-    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    probe.settimeout(0.5)
-    try:
-        probe.connect(str(path))
-    except (ConnectionRefusedError, FileNotFoundError):
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(path)
-        return
-    except (TimeoutError, BlockingIOError):
-        pass  # its backlog is full: somebody listens
-    except OSError as exc:
-        raise ApiError(f"cannot tell whether {path} is in use: {exc.strerror or exc}") from exc
-    finally:
-        probe.close()
-    raise ApiError(f"another daemon is already listening at {path}")
-
-

@@ -29,6 +29,7 @@ from hypothesis import strategies as st
 
 from rakectl.api import client as api_client
 from rakectl.api.client import Client, call, default_socket_path, socket_path
+from rakectl.api.endpoint import peer_allowed
 from rakectl.api.schema import (
     COMMANDS,
     MAX_REQUEST_BYTES,
@@ -41,7 +42,7 @@ from rakectl.api.schema import (
     api_reference,
     decode_request,
 )
-from rakectl.api.server import CommandServer, peer_allowed
+from rakectl.api.server import CommandServer
 from rakectl.errors import ApiError, CommandRejected, DaemonUnreachable, RakeError
 
 JOG_TASK = {"cmd": "jog", "space": "task", "reach_m_per_s": 0.1}
