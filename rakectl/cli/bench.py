@@ -133,7 +133,8 @@ def _cmd_bench_parts(args: argparse.Namespace, report: Path) -> int:
         print(format_tick(bench_tick(tick_ticks)))
         return 0
     if args.excavation:
-        from rakectl.bench.report import excavate, format_excavation, git_revision, write_excavation
+        from rakectl.bench.excavation_text import format_excavation
+        from rakectl.bench.report import excavate, git_revision, write_excavation
         from rakectl.sim.plot import pyplot
 
         pyplot()  # fail before the work, not after it

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from rakectl.bench.excavation import SOILS, Controller, LaneShape, RunResult, run_excavation
+from rakectl.bench.excavation_text import format_excavation
 from rakectl.bench.hot_path import hot_path_section, write_hot_path_section
 from rakectl.bench.loop import BUS_BITS_PER_CYCLE, LoopFigures, format_loop
 from rakectl.bench.report import (
@@ -18,7 +19,6 @@ from rakectl.bench.report import (
     EXCAVATION_END,
     EXCAVATION_START,
     BenchOptions,
-    format_excavation,
     machine_facts,
     markdown,
     write_excavation,
