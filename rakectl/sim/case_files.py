@@ -13,15 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rakectl.sim.cases import FuzzCase, from_plain
+from rakectl.sim.cases import FuzzCase, case_from_dict
 from rakectl.sim.results import CaseResult, result_from_dict
-
-
-def case_from_dict(data: dict[str, Any]) -> FuzzCase:
-    """The case a ``FuzzCase.to_dict`` (or its JSON) describes; a field an older file
-    lacks takes its default."""
-    case: FuzzCase = from_plain(FuzzCase, data)
-    return case
 
 
 def write_case(path: Path, case: FuzzCase, result: CaseResult) -> Path:

@@ -1,9 +1,9 @@
 """The safety campaign's cases: what each one commands, on what ground, under which faults.
 
 A :class:`FuzzCase` is frozen and holds everything its run depends on, so its
-JSON (``to_dict``; :mod:`rakectl.sim.case_files` reads it back) rebuilds the
-exact run; regression cases are such files (tests/data/fuzz/). :func:`generate`
-draws the ``index``-th case of a campaign ``seed``, deterministically. What an
+JSON (``to_dict``, read back by ``case_from_dict``) rebuilds the exact run;
+regression cases are such files (:mod:`rakectl.sim.case_files`, tests/data/fuzz/).
+:func:`generate` draws the ``index``-th case of a campaign ``seed``, deterministically. What an
 operator can command is covered at its bounds:
 
 * ``lane``: rake a lane with the :class:`~rakectl.core.lane.LanePlanner`
@@ -379,3 +379,10 @@ def from_plain(tp: Any, value: Any) -> Any:
     if isinstance(tp, type) and issubclass(tp, enum.Enum):
         return tp(value)
     return tp(value) if tp in (float, int, bool, str) else value
+
+
+def case_from_dict(data: dict[str, Any]) -> FuzzCase:
+    """The case a :meth:`FuzzCase.to_dict` (or its JSON) describes; a field an older file
+    lacks takes its default."""
+    case: FuzzCase = from_plain(FuzzCase, data)
+    return case

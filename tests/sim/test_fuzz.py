@@ -69,7 +69,7 @@ def test_generation_is_deterministic_and_serializable() -> None:
     assert case == cases.generate(5, 3)
     assert case != cases.generate(5, 4)
     assert case != cases.generate(6, 3)
-    assert case_files.case_from_dict(json.loads(json.dumps(case.to_dict()))) == case
+    assert cases.case_from_dict(json.loads(json.dumps(case.to_dict()))) == case
 
 
 def test_generation_spans_what_an_operator_can_command() -> None:
@@ -110,7 +110,7 @@ def test_edge_cases_descend_along_an_objects_side() -> None:
     some = [cases.generate(2, i, cases.Family.EDGE) for i in range(48)]
     assert some[3] == cases.generate(2, 3, cases.Family.EDGE) != cases.generate(2, 3)
     assert all(c.family is cases.Family.EDGE for c in some)
-    assert case_files.case_from_dict(json.loads(json.dumps(some[3].to_dict()))) == some[3]
+    assert cases.case_from_dict(json.loads(json.dumps(some[3].to_dict()))) == some[3]
     assert {c.command.kind for c in some} == {CommandKind.PLUNGE}
     assert {c.command.contact for c in some} == {False, True}
     assert {k for c in some for k in c.faults.kinds()} == set(FAULT_KINDS)
@@ -126,7 +126,7 @@ def test_edge_cases_descend_along_an_objects_side() -> None:
         assert gap_m <= max(edge.EDGE_BAND_M, 0.5 * body.width_m) + 1e-12
     old_file = some[0].to_dict()
     del old_file["family"]  # a case file from before the families: the random one
-    assert case_files.case_from_dict(old_file).family is cases.Family.RANDOM
+    assert cases.case_from_dict(old_file).family is cases.Family.RANDOM
 
 
 @pytest.fixture(scope="module")
@@ -376,7 +376,7 @@ def test_an_adaptive_lane_is_governed_and_older_case_files_still_load() -> None:
     for key in ("stall_start_s", "stall_s", "kill_at_s"):
         del old["faults"][key]
     del old["supervised"]
-    assert case_files.case_from_dict(old) == fixed
+    assert cases.case_from_dict(old) == fixed
     result, as_fixed = campaign.run_case(case), campaign.run_case(fixed)
     assert (result.kind, as_fixed.kind) == ("lane (adaptive)", "lane")
     assert (result.clamped_ticks, result.f_true_z_max_n) != (as_fixed.clamped_ticks,
