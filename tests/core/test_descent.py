@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from pathlib import Path
 
 import pytest
@@ -101,6 +102,36 @@ def test_the_robots_bound_is_the_strongest_spot_of_the_strongest_soil() -> None:
     # 3.2 times the mean cell of 15 kPa, 35°, δ 23.5°, 20 kN/m³: under a millimetre
     assert 0.7e-3 < bound.first_step_m < 0.9e-3
     assert _bound(drag_margin_n=6.0).first_step_m < bound.first_step_m
+
+
+# The soils of the levers' table in docs/safety.md ("Not covered"), in its columns' order:
+# (cohesion Pa, φ°, δ°, γ N/m³, the strongest spot's factor).
+LEVER_SOILS = [(500.0, 32.0, 20.0, 16e3, 1.7), (6e3, 28.0, 18.0, 18e3, 1.7),
+               (10e3, 20.0, 15.0, 18e3, 1.7), (12e3, 30.0, 20.0, 18e3, 1.7),
+               (15e3, 30.0, 20.0, 16e3, 3.2)]
+
+
+def test_the_safety_cases_table_of_levers_is_what_the_bound_computes() -> None:
+    """Each d* of the table of the width and budget levers is the bound's, to the three
+    figures printed."""
+    text = (Path(__file__).resolve().parents[2] / "docs" / "safety.md").read_text()
+    rows = [line for line in text.splitlines()
+            if re.match(r"\| [0-9.]+ m, [0-9]+ N \([0-9]+ N\)", line)]
+    assert len(rows) >= 6
+    for row in rows:
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        lever = re.match(r"([0-9.]+) m, ([0-9]+) N", cells[0])
+        assert lever is not None
+        width_m, f_l_n = float(lever[1]), float(lever[2])
+        for printed, (c, phi, delta, gamma, factor) in zip(cells[1:], LEVER_SOILS, strict=True):
+            bound = SoilBound.from_settings(
+                dataclasses.replace(DescentSettings(), cohesion_max_pa=c,
+                                    friction_angle_max_rad=math.radians(phi),
+                                    tool_friction_angle_max_rad=math.radians(delta),
+                                    unit_weight_max_n_per_m3=gamma, strength_factor=factor,
+                                    rake_width_m=width_m),
+                FORCE_LIMIT_N, 1.0 - f_l_n / FORCE_LIMIT_N)
+            assert bound.first_step_m * 1e3 == pytest.approx(float(printed), rel=0.006), row
 
 
 @settings(max_examples=300, deadline=None)
