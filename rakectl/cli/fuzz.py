@@ -77,6 +77,27 @@ def banner(args: argparse.Namespace, runs_on: str, physics: str) -> str:
             f"{args.seed} ({args.family}{site}) on {runs_on}; {physics}")
 
 
+TABLE_COLUMNS = ("cases", "n", "ground, largest (N)", "mine, plate or side, largest (N)",
+                 "stone side, largest (N)", "watchdog trips", "unsafe")
+
+
+def kind_table(by_kind: dict[str, dict[str, float | int]]) -> list[str]:
+    """The campaign by command kind, fault kind and supervision, as docs/safety-log.md
+    tables it (markdown): a case counts in its kind's row, in each fault row it injects
+    and in one supervision row; ``refused`` sites get a column where there are any."""
+    refused = any(k["refused"] for k in by_kind.values())
+    columns = (*TABLE_COLUMNS, "refused") if refused else TABLE_COLUMNS
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    for group, k in by_kind.items():
+        cells = [group, str(k["cases"]), f"{k['f_true_z_max_n']:.1f}",
+                 f"{k['f_mine_max_n']:.1f}", f"{k['f_stone_side_max_n']:.1f}",
+                 str(k["watchdog_trips"]), str(k["unsafe"])]
+        if refused:
+            cells.append(str(k["refused"]))
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
 def human(report: Report) -> str:
     s = report.summary()
     if s["resumed"] == s["scenarios"]:  # nothing ran: no rate to give
@@ -100,7 +121,7 @@ def human(report: Report) -> str:
     if s["refused_sites"]:
         lines.append(f"sites refused at load (their declared soil leaves the descent limiter "
                      f"no step; nothing ran): {s['refused_sites']}")
-    lines += [f"  {group}: {k}" for group, k in s["by_kind"].items()]
+    lines += kind_table(s["by_kind"])
     lines += [f"unsafe: {case}" for case in s["over_limit"]]
     lines.append(f"worst: {s['worst_case']} → ground {report.worst.f_true_z_max_n:.1f} N, "
                  f"mine {report.worst.f_mine_max_n:.1f} N")

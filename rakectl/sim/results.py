@@ -104,7 +104,8 @@ class Report:
         return not self.unsafe
 
     def by_kind(self) -> dict[str, dict[str, float | int]]:
-        """Per command kind, fault kind and supervision: cases, worst forces, unsafe."""
+        """Per command kind, fault kind and supervision: cases, worst forces, the drives'
+        watchdog trips, unsafe cases, refused sites."""
         out: dict[str, dict[str, float | int]] = {}
         for r in self.results:
             groups = [r.kind, *(f"fault: {f}" for f in r.faults or ("none",)),
@@ -112,8 +113,9 @@ class Report:
             for group in groups:
                 k = out.setdefault(group, {"cases": 0, "f_true_z_max_n": 0.0,
                                            "f_mine_max_n": 0.0, "f_stone_side_max_n": 0.0,
-                                           "unsafe": 0, "refused": 0})
+                                           "watchdog_trips": 0, "unsafe": 0, "refused": 0})
                 k["cases"] += 1
+                k["watchdog_trips"] += r.watchdog_tripped
                 k["refused"] += bool(r.refused)
                 k["f_true_z_max_n"] = max(k["f_true_z_max_n"], r.f_true_z_max_n)
                 k["f_mine_max_n"] = max(k["f_mine_max_n"], r.f_mine_max_n)

@@ -224,6 +224,34 @@ def test_the_cli_plots_a_finished_campaign_without_running_it(
     assert "--plot needs --out" in capsys.readouterr().err and not plot.exists()
 
 
+def test_the_cli_tables_a_finished_campaign_by_command_fault_and_supervision(
+        ci_sample: results.Report, capsys: pytest.CaptureFixture[str]) -> None:
+    """The summary's table, counted again here from the results: a case in its kind's
+    row, in each fault row it injects, in one supervision row."""
+    out = Path(ci_sample.worst_case_path).parent
+    assert fuzz_cli.main(["--scenarios", str(CI_SAMPLE), "--first", str(CI_FIRST), "--seed",
+                          str(CI_SEED), "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "| " + " | ".join(fuzz_cli.TABLE_COLUMNS) + " |" in text
+    rows = {line.split(" | ")[0][2:]: line.strip("| ").split(" | ")
+            for line in text.splitlines() if line.startswith("| ") and "---" not in line}
+    groups: dict[str, list[results.CaseResult]] = {}
+    for r in ci_sample.results:
+        for group in (r.kind, *(f"fault: {f}" for f in r.faults or ("none",)),
+                      f"supervision {'on' if r.supervised else 'off'}"):
+            groups.setdefault(group, []).append(r)
+    assert set(rows) == {"cases", *groups}
+    for group, members in groups.items():
+        assert rows[group][1:] == [
+            str(len(members)), f"{max(r.f_true_z_max_n for r in members):.1f}",
+            f"{max(r.f_mine_max_n for r in members):.1f}",
+            f"{max(r.f_stone_side_max_n for r in members):.1f}",
+            str(sum(r.watchdog_tripped for r in members)),
+            str(sum(not r.safe for r in members))], group
+    assert sum(int(rows[f"supervision {s}"][1]) for s in ("on", "off")) == CI_SAMPLE
+    assert any(int(rows[g][5]) for g in groups)  # the sample trips the watchdog
+
+
 @pytest.mark.filterwarnings("error")
 def test_a_campaign_whose_sites_were_all_refused_still_plots(tmp_path: Path) -> None:
     from rakectl.sim.plot import plot_campaign
