@@ -252,6 +252,16 @@ def test_the_cli_tables_a_finished_campaign_by_command_fault_and_supervision(
     assert any(int(rows[g][5]) for g in groups)  # the sample trips the watchdog
 
 
+def test_the_table_gives_refused_sites_a_column_only_where_there_are_any() -> None:
+    row = {"cases": 3, "f_true_z_max_n": 12.34, "f_mine_max_n": 0.0, "f_stone_side_max_n": 5.0,
+           "watchdog_trips": 1, "unsafe": 0, "refused": 0}
+    assert fuzz_cli.kind_table({"plunge": row})[2] == "| plunge | 3 | 12.3 | 0.0 | 5.0 | 1 | 0 |"
+    table = fuzz_cli.kind_table({"plunge": row, "jog": {**row, "refused": 2}})
+    assert table[0].endswith("| unsafe | refused |") and table[1] == "|" + "---|" * 8
+    assert table[2:] == ["| plunge | 3 | 12.3 | 0.0 | 5.0 | 1 | 0 | 0 |",
+                         "| jog | 3 | 12.3 | 0.0 | 5.0 | 1 | 0 | 2 |"]
+
+
 @pytest.mark.filterwarnings("error")
 def test_a_campaign_whose_sites_were_all_refused_still_plots(tmp_path: Path) -> None:
     from rakectl.sim.plot import plot_campaign
