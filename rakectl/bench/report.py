@@ -23,7 +23,7 @@ import os
 import platform
 import subprocess
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,7 +49,7 @@ from rakectl.bench.excavation_text import (
 )
 from rakectl.bench.hot_path import bench_hot_path, hot_path_section, write_hot_path_section
 from rakectl.bench.loop import LoopFigures, format_loop, measure_loop
-from rakectl.bench.sections import markers, write_section
+from rakectl.bench.sections import markdown_table, markers, write_section
 from rakectl.bench.throughput import (
     CASES,
     compare_physics,
@@ -175,11 +175,6 @@ def write_excavation(excavation: ExcavationReport, report: Path, command: str,
 # --------------------------------------------------------------------------- Markdown
 
 
-def _table(header: tuple[str, ...], rows: Sequence[tuple[str, ...]]) -> list[str]:
-    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header),
-            *("| " + " | ".join(row) + " |" for row in rows)]
-
-
 def markdown(options: BenchOptions, started: str, loop: LoopFigures | None, loop_text: str,
              tick: TickFigures, excavation: ExcavationReport, tree: str) -> str:
     facts = machine_facts()
@@ -222,8 +217,8 @@ def _loop_section(loop: LoopFigures | None, text: str) -> list[str]:
               "The daemon's figure is how late its sleep woke before the spin (what compares "
               "with cyclictest's clock_nanosleep); late ticks are ticks that began after "
               "their deadline's slack.", "",
-              *_table(("wake-up latency (µs)", "p50", "p99", "p99.9", "max", "late ticks",
-                       "p99 / cyclictest p99"), rows), ""]
+              *markdown_table(("wake-up latency (µs)", "p50", "p99", "p99.9", "max",
+                               "late ticks", "p99 / cyclictest p99"), rows), ""]
     missed, expected = loop.tpdo_missed()
     bus = loop.bus
     lines += ["## (c) Cross-process 1 kHz run (udp_multicast, private namespace)", "",
@@ -254,7 +249,7 @@ def _tick_section(tick: TickFigures) -> list[str]:
             f"methods, not copies; {tick.timer_overhead_ns:.0f} ns of timer per call "
             "subtracted). Decode and encode include python-can's `VirtualBus` (about 6 µs "
             "per frame sent), which a SocketCAN bus replaces.", "",
-            *_table(("stage", "p50 µs", "p99 µs", "what"), rows), ""]
+            *markdown_table(("stage", "p50 µs", "p99 µs", "what"), rows), ""]
 
 
 EXCAVATION_START, EXCAVATION_END = markers("excavation", "rakectl bench --excavation")
@@ -304,7 +299,7 @@ def _excavation_section(report: ExcavationReport, command: str, started: str,
               "controller.",
               f"- **fixed-safe**: one stroke speed for every soil, {chosen}",
               *(f"  - {line.strip()}" for line in tried), "",
-              *_table(HEADER, table_rows(report)), "", f"**{goal_line(report)}**", "",
+              *markdown_table(HEADER, table_rows(report)), "", f"**{goal_line(report)}**", "",
               time_budget_line(report) + ". The free-space return runs at the same speed "
               "for every controller (`lane.travel_speed_m_per_s`), and so do the baselines' "
               "plunges (`lane.plunge_speed_m_per_s`): the stroke's and the plunge's speeds can "

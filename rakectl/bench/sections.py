@@ -7,7 +7,14 @@ its two HTML comment markers, and leaves the rest as it was.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
+
+
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    """A Markdown table's lines: ``header``, its rule, then ``rows``."""
+    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header),
+            *("| " + " | ".join(row) + " |" for row in rows)]
 
 
 def markers(name: str, command: str) -> tuple[str, str]:

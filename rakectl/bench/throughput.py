@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from drivers import compiled
-from rakectl.bench.sections import markers, write_section
+from rakectl.bench.sections import markdown_table, markers, write_section
 from rakectl.errors import RakeError
 from rakectl.sim.campaign import run_case
 from rakectl.sim.cases import generate
@@ -204,11 +204,9 @@ def throughput_section(command: str, started: str, tree: str, c: Comparison) -> 
             f"simulated time includes the {SETTLE_S:g} s the arm settles at its start pose "
             "before it. A campaign of N cases takes about N / (cases per core-minute × "
             "cores) minutes.", "",
-            "| command | cases | simulated s per case | CPU s per case, Python | "
-            "CPU s per case, compiled | simulated s per CPU s, Python | "
-            "simulated s per CPU s, compiled | speed-up |",
-            "|---|---|---|---|---|---|---|---|",
-            *("| " + " | ".join(row) + " |" for row in rows), "",
+            *markdown_table(("command", "cases", "simulated s per case", "CPU s per case, Python",
+                             "CPU s per case, compiled", "simulated s per CPU s, Python",
+                             "simulated s per CPU s, compiled", "speed-up"), rows), "",
             THROUGHPUT_END, ""]
 
 

@@ -9,6 +9,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from rakectl.bench.sections import markdown_table
 from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim.campaign import campaign, declares_sites, replay
 from rakectl.sim.case_files import read_case_file
@@ -86,16 +87,10 @@ def kind_table(by_kind: dict[str, dict[str, float | int]]) -> list[str]:
     tables it (markdown): a case counts in its kind's row, in each fault row it injects
     and in one supervision row; ``refused`` sites get a column where there are any."""
     refused = any(k["refused"] for k in by_kind.values())
-    columns = (*TABLE_COLUMNS, "refused") if refused else TABLE_COLUMNS
-    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
-    for group, k in by_kind.items():
-        cells = [group, str(k["cases"]), f"{k['f_true_z_max_n']:.1f}",
-                 f"{k['f_mine_max_n']:.1f}", f"{k['f_stone_side_max_n']:.1f}",
-                 str(k["watchdog_trips"]), str(k["unsafe"])]
-        if refused:
-            cells.append(str(k["refused"]))
-        lines.append("| " + " | ".join(cells) + " |")
-    return lines
+    rows = [(group, str(k["cases"]), f"{k['f_true_z_max_n']:.1f}", f"{k['f_mine_max_n']:.1f}",
+             f"{k['f_stone_side_max_n']:.1f}", str(k["watchdog_trips"]), str(k["unsafe"]),
+             *((str(k["refused"]),) if refused else ())) for group, k in by_kind.items()]
+    return markdown_table((*TABLE_COLUMNS, "refused") if refused else TABLE_COLUMNS, rows)
 
 
 def human(report: Report) -> str:
