@@ -21,6 +21,7 @@ from rakectl.sim.progress import Progress
 from rakectl.sim.results import RESULTS_FILE, WORST_CASE_FILE, Report
 
 FORCES_PLOT = "forces.png"  # --plot's figure, in --out
+EDGE_PLOT = "edge.png"  # --plot's second figure for the edge family, in --out
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -57,7 +58,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", action="store_true",
                    help=f"with --out: also write OUT/{FORCES_PLOT} (how many cases read at least "
                    "each force, by what carried it, by fault and by command, against the "
-                   "limit; the [plot] extra). On a finished --out it runs nothing and plots")
+                   "limit; the [plot] extra); with --family edge also OUT/"
+                   f"{EDGE_PLOT} (each case's side force on its object against the soil's "
+                   "cutting resistance at the object's edge). On a finished --out it runs "
+                   "nothing and plots")
     p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT|local:N",
                    help="run the cases on a Dask cluster (the [cluster] extra): an existing "
                    "scheduler, or local:N to start N worker processes here; default: "
@@ -168,6 +172,18 @@ def _replay_main(path: Path, as_json: bool, mcap: Path | None = None) -> int:
     return 0 if same and now.safe else 1
 
 
+def _plot_edge(report: Report, path: Path, title: str) -> None:
+    """The edge family's side forces against the soil's resistance at the objects' edges."""
+    from rakectl.config.settings import ClampSettings
+    from rakectl.sim.edge import edge_readings
+    from rakectl.sim.plot import plot_edge_resistance
+
+    clamp = ClampSettings()
+    plot_edge_resistance(edge_readings(report.results), path,
+                         clamp.force_limit_n * clamp.model_margin, title)
+    print(f"fuzz: plot written to {path}", file=sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     if args.mcap is not None and args.replay is None:
@@ -200,10 +216,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         declared = ", sites declared" if declares_sites(Family(args.family),
                                                         args.declared_site) else ""
-        plot_campaign(report, args.out / FORCES_PLOT, f"seed {args.seed}, cases "
-                      f"{args.first}..{args.first + args.scenarios - 1} "
-                      f"({args.family}{declared})")
+        span = f"seed {args.seed}, cases {args.first}..{args.first + args.scenarios - 1}"
+        plot_campaign(report, args.out / FORCES_PLOT, f"{span} ({args.family}{declared})")
         print(f"fuzz: plot written to {args.out / FORCES_PLOT}", file=sys.stderr)
+        if Family(args.family) is Family.EDGE:
+            _plot_edge(report, args.out / EDGE_PLOT, span)
     print(human(report))
     if args.json:
         print(json.dumps(report.summary()))

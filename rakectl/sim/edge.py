@@ -6,16 +6,19 @@ forces the descending tines sideways through the soil: that band of paths is a f
 tenths of a millimetre wide (docs/safety.md, "Not covered"). Each case here is a
 plunge beside a mine (half the cases), a stone or a root, on the campaign's soils
 (:func:`~rakectl.sim.cases.draw_soil`), under its faults, half of them supervised.
+:func:`edge_resistance_n` is what the soil resists with at a case's object, which
+``rakectl fuzz --family edge --plot`` sets each case's side force against.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable
 
 import numpy as np
 
 from drivers.ground_params import BuriedObjects, GroundParams, MineParams, RootParams, StoneParams
-from drivers.soil import original_surface_height_m
+from drivers.soil import cutting_force_n, original_surface_height_m
 from rakectl.sim.cases import (
     FAULT_KINDS,
     PLUNGE_END_DEPTH_M,
@@ -28,6 +31,7 @@ from rakectl.sim.cases import (
     draw_soil,
     height_clear_of,
 )
+from rakectl.sim.results import CaseResult
 from rakectl.sim.scene import laid_in
 
 EDGE_BAND_M = 0.004  # an edge case's path passes this close to the object's side, either way
@@ -82,3 +86,58 @@ def edge_case(seed: int, index: int) -> FuzzCase:
     faults = draw_faults(rng, (index // 4) % (len(FAULT_KINDS) + 1), duration_s)
     return FuzzCase(seed, index, GroundParams(soil, objects), int(rng.integers(0, 2**32)),
                     command, faults, duration_s, (index // 24) % 2 == 1, Family.EDGE)
+
+
+def edge_cut_m(case: FuzzCase) -> float:
+    """How far below the original surface over an edge case's path its object's rounded
+    top edge reaches (its top plus the edge's radius; a root's round side: its radius;
+    0 if that is above the surface): the deepest cut the tines are in while the edge
+    forces them sideways."""
+    objects = case.ground.objects
+    bodies: tuple[MineParams | StoneParams | RootParams, ...] = (
+        *objects.mines, *objects.stones, *objects.roots)
+    body = bodies[0]
+    radius_m = body.thickness_m / 2 if isinstance(body, RootParams) else body.edge_radius_m
+    surface_m = original_surface_height_m(case.ground.soil, case.command.reach_far_m)
+    return max(0.0, float(surface_m + body.depth_m + radius_m))
+
+
+def edge_resistance_n(case: FuzzCase) -> float:
+    """H at :func:`edge_cut_m`: the cutting resistance over the rake's width
+    (:func:`drivers.soil.cutting_force_n`, a mean cell) of the strongest layer that cut
+    reaches. What the soil resists with when an edge forces the tines sideways through
+    it, which the object carries besides the mount's share (docs/safety.md, "Not
+    covered"); the descent budget keeps it under 90 N less the clamp's F_L."""
+    soil, cut_m = case.ground.soil, edge_cut_m(case)
+    return max((cutting_force_n(layer, soil, cut_m) for layer in soil.layers
+                if layer.from_depth_m <= cut_m), default=0.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class EdgeReading:
+    """An edge case's largest side force on its object, beside the soil's resistance
+    at the object's edge."""
+
+    index: int
+    body: str  # "mine", "stone" or "root"
+    cut_m: float
+    resistance_n: float
+    side_n: float
+    safe: bool
+
+
+def edge_readings(results: Iterable[CaseResult]) -> list[EdgeReading]:
+    """The edge family's results (others and refused sites left out) with their cases
+    drawn again from the seed and index."""
+    readings = []
+    for r in results:
+        if r.family != str(Family.EDGE) or r.refused:
+            continue
+        case = edge_case(r.seed, r.index)
+        objects = case.ground.objects
+        body, side_n = (("mine", r.f_mine_side_max_n) if objects.mines else
+                        ("stone", r.f_stone_side_max_n) if objects.stones else
+                        ("root", r.f_root_side_max_n))
+        readings.append(EdgeReading(r.index, body, edge_cut_m(case), edge_resistance_n(case),
+                                    side_n, r.safe))
+    return readings

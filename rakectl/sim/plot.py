@@ -8,6 +8,7 @@ from typing import Any
 from rakectl.errors import RakeError
 from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim.cases import FAULT_KINDS
+from rakectl.sim.edge import EdgeReading
 from rakectl.sim.results import CaseResult, Report
 from rakectl.sim.simulate import SimulationResult
 
@@ -204,6 +205,55 @@ def plot_campaign(report: Report, path: Path, title: str = "") -> None:
     fig.suptitle(f"{title}{': ' if title else ''}{len(ran)} cases run, "
                  f"{len(report.unsafe)} over the limit, {report.mine_activations} mines fired",
                  fontsize="medium")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+EDGE_BODIES = (("mine", "tab:red"), ("stone", "0.45"), ("root", "tab:green"))
+RESISTANCE_FLOOR_N = 0.1  # the log axis's least: an object whose edge stands out of the soil
+
+
+def plot_edge_resistance(readings: list[EdgeReading], path: Path, budget_n: float,
+                         title: str = "") -> None:
+    """The edge family's gap at a glance: each case's largest side force on its object
+    against the soil's cutting resistance H at the object's edge (docs/safety.md, "Not
+    covered"), with the 90 N limit, the line side = H, and the budget the descent limiter
+    keeps H under (``budget_n``: 90 N less the clamp's F_L). Cases whose tines never
+    touched their object are counted, not drawn."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(9, 6.5))
+    touched = [r for r in readings if r.side_n > 0.0]
+    for body, color in EDGE_BODIES:
+        group = [r for r in touched if r.body == body]
+        cases = sum(r.body == body for r in readings)
+        over = sum(not r.safe for r in readings if r.body == body)
+        if not cases:
+            continue
+        ax.scatter([max(r.resistance_n, RESISTANCE_FLOOR_N) for r in group],
+                   [r.side_n for r in group], s=7, alpha=0.6, color=color, linewidths=0,
+                   label=f"{body}s: {len(group)} of {cases} cases touched"
+                   + (f", {over} over the limit" if body == "mine" else ""))
+    h = [max(r.resistance_n, RESISTANCE_FLOOR_N) for r in readings] or [budget_n]
+    h_span = [min(min(h), budget_n) / 1.5, 1.5 * max(max(h), FORCE_LIMIT_N)]
+    ax.plot(h_span, h_span, color="k", lw=0.8, ls=":", label="side force = H")
+    ax.axhline(FORCE_LIMIT_N, color="k", lw=1.5, label=f"{FORCE_LIMIT_N:g} N limit (mines)")
+    ax.axvline(budget_n, color="tab:blue", lw=1.2, ls="--",
+               label=f"H = {budget_n:g} N: the descent budget (90 N less F_L)")
+    ax.set_xscale("log")
+    ax.set_xlim(*h_span)
+    ax.set_ylim(0.0, 1.05 * max(FORCE_LIMIT_N, *(r.side_n for r in readings)))
+    ax.set_xlabel("the soil's cutting resistance H at the object's edge, a mean cell [N]"
+                  + (f" (≤ {RESISTANCE_FLOOR_N:g}: the edge above the soil)"
+                     if min(h) <= RESISTANCE_FLOOR_N else ""))
+    ax.set_ylabel("largest side force on the object [N]")
+    excess = max((r.side_n - r.resistance_n for r in touched), default=0.0)
+    below = [r.side_n for r in readings if r.resistance_n <= budget_n]
+    ax.set_title(f"{title}{': ' if title else ''}side force at most H + {excess:.1f} N; "
+                 f"where H ≤ {budget_n:g} N at most {max(below, default=0.0):.1f} N "
+                 f"({len(below)} cases)", fontsize="medium")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(loc="upper left", fontsize="small")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -219,6 +219,7 @@ def test_the_cli_plots_a_finished_campaign_without_running_it(
     assert header[:8] == b"\x89PNG\r\n\x1a\n"
     assert (int.from_bytes(header[16:20], "big"), int.from_bytes(header[20:24], "big")) == (
         990, 1210)  # 9 × 11 in at 110 dpi
+    assert not (out / fuzz_cli.EDGE_PLOT).exists()  # the edge family's plot: its own
     plot.unlink()
     assert fuzz_cli.main([*argv[:-3], "--plot"]) == 2  # no --out: nowhere to write it
     assert "--plot needs --out" in capsys.readouterr().err and not plot.exists()
