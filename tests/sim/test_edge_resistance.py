@@ -14,6 +14,7 @@ from drivers.ground_params import BuriedObjects, GroundParams, MineParams, RootP
 from drivers.soil_params import SoilLayer, SoilParams
 from rakectl.cli import fuzz as fuzz_cli
 from rakectl.sim import cases, edge, results
+from tests.png import png_size
 
 # The soils of config/scenarios/excavate-{loam,sand}.yaml, whose H docs/safety.md tables
 # ("Not covered"; the 0.15 m rake, a mean cell): loam 22.5, 45.6, 69.5 N at 10, 20,
@@ -70,10 +71,7 @@ def test_the_edge_family_plots_its_side_forces_against_the_resistance(
     assert json.loads(captured.out.strip().splitlines()[-1])["scenarios"] == 4
     plot = tmp_path / fuzz_cli.EDGE_PLOT
     assert f"plot written to {plot}" in captured.err
-    header = plot.read_bytes()[:24]
-    assert header[:8] == b"\x89PNG\r\n\x1a\n"
-    assert (int.from_bytes(header[16:20], "big"), int.from_bytes(header[20:24], "big")) == (
-        990, 715)  # 9 × 6.5 in at 110 dpi
+    assert png_size(plot) == (990, 715)  # 9 × 6.5 in at 110 dpi
     run = list(results.finished_results(tmp_path / results.RESULTS_FILE, 3, range(4),
                                         cases.Family.EDGE).values())
     readings = {r.index: r for r in edge.edge_readings(run)}

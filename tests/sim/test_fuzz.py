@@ -20,6 +20,7 @@ from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim import campaign, case_files, cases, edge, results, scene
 from rakectl.sim.cases import FAULT_KINDS, CommandKind, Faults, FuzzCase, MotionCommand
 from rakectl.sim.scenario import Scenario
+from tests.png import png_size
 
 # Cases run on every CI run (48 consecutive cover every kind and fault): some of the
 # campaign's own, whose results there are pinned in PINNED (its first line: on which chain)
@@ -215,10 +216,7 @@ def test_the_cli_plots_a_finished_campaign_without_running_it(
     assert f"{CI_SAMPLE} scenarios, all read back from an earlier run (none ran)" in captured.out
     plot = out / fuzz_cli.FORCES_PLOT
     assert f"plot written to {plot}" in captured.err
-    header = plot.read_bytes()[:24]
-    assert header[:8] == b"\x89PNG\r\n\x1a\n"
-    assert (int.from_bytes(header[16:20], "big"), int.from_bytes(header[20:24], "big")) == (
-        990, 1210)  # 9 × 11 in at 110 dpi
+    assert png_size(plot) == (990, 1210)  # 9 × 11 in at 110 dpi
     assert not (out / fuzz_cli.EDGE_PLOT).exists()  # the edge family's plot: its own
     plot.unlink()
     assert fuzz_cli.main([*argv[:-3], "--plot"]) == 2  # no --out: nowhere to write it
