@@ -88,15 +88,20 @@ def edge_case(seed: int, index: int) -> FuzzCase:
                     command, faults, duration_s, (index // 24) % 2 == 1, Family.EDGE)
 
 
+def edge_body(case: FuzzCase) -> MineParams | StoneParams | RootParams:
+    """The one object an edge case's plunge passes beside."""
+    objects = case.ground.objects
+    bodies: tuple[MineParams | StoneParams | RootParams, ...] = (
+        *objects.mines, *objects.stones, *objects.roots)
+    return bodies[0]
+
+
 def edge_cut_m(case: FuzzCase) -> float:
     """How far below the original surface over an edge case's path its object's rounded
     top edge reaches (its top plus the edge's radius; a root's round side: its radius;
     0 if that is above the surface): the deepest cut the tines are in while the edge
     forces them sideways."""
-    objects = case.ground.objects
-    bodies: tuple[MineParams | StoneParams | RootParams, ...] = (
-        *objects.mines, *objects.stones, *objects.roots)
-    body = bodies[0]
+    body = edge_body(case)
     radius_m = body.thickness_m / 2 if isinstance(body, RootParams) else body.edge_radius_m
     surface_m = original_surface_height_m(case.ground.soil, case.command.reach_far_m)
     return max(0.0, float(surface_m + body.depth_m + radius_m))
@@ -120,7 +125,6 @@ class EdgeReading:
 
     index: int
     body: str  # "mine", "stone" or "root"
-    cut_m: float
     resistance_n: float
     side_n: float
     safe: bool
@@ -134,10 +138,9 @@ def edge_readings(results: Iterable[CaseResult]) -> list[EdgeReading]:
         if r.family != str(Family.EDGE) or r.refused:
             continue
         case = edge_case(r.seed, r.index)
-        objects = case.ground.objects
-        body, side_n = (("mine", r.f_mine_side_max_n) if objects.mines else
-                        ("stone", r.f_stone_side_max_n) if objects.stones else
+        body = edge_body(case)
+        kind, side_n = (("mine", r.f_mine_side_max_n) if isinstance(body, MineParams) else
+                        ("stone", r.f_stone_side_max_n) if isinstance(body, StoneParams) else
                         ("root", r.f_root_side_max_n))
-        readings.append(EdgeReading(r.index, body, edge_cut_m(case), edge_resistance_n(case),
-                                    side_n, r.safe))
+        readings.append(EdgeReading(r.index, kind, edge_resistance_n(case), side_n, r.safe))
     return readings
