@@ -68,6 +68,12 @@ def _parser() -> argparse.ArgumentParser:
                    "--workers local processes")
     p.add_argument("--replay", type=Path, default=None,
                    help="re-run a case file (a worst case, or tests/data/fuzz/*.json)")
+    p.add_argument("--trace", default=None, metavar="INDEX|CASE.json",
+                   help="run one case (case INDEX of --seed and --family, or a case file) "
+                   "and show, substep by substep, where an object pushed the tines hardest "
+                   "along the reach: the object's force, the soil's and the mount's, what "
+                   "the massless tines' balance leaves over, and the soil's cutting "
+                   "resistance at their cut (rakectl.sim.trace)")
     p.add_argument("--mcap", type=Path, default=None, metavar="OUT.mcap",
                    help="with --replay: record the replay as MCAP (and its telemetry as "
                    "OUT.csv next to it; the [view] extra; docs/viewer.md)")
@@ -172,6 +178,27 @@ def _replay_main(path: Path, as_json: bool, mcap: Path | None = None) -> int:
     return 0 if same and now.safe else 1
 
 
+def _trace_main(args: argparse.Namespace) -> int:
+    from rakectl.sim.campaign import generated_case
+    from rakectl.sim.trace import describe, summary, trace_case
+
+    what = args.trace
+    if what.isdigit():
+        case = generated_case(args.seed, int(what), Family(args.family), args.declared_site)
+    else:
+        try:
+            case, _ = read_case_file(Path(what))
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            print(f"rakectl fuzz: --trace {what}: neither a case index (a whole number) nor "
+                  f"a case file ({e})", file=sys.stderr)
+            return 2
+    trace = trace_case(case)
+    print("\n".join(describe(trace)))
+    if args.json:
+        print(json.dumps(summary(trace)))
+    return 0 if trace.result.safe else 1
+
+
 def _plot_edge(report: Report, path: Path, title: str) -> None:
     """The edge family's side forces against the soil's resistance at the objects' edges."""
     from rakectl.config.settings import ClampSettings
@@ -189,8 +216,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.mcap is not None and args.replay is None:
         print("rakectl fuzz: --mcap records a --replay: give the case file", file=sys.stderr)
         return 2
+    if args.trace is not None and args.replay is not None:
+        print("rakectl fuzz: --trace and --replay each run one case: give one of them",
+              file=sys.stderr)
+        return 2
     if args.replay is not None:
         return _replay_main(args.replay, args.json, args.mcap)
+    if args.trace is not None:
+        return _trace_main(args)
     if args.scenarios < 1 or args.workers < 1 or args.first < 0:
         print("rakectl fuzz: --scenarios and --workers must be >= 1, --first >= 0",
               file=sys.stderr)

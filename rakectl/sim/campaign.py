@@ -112,9 +112,11 @@ def _lane(settings: Scenario, loop: RakeLoop, depth_m: float) -> LanePlanner:
 
 def run_case(case: FuzzCase, clamp: VoltageClamp | None = None,
              on_tick: Callable[[FaultyRakeLoop], None] | None = None,
-             descent: DescentSettings | None = None) -> CaseResult:
+             descent: DescentSettings | None = None,
+             on_start: Callable[[FaultyRakeLoop], None] | None = None) -> CaseResult:
     """Run one case through the full chain; ``clamp`` replaces the real one (tests);
-    ``on_tick`` sees the loop after every tick (a replay's telemetry); ``descent``
+    ``on_tick`` sees the loop after every tick (a replay's telemetry), ``on_start``
+    once before the first (a trace's recorder, rakectl.sim.trace); ``descent``
     replaces the descent budget's settings (a site's declared soil, the limiter on). A
     declaration the daemon would refuse at load runs nothing: its result says why."""
     settings = scenario_of(case, descent)
@@ -126,6 +128,8 @@ def run_case(case: FuzzCase, clamp: VoltageClamp | None = None,
     loop.reset()
     reference = _reference(case, settings, loop)
     loop.arm_faults()
+    if on_start is not None:
+        on_start(loop)
     dt_s = loop.dt_s
     peak_n, peak_t_s, over, hold = 0.0, 0.0, 0, round(HOLD_AFTER_DONE_S / dt_s)
     after_fault = round(AFTER_FAULT_S / dt_s)
@@ -209,14 +213,16 @@ def _refused(case: FuzzCase, why: str) -> CaseResult:
 # --------------------------------------------------------------------------- campaign
 
 
-def _case(seed: int, index: int, family: Family, declared_site: bool) -> FuzzCase:
+def generated_case(seed: int, index: int, family: Family, declared_site: bool) -> FuzzCase:
+    """Case ``index`` of ``seed`` in ``family``, its site declared if asked (as a campaign
+    runs it)."""
     case = generate(seed, index, family)
     return dataclasses.replace(case, declared_site=True) if declared_site else case
 
 
 def _run_index(job: tuple[int, int, str, bool]) -> CaseResult:
     seed, index, family, declared_site = job
-    return run_case(_case(seed, index, Family(family), declared_site))
+    return run_case(generated_case(seed, index, Family(family), declared_site))
 
 
 def _severity(r: CaseResult) -> float:
@@ -272,7 +278,7 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
     results.sort(key=lambda r: r.index)
     worst = max(results, key=_severity)
     report = Report(scenarios, tuple(results), worst,
-                    _case(seed, worst.index, family, declared_site),
+                    generated_case(seed, worst.index, family, declared_site),
                     time.perf_counter() - started, resumed=len(done))
     if out_dir is None:
         return report

@@ -1,0 +1,224 @@
+"""One campaign case traced substep by substep: where an object pushed the tines
+hardest along the reach, and what pushed back.
+
+The tines are massless (drivers.mount): along the reach, what an object pushes them
+with, the soil and the mount push back with, in every substep. Where an object's
+rounded edge forces descending tines sideways, the soil's share is its cutting
+resistance H at the tines' cut (docs/safety.md, "Not covered"); a substep that does
+not balance, or a share the soil's resistance cannot account for, is the emulator's
+to explain, not the controller's.
+
+:class:`TracingRecorder` stands in for the loop's
+:class:`~rakectl.sim.rake_plant.PeakRecorder` (the ground as the arm meets it, once per
+part of a substep) and reads, after each call in which an object pushes the tines:
+where the tines are and how fast, each object's force on them, the soil's, and the
+mount's (its spring k_h·e and damper c_h·ė on the sideways offset e, as
+``drivers.mount.TineMount.commit`` sets them), with the soil's cut ahead of them.
+It only reads: a traced case runs exactly as the campaign runs it, to the same
+result, compiled physics or not.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from drivers.arm import ArmPlant
+from drivers.ground import Ground
+from drivers.ground_params import MineParams, RootParams, StoneParams
+from drivers.soil import cutting_force_n
+from drivers.soil_params import SoilParams
+from rakectl.sim import campaign
+from rakectl.sim.cases import FuzzCase
+from rakectl.sim.injection import FaultyRakeLoop
+from rakectl.sim.rake_plant import PeakRecorder
+from rakectl.sim.results import CaseResult
+
+WINDOW = 4  # substeps shown on either side of the largest push
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class SubstepForces:
+    """One call of the ground in which object ``body`` pushed the tines. Forces are ON
+    the tines, along the reach (> 0 away from the robot) and up; heights and speeds
+    up positive."""
+
+    time_s: float  # the tick's start
+    part: int  # the call within the tick (a substep, or a part of one)
+    body: int  # index in Ground.bodies
+    tine_reach_m: float
+    tine_height_m: float
+    tine_reach_vel_m_per_s: float
+    tine_height_vel_m_per_s: float
+    body_reach_n: float
+    body_up_n: float
+    soil_reach_n: float
+    soil_up_n: float
+    mount_reach_n: float
+    cut_m: float  # the soil's cut ahead of the tines (drivers.soil.Soil.cut_depth_m)
+
+    @property
+    def residual_n(self) -> float:
+        """What the massless tines' balance along the reach leaves over (0 when it holds)."""
+        return self.body_reach_n + self.soil_reach_n + self.mount_reach_n
+
+
+class TracingRecorder(PeakRecorder):
+    """The loop's ground, passed through as :class:`PeakRecorder` does, recording each
+    call in which an object pushes the tines (see the module)."""
+
+    __slots__ = ("_arm", "_c_h", "_call", "_k_h", "_tick_s", "rows")
+
+    def __init__(self, ground: Ground, arm: ArmPlant, k_h: float, c_h: float) -> None:
+        super().__init__(ground)
+        self._arm, self._k_h, self._c_h = arm, k_h, c_h
+        self._tick_s, self._call = -1.0, 0
+        self.rows: list[SubstepForces] = []
+
+    def step(self, reach_m: float, height_m: float, reach_vel_m_per_s: float,
+             height_vel_m_per_s: float, dt_s: float) -> tuple[float, float]:
+        force = super().step(reach_m, height_m, reach_vel_m_per_s, height_vel_m_per_s, dt_s)
+        arm = self._arm
+        if arm.time_s != self._tick_s:
+            self._tick_s, self._call = arm.time_s, 0
+        self._call += 1
+        pushed = [(i, body) for i, body in enumerate(self.ground.bodies)
+                  if body.force_reach_n != 0.0 or body.force_up_n != 0.0]
+        if not pushed:
+            return force
+        tip_reach_vel = arm.tip_vel_m_per_s()[0]
+        mount_n = -(self._k_h * arm.mount_offset_m
+                    + self._c_h * (reach_vel_m_per_s - tip_reach_vel))
+        soil = self.ground.soil
+        for i, body in pushed:
+            self.rows.append(SubstepForces(
+                self._tick_s, self._call, i, reach_m, height_m, reach_vel_m_per_s,
+                height_vel_m_per_s, body.force_reach_n, body.force_up_n, soil.force_reach_n,
+                soil.force_up_n, mount_n, soil.cut_depth_m))
+        return force
+
+
+def resistance_n(soil: SoilParams, cut_m: float) -> float:
+    """H at a cut of ``cut_m``: the cutting resistance over the rake's width
+    (:func:`drivers.soil.cutting_force_n`, a mean cell) of the strongest layer the cut
+    reaches (the cells lie within ``strength_rel_std`` of it)."""
+    return max((cutting_force_n(layer, soil, cut_m) for layer in soil.layers
+                if layer.from_depth_m <= cut_m), default=0.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class Trace:
+    """A case's result and the substeps in which objects pushed its tines."""
+
+    case: FuzzCase
+    result: CaseResult
+    body_kinds: tuple[str, ...]  # "stone", "root" or "mine", by Ground.bodies index
+    rows: tuple[SubstepForces, ...]
+
+    @property
+    def peak(self) -> int:
+        """Index in ``rows`` of the largest push along the reach (-1: none, or objects
+        that pushed the tines only up: tops)."""
+        if not self.rows:
+            return -1
+        k = max(range(len(self.rows)), key=lambda k: abs(self.rows[k].body_reach_n))
+        return k if self.rows[k].body_reach_n != 0.0 else -1
+
+    def window(self, around: int, width: int = WINDOW) -> list[SubstepForces]:
+        """The rows of the same object from ``width`` before ``around`` to ``width`` after."""
+        body = self.rows[around].body
+        before = [k for k in range(around) if self.rows[k].body == body][-width:]
+        after = [k for k in range(around + 1, len(self.rows))
+                 if self.rows[k].body == body][:width]
+        return [self.rows[k] for k in (*before, around, *after)]
+
+    def resistance_n(self, row: SubstepForces) -> float:
+        """H at the row's cut, in the case's soil (:func:`resistance_n`)."""
+        return resistance_n(self.case.ground.soil, row.cut_m)
+
+
+def _kinds(case: FuzzCase) -> tuple[str, ...]:
+    """The bodies' kinds in drivers.objects.make_bodies' order: stones, roots, mines."""
+    o = case.ground.objects
+    kinds: list[str] = []
+    for bodies, kind in ((o.stones, "stone"), (o.roots, "root"), (o.mines, "mine")):
+        params: tuple[StoneParams | RootParams | MineParams, ...] = bodies
+        kinds += [kind] * len(params)
+    return tuple(kinds)
+
+
+def trace_case(case: FuzzCase) -> Trace:
+    """Run ``case`` as the campaign does (:func:`rakectl.sim.campaign.run_case`), its
+    ground traced (a site the daemon would refuse runs nothing: no rows)."""
+    recorders: list[TracingRecorder] = []
+
+    arm = campaign.scenario_of(case).emulator.arm
+
+    def traced(loop: FaultyRakeLoop) -> None:
+        recorder = TracingRecorder(loop.ground, loop.arm, arm.tine_mount_side_stiffness_n_per_m,
+                                   arm.tine_mount_side_damping_ns_per_m)
+        loop.contact = recorder
+        recorders.append(recorder)
+
+    result = campaign.run_case(case, on_start=traced)
+    rows = tuple(recorders[0].rows) if recorders else ()
+    return Trace(case, result, _kinds(case), rows)
+
+
+def describe(trace: Trace) -> list[str]:
+    """The trace as lines: the result, the largest push and the substeps around it."""
+    r = trace.result
+    lines = [f"{trace.case.describe()} ({r.family})",
+             f"result: ground {r.f_true_z_max_n:.1f} N, mine plate {r.f_mine_plate_max_n:.1f} N,"
+             f" mine side {r.f_mine_side_max_n:.1f} N, stone side "
+             f"{r.f_stone_side_max_n:.1f} N, root side {r.f_root_side_max_n:.1f} N"]
+    peak = trace.peak
+    if peak < 0:
+        up_n = max((row.body_up_n for row in trace.rows), default=0.0)
+        return [*lines, "no object pushed the tines along the reach" + (
+            f" (tops only: {up_n:.1f} N up at most)" if trace.rows else "")]
+    p = trace.rows[peak]
+    h_n = trace.resistance_n(p)
+    worst = max(trace.rows, key=lambda row: abs(row.residual_n))
+    lines += [
+        f"largest push along the reach: the {trace.body_kinds[p.body]} (body {p.body}), "
+        f"{p.body_reach_n:+.1f} N at t = {p.time_s:.3f} s (call {p.part} of the tick); the soil "
+        f"{p.soil_reach_n:+.1f} N, the mount {p.mount_reach_n:+.1f} N, left over "
+        f"{p.residual_n:+.2f} N",
+        f"the soil's cut there {p.cut_m * 1e3:.1f} mm: H = {h_n:.1f} N (strongest layer, a "
+        f"mean cell); the soil's share {abs(p.soil_reach_n) / h_n:.2f} H" if h_n > 0.0 else
+        f"the soil's cut there {p.cut_m * 1e3:.1f} mm: no resistance",
+        f"largest imbalance over the {len(trace.rows)} traced calls: {worst.residual_n:+.2f} N "
+        f"at t = {worst.time_s:.3f} s",
+        "     t s call   tine reach m  height mm  v_reach mm/s  v_up mm/s  object N (reach, up)"
+        "  soil N (reach, up)  mount N  left N  cut mm"]
+    for row in trace.window(peak):
+        lines.append(
+            f"{row.time_s:8.3f} {row.part:4d} {row.tine_reach_m:14.5f} "
+            f"{row.tine_height_m * 1e3:10.2f} {row.tine_reach_vel_m_per_s * 1e3:13.1f} "
+            f"{row.tine_height_vel_m_per_s * 1e3:10.1f} {row.body_reach_n:+9.1f} "
+            f"{row.body_up_n:+8.1f}   {row.soil_reach_n:+9.1f} {row.soil_up_n:+8.1f} "
+            f"{row.mount_reach_n:+8.1f} {row.residual_n:+7.2f} {row.cut_m * 1e3:7.1f}")
+    return lines
+
+
+def summary(trace: Trace) -> dict[str, float | int | str]:
+    """The largest push's figures, for --json."""
+    peak = trace.peak
+    out: dict[str, float | int | str] = {"index": trace.result.index, "seed": trace.result.seed,
+                                         "family": trace.result.family,
+                                         "traced_calls": len(trace.rows)}
+    if peak < 0:
+        return out
+    p = trace.rows[peak]
+    worst = max(abs(row.residual_n) for row in trace.rows)
+    out.update({"body": trace.body_kinds[p.body], "time_s": p.time_s,
+                "body_reach_n": p.body_reach_n, "body_up_n": p.body_up_n,
+                "soil_reach_n": p.soil_reach_n, "mount_reach_n": p.mount_reach_n,
+                "residual_n": p.residual_n, "cut_m": p.cut_m,
+                "resistance_n": trace.resistance_n(p), "largest_residual_n": worst,
+                "tine_height_vel_m_per_s": p.tine_height_vel_m_per_s,
+                "tine_reach_vel_m_per_s": p.tine_reach_vel_m_per_s})
+    if not all(math.isfinite(v) for v in out.values() if isinstance(v, float)):
+        raise ValueError("trace: a non-finite figure")
+    return out

@@ -1,0 +1,78 @@
+"""`rakectl fuzz --trace`: one case substep by substep, read without changing it (the
+campaign's own result), its largest push on an object the one the result records,
+and the massless tines' balance along the reach at it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from rakectl.sim import campaign, trace
+from rakectl.sim.case_files import read_case_file
+from rakectl.sim.cases import Family
+from tests.cli_run import run_rakectl
+
+RIM = Path(__file__).resolve().parents[1] / "data" / "fuzz" / "open-mine-rim-9937.json"
+
+
+def test_a_traced_case_runs_as_the_campaign_runs_it() -> None:
+    """The recorder only reads: the result is the campaign's, field for field."""
+    case, _ = read_case_file(RIM)
+    traced = trace.trace_case(case)
+    assert traced.result == campaign.run_case(case)
+    assert traced.body_kinds == ("stone", "stone", "mine", "mine")
+
+
+def test_the_largest_push_is_the_side_force_the_result_records() -> None:
+    """The open rim case (a mine's side over the limit): the traced peak is the mine's
+    recorded side force, to the bit; there the tines balance along the reach (the mine
+    against the soil and the mount) within 0.5 N, and the soil's share is its cutting
+    resistance at their cut (a mean cell's H within the cells' spread, ±20 %)."""
+    case, _ = read_case_file(RIM)
+    traced = trace.trace_case(case)
+    peak = traced.rows[traced.peak]
+    assert traced.body_kinds[peak.body] == "mine"
+    assert abs(peak.body_reach_n) == traced.result.f_mine_side_max_n > 90.0
+    assert abs(peak.residual_n) < 0.5
+    assert peak.soil_reach_n * peak.body_reach_n < 0.0  # the soil pushes back
+    h_n = traced.resistance_n(peak)
+    assert 0.8 * h_n <= abs(peak.soil_reach_n) <= 1.2 * h_n
+    window = traced.window(traced.peak)
+    assert peak in window and {row.body for row in window} == {peak.body}
+    assert len(window) == 2 * trace.WINDOW + 1
+
+
+def test_a_case_without_a_push_along_the_reach_has_no_peak() -> None:
+    """Random cases of seed 20261127: case 2 touches no object (no rows); case 0 presses
+    objects' tops only (rows, all up)."""
+    untouched = trace.trace_case(campaign.generated_case(20261127, 2, Family.RANDOM, False))
+    assert untouched.rows == () and untouched.peak == -1
+    assert trace.describe(untouched)[-1] == "no object pushed the tines along the reach"
+    assert trace.summary(untouched) == {"index": 2, "seed": 20261127, "family": "random",
+                                        "traced_calls": 0}
+    tops = trace.trace_case(campaign.generated_case(20261127, 0, Family.RANDOM, False))
+    assert tops.rows and tops.peak == -1
+    assert all(row.body_reach_n == 0.0 < row.body_up_n for row in tops.rows)
+    assert trace.describe(tops)[-1].startswith(
+        "no object pushed the tines along the reach (tops only: ")
+
+
+def test_the_cli_traces_a_case_file_and_a_campaign_case() -> None:
+    out = run_rakectl("fuzz", "--trace", str(RIM), "--json")
+    assert out.returncode == 1, out.stderr  # the case is over the limit: as --replay says
+    figures = json.loads(out.stdout.splitlines()[-1])
+    assert figures["body"] == "mine" and abs(figures["body_reach_n"]) > 90.0
+    assert "largest push along the reach: the mine" in out.stdout
+    out = run_rakectl("fuzz", "--trace", "0", "--seed", "20261128", "--family", "edge",
+                      "--json")
+    assert out.returncode in (0, 1), out.stderr
+    figures = json.loads(out.stdout.splitlines()[-1])
+    assert (figures["index"], figures["seed"], figures["family"]) == (0, 20261128, "edge")
+
+
+def test_the_cli_refuses_what_it_cannot_trace() -> None:
+    out = run_rakectl("fuzz", "--trace", "no-such-case.json")
+    assert out.returncode == 2
+    assert "--trace no-such-case.json: neither a case index" in out.stderr
+    out = run_rakectl("fuzz", "--trace", "3", "--replay", str(RIM))
+    assert out.returncode == 2 and "give one of them" in out.stderr
