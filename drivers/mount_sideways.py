@@ -36,9 +36,12 @@ class Coupled:
         n_x, n_z = law.n_reach, law.n_up
         (e_at, d_at), (e0, d0) = at, start
         k, b = law.stiffness_n_per_m, law.damping_ns_per_m
-        approach = -(n_x * reach_vel + n_z * height_vel)  # the arm's, before the mount
-        approach_x = max(0.0, -n_x * reach_vel)  # only INTO the face (see Body.vertical_law)
-        approach = approach_x - n_z * height_vel if n_z > 0.0 else approach
+        # the arm's approach along n, the mount's own motion being in the (e, d) terms: the
+        # tines' whole approach, as the ground reads it (Body.touch). Not only a reach speed
+        # INTO the face, as an edge's vertical law takes it (Body.vertical_law: tines put on
+        # a reference): the tines are solved here, and an arm leaving the face along the
+        # reach damps their push by B times its speed (20261130/8268: 25 N)
+        approach = -(n_x * reach_vel + n_z * height_vel)
         self.index, self.n_reach, self.n_up, self.cap_n = index, n_x, n_z, law.cap_n
         self.stiffness_n_per_m, self.damping_ns_per_m = k, b
         self.beta = k + b / h

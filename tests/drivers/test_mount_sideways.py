@@ -1,7 +1,7 @@
 """The tine mount's sideways solve against hand-worked balances (backward Euler, massless
 tines): the mount relaxing, a side pressing (elastic, then capped), the soil's drag
 (against a bisection of the balance, also where the drag turns over just as an edge lets
-go), and the laws taken again where the tines are."""
+go), an edge the arm moves away from, and the laws taken again where the tines are."""
 
 from __future__ import annotations
 
@@ -121,3 +121,36 @@ def test_the_laws_are_taken_again_where_the_tines_are() -> None:
     assert again[0] is coupled[0]  # left: its last linearization
     assert again[1].penetration_m(e, 0.0) == pytest.approx(2e-4 - e, abs=1e-18)
     assert read_as_assumed(again, {**joined, 1: same[1]}, e, 0.0)
+
+
+def test_an_edge_the_arm_leaves_along_the_reach_damps_what_the_tines_really_approach() -> None:
+    """20261130/8268's substep, simplified: tines pressed 30 µm into a mine's rounded top
+    edge near its side (normal 2.6° above the reach, toward the robot; 5·10⁶ N/m, B =
+    1000 N·s/m), the arm descending at 0.5 m/s and moving toward the robot, away from the
+    face, at 25 mm/s; no drag. The edge's force is K·p + B·(the tines' approach along its
+    normal), as the ground reads it (drivers.objects.Body.touch), and the massless tines
+    balance it against the mount. By hand, with d fixed at 0 and e0 = 0:
+
+        n_x·[K·p0 − B·(n_x·v + n_z·v_z)] = (S + n_x²·(K + B/h))·e
+
+    The linearized law once took only the arm's speed INTO the face along the reach
+    (as an edge's vertical law must: drivers.objects.Body.vertical_law), so it balanced
+    the edge 25 N harder than the ground then read it (the mine's side read low by B
+    times the arm's speed away)."""
+    k, b, p0, h = 5e6, 1000.0, 30e-6, H_S
+    n_x, n_z = -math.cos(math.radians(2.6)), math.sin(math.radians(2.6))
+    v, v_z = -0.025, -0.5  # the arm: toward the robot (away from the face), descending
+    edge = NormalLaw(p0, n_x, n_z, k, b, math.inf)
+    coupled = [Coupled(0, edge, (0.0, 0.0), (0.0, 0.0), v, v_z, h)]
+    e = offset(K_H, C_H, h, 0.0, coupled, NO_DRAG, v, 0.0, 0.0)
+    by_hand = n_x * (k * p0 - b * (n_x * v + n_z * v_z)) / (STIFF + n_x * n_x * (k + b / h))
+    assert e == pytest.approx(by_hand, rel=1e-12)
+    tine_v = v + e / h  # the tines' speed along the reach this substep (e0 = 0)
+    read_n = k * (p0 - n_x * e) + b * -(n_x * tine_v + n_z * v_z)  # as the ground reads it
+    assert n_x * read_n == pytest.approx(STIFF * e, rel=1e-9)  # the mount carries it
+    # the law that took only a reach speed into the face: its balance, read by the ground,
+    # leaves B·n_x²·v over (25 N toward the robot on the tines: the mine read that low)
+    clipped = n_x * (k * p0 - b * n_z * v_z) / (STIFF + n_x * n_x * (k + b / h))
+    read_clipped = k * (p0 - n_x * clipped) + b * -(n_x * (v + clipped / h) + n_z * v_z)
+    assert n_x * read_clipped - STIFF * clipped == pytest.approx(-b * n_x * n_x * v, rel=1e-6)
+    assert -b * n_x * n_x * v == pytest.approx(24.9, abs=0.1)
