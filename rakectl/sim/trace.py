@@ -11,7 +11,8 @@ to explain, not the controller's.
 :class:`TracingRecorder` stands in for the loop's
 :class:`~rakectl.sim.rake_plant.PeakRecorder` (the ground as the arm meets it, once per
 part of a substep) and reads, after each call in which an object pushes the tines:
-where the tines are and how fast, each object's force on them, the soil's, and the
+where the tines are and how fast, each object's force on them (a row per object, with
+what the others push in the same call), the soil's, and the
 mount's (its spring k_h·e and damper c_h·ė on the sideways offset e, as
 ``drivers.mount.TineMount.commit`` sets them), with the soil's cut ahead of them.
 It only reads: a traced case runs exactly as the campaign runs it, to the same
@@ -51,6 +52,7 @@ class SubstepForces:
     tine_height_vel_m_per_s: float
     body_reach_n: float
     body_up_n: float
+    others_reach_n: float  # the other objects pushing the tines in the same call
     soil_reach_n: float
     soil_up_n: float
     mount_reach_n: float
@@ -59,7 +61,7 @@ class SubstepForces:
     @property
     def residual_n(self) -> float:
         """What the massless tines' balance along the reach leaves over (0 when it holds)."""
-        return self.body_reach_n + self.soil_reach_n + self.mount_reach_n
+        return self.body_reach_n + self.others_reach_n + self.soil_reach_n + self.mount_reach_n
 
 
 class TracingRecorder(PeakRecorder):
@@ -89,11 +91,13 @@ class TracingRecorder(PeakRecorder):
         mount_n = -(self._k_h * arm.mount_offset_m
                     + self._c_h * (reach_vel_m_per_s - tip_reach_vel))
         soil = self.ground.soil
+        bodies_n = sum(body.force_reach_n for _, body in pushed)
         for i, body in pushed:
             self.rows.append(SubstepForces(
                 self._tick_s, self._call, i, reach_m, height_m, reach_vel_m_per_s,
-                height_vel_m_per_s, body.force_reach_n, body.force_up_n, soil.force_reach_n,
-                soil.force_up_n, mount_n, soil.cut_depth_m))
+                height_vel_m_per_s, body.force_reach_n, body.force_up_n,
+                bodies_n - body.force_reach_n, soil.force_reach_n, soil.force_up_n, mount_n,
+                soil.cut_depth_m))
         return force
 
 

@@ -7,6 +7,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from rakectl.sim import campaign, trace
 from rakectl.sim.case_files import read_case_file
 from rakectl.sim.cases import Family
@@ -27,7 +29,9 @@ def test_the_largest_push_is_the_side_force_the_result_records() -> None:
     """The open rim case (a mine's side over the limit): the traced peak is the mine's
     recorded side force, to the bit; there the tines balance along the reach (the mine
     against the soil and the mount) within 0.5 N, and the soil's share is its cutting
-    resistance at their cut (a mean cell's H within the cells' spread, ±20 %)."""
+    resistance at their cut (a mean cell's H within the cells' spread, ±20 %). Every
+    traced call balances within 10 N (7.0 N at most), a call in which the mine and a
+    stone both push the tines counting both."""
     case, _ = read_case_file(RIM)
     traced = trace.trace_case(case)
     peak = traced.rows[traced.peak]
@@ -37,6 +41,13 @@ def test_the_largest_push_is_the_side_force_the_result_records() -> None:
     assert peak.soil_reach_n * peak.body_reach_n < 0.0  # the soil pushes back
     h_n = traced.resistance_n(peak)
     assert 0.8 * h_n <= abs(peak.soil_reach_n) <= 1.2 * h_n
+    assert max(abs(row.residual_n) for row in traced.rows) < 10.0  # every call, near enough
+    calls: dict[tuple[float, int], list[trace.SubstepForces]] = {}
+    for row in traced.rows:
+        calls.setdefault((row.time_s, row.part), []).append(row)
+    shared = [rows for rows in calls.values() if len(rows) > 1]  # the mine and a stone
+    assert shared and all(rows[0].residual_n == pytest.approx(rows[1].residual_n, abs=1e-9)
+                          for rows in shared)
     window = traced.window(traced.peak)
     assert peak in window and {row.body for row in window} == {peak.body}
     assert len(window) == 2 * trace.WINDOW + 1
