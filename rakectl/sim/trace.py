@@ -194,13 +194,14 @@ def describe(trace: Trace) -> list[str]:
         f"largest imbalance over the {len(trace.rows)} traced calls: {worst.residual_n:+.2f} N "
         f"at t = {worst.time_s:.3f} s",
         "     t s call   tine reach m  height mm  v_reach mm/s  v_up mm/s  object N (reach, up)"
-        "  soil N (reach, up)  mount N  left N  cut mm"]
+        "  others N  soil N (reach, up)  mount N  left N  cut mm"]
     for row in trace.window(peak):
         lines.append(
             f"{row.time_s:8.3f} {row.part:4d} {row.tine_reach_m:14.5f} "
             f"{row.tine_height_m * 1e3:10.2f} {row.tine_reach_vel_m_per_s * 1e3:13.1f} "
             f"{row.tine_height_vel_m_per_s * 1e3:10.1f} {row.body_reach_n:+9.1f} "
-            f"{row.body_up_n:+8.1f}   {row.soil_reach_n:+9.1f} {row.soil_up_n:+8.1f} "
+            f"{row.body_up_n:+8.1f} {row.others_reach_n:+9.1f}   {row.soil_reach_n:+9.1f} "
+            f"{row.soil_up_n:+8.1f} "
             f"{row.mount_reach_n:+8.1f} {row.residual_n:+7.2f} {row.cut_m * 1e3:7.1f}")
     return lines
 
