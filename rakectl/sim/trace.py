@@ -43,7 +43,7 @@ class SubstepForces:
     the tines, along the reach (> 0 away from the robot) and up; heights and speeds
     up positive."""
 
-    time_s: float  # the tick's start
+    time_s: float  # the tick's start, from the case's (as CaseResult.f_true_z_max_t_s)
     part: int  # the call within the tick (a substep, or a part of one)
     body: int  # index in Ground.bodies
     tine_reach_m: float
@@ -68,12 +68,13 @@ class TracingRecorder(PeakRecorder):
     """The loop's ground, passed through as :class:`PeakRecorder` does, recording each
     call in which an object pushes the tines (see the module)."""
 
-    __slots__ = ("_arm", "_c_h", "_call", "_k_h", "_tick_s", "rows")
+    __slots__ = ("_arm", "_c_h", "_call", "_k_h", "_start_s", "_tick_s", "rows")
 
     def __init__(self, ground: Ground, arm: ArmPlant, k_h: float, c_h: float) -> None:
         super().__init__(ground)
         self._arm, self._k_h, self._c_h = arm, k_h, c_h
         self._tick_s, self._call = -1.0, 0
+        self._start_s = arm.time_s  # the case starts here, after the loop's settling
         self.rows: list[SubstepForces] = []
 
     def step(self, reach_m: float, height_m: float, reach_vel_m_per_s: float,
@@ -94,7 +95,7 @@ class TracingRecorder(PeakRecorder):
         bodies_n = sum(body.force_reach_n for _, body in pushed)
         for i, body in pushed:
             self.rows.append(SubstepForces(
-                self._tick_s, self._call, i, reach_m, height_m, reach_vel_m_per_s,
+                self._tick_s - self._start_s, self._call, i, reach_m, height_m, reach_vel_m_per_s,
                 height_vel_m_per_s, body.force_reach_n, body.force_up_n,
                 bodies_n - body.force_reach_n, soil.force_reach_n, soil.force_up_n, mount_n,
                 soil.cut_depth_m))

@@ -41,6 +41,12 @@ def test_the_largest_push_is_the_side_force_the_result_records() -> None:
     assert peak.soil_reach_n * peak.body_reach_n < 0.0  # the soil pushes back
     h_n = traced.resistance_n(peak)
     assert 0.8 * h_n <= abs(peak.soil_reach_n) <= 1.2 * h_n
+    touching: list[bool] = []  # per tick of the case, whether an object pushes the tines
+    campaign.run_case(case, on_tick=lambda loop: touching.append(any(
+        b.force_reach_n != 0.0 or b.force_up_n != 0.0 for b in loop.ground.bodies)))
+    first_s = touching.index(True) * 0.001  # the case's own clock (1 kHz), as the result's
+    assert traced.rows[0].time_s == pytest.approx(first_s, abs=1e-9)
+    assert peak.time_s < traced.result.duration_s
     assert max(abs(row.residual_n) for row in traced.rows) < 10.0  # every call, near enough
     calls: dict[tuple[float, int], list[trace.SubstepForces]] = {}
     for row in traced.rows:
