@@ -19,6 +19,7 @@ import numpy as np
 
 from drivers.ground_params import BuriedObjects, GroundParams, MineParams, RootParams, StoneParams
 from drivers.soil import cutting_force_n, original_surface_height_m
+from drivers.soil_params import SoilParams
 from rakectl.sim.cases import (
     FAULT_KINDS,
     PLUNGE_END_DEPTH_M,
@@ -107,15 +108,20 @@ def edge_cut_m(case: FuzzCase) -> float:
     return max(0.0, float(surface_m + body.depth_m + radius_m))
 
 
-def edge_resistance_n(case: FuzzCase) -> float:
-    """H at :func:`edge_cut_m`: the cutting resistance over the rake's width
-    (:func:`drivers.soil.cutting_force_n`, a mean cell) of the strongest layer that cut
-    reaches. What the soil resists with when an edge forces the tines sideways through
-    it, which the object carries besides the mount's share (docs/safety.md, "Not
-    covered"); the descent budget keeps it under 90 N less the clamp's F_L."""
-    soil, cut_m = case.ground.soil, edge_cut_m(case)
+def resistance_n(soil: SoilParams, cut_m: float) -> float:
+    """H at a cut of ``cut_m``: the cutting resistance over the rake's width
+    (:func:`drivers.soil.cutting_force_n`, a mean cell) of the strongest layer the cut
+    reaches (the cells lie within ``strength_rel_std`` of it)."""
     return max((cutting_force_n(layer, soil, cut_m) for layer in soil.layers
                 if layer.from_depth_m <= cut_m), default=0.0)
+
+
+def edge_resistance_n(case: FuzzCase) -> float:
+    """H at :func:`edge_cut_m` (:func:`resistance_n`). What the soil resists with when an
+    edge forces the tines sideways through it, which the object carries besides the
+    mount's share (docs/safety.md, "Not covered"); the descent budget keeps it under
+    90 N less the clamp's F_L."""
+    return resistance_n(case.ground.soil, edge_cut_m(case))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -26,10 +26,9 @@ import dataclasses
 from drivers.arm import ArmPlant
 from drivers.ground import Ground
 from drivers.ground_params import MineParams, RootParams, StoneParams
-from drivers.soil import cutting_force_n
-from drivers.soil_params import SoilParams
 from rakectl.sim import campaign
 from rakectl.sim.cases import FuzzCase
+from rakectl.sim.edge import resistance_n
 from rakectl.sim.injection import FaultyRakeLoop
 from rakectl.sim.rake_plant import PeakRecorder
 from rakectl.sim.results import CaseResult
@@ -102,14 +101,6 @@ class TracingRecorder(PeakRecorder):
         return force
 
 
-def resistance_n(soil: SoilParams, cut_m: float) -> float:
-    """H at a cut of ``cut_m``: the cutting resistance over the rake's width
-    (:func:`drivers.soil.cutting_force_n`, a mean cell) of the strongest layer the cut
-    reaches (the cells lie within ``strength_rel_std`` of it)."""
-    return max((cutting_force_n(layer, soil, cut_m) for layer in soil.layers
-                if layer.from_depth_m <= cut_m), default=0.0)
-
-
 @dataclasses.dataclass(frozen=True)
 class Trace:
     """A case's result and the substeps in which objects pushed its tines."""
@@ -137,7 +128,7 @@ class Trace:
         return [self.rows[k] for k in (*before, around, *after)]
 
     def resistance_n(self, row: SubstepForces) -> float:
-        """H at the row's cut, in the case's soil (:func:`resistance_n`)."""
+        """H at the row's cut, in the case's soil (:func:`rakectl.sim.edge.resistance_n`)."""
         return resistance_n(self.case.ground.soil, row.cut_m)
 
 
