@@ -25,7 +25,6 @@ import dataclasses
 
 from drivers.arm import ArmPlant
 from drivers.ground import Ground
-from drivers.ground_params import MineParams, RootParams, StoneParams
 from rakectl.sim import campaign
 from rakectl.sim.cases import FuzzCase
 from rakectl.sim.edge import resistance_n
@@ -107,7 +106,7 @@ class Trace:
 
     case: FuzzCase
     result: CaseResult
-    body_kinds: tuple[str, ...]  # "stone", "root" or "mine", by Ground.bodies index
+    body_kinds: tuple[str, ...]  # "stone", "root" or "mine", by Ground.bodies index (Body.kind)
     rows: tuple[SubstepForces, ...]
 
     @property
@@ -118,6 +117,11 @@ class Trace:
             return -1
         k = max(range(len(self.rows)), key=lambda k: abs(self.rows[k].body_reach_n))
         return k if self.rows[k].body_reach_n != 0.0 else -1
+
+    @property
+    def largest_residual(self) -> SubstepForces:
+        """The traced call whose balance along the reach leaves the most over."""
+        return max(self.rows, key=lambda row: abs(row.residual_n))
 
     def window(self, around: int, width: int = WINDOW) -> list[SubstepForces]:
         """The rows of the same object from ``width`` before ``around`` to ``width`` after."""
@@ -130,16 +134,6 @@ class Trace:
     def resistance_n(self, row: SubstepForces) -> float:
         """H at the row's cut, in the case's soil (:func:`rakectl.sim.edge.resistance_n`)."""
         return resistance_n(self.case.ground.soil, row.cut_m)
-
-
-def _kinds(case: FuzzCase) -> tuple[str, ...]:
-    """The bodies' kinds in drivers.objects.make_bodies' order: stones, roots, mines."""
-    o = case.ground.objects
-    kinds: list[str] = []
-    for bodies, kind in ((o.stones, "stone"), (o.roots, "root"), (o.mines, "mine")):
-        params: tuple[StoneParams | RootParams | MineParams, ...] = bodies
-        kinds += [kind] * len(params)
-    return tuple(kinds)
 
 
 def trace_case(case: FuzzCase) -> Trace:
@@ -156,8 +150,11 @@ def trace_case(case: FuzzCase) -> Trace:
         recorders.append(recorder)
 
     result = campaign.run_case(case, on_start=traced)
-    rows = tuple(recorders[0].rows) if recorders else ()
-    return Trace(case, result, _kinds(case), rows)
+    if not recorders:
+        return Trace(case, result, (), ())
+    recorder = recorders[0]
+    kinds = tuple(str(body.kind.value) for body in recorder.ground.bodies)
+    return Trace(case, result, kinds, tuple(recorder.rows))
 
 
 def describe(trace: Trace) -> list[str]:
@@ -174,7 +171,7 @@ def describe(trace: Trace) -> list[str]:
             f" (tops only: {up_n:.1f} N up at most)" if trace.rows else "")]
     p = trace.rows[peak]
     h_n = trace.resistance_n(p)
-    worst = max(trace.rows, key=lambda row: abs(row.residual_n))
+    worst = trace.largest_residual
     lines += [
         f"largest push along the reach: the {trace.body_kinds[p.body]} (body {p.body}), "
         f"{p.body_reach_n:+.1f} N at t = {p.time_s:.3f} s (call {p.part} of the tick); the soil "
@@ -207,7 +204,7 @@ def summary(trace: Trace) -> dict[str, float | int | str]:
     if peak < 0:
         return out
     p = trace.rows[peak]
-    worst = max(abs(row.residual_n) for row in trace.rows)
+    worst = abs(trace.largest_residual.residual_n)
     out.update({"body": trace.body_kinds[p.body], "time_s": p.time_s,
                 "body_reach_n": p.body_reach_n, "body_up_n": p.body_up_n,
                 "soil_reach_n": p.soil_reach_n, "mount_reach_n": p.mount_reach_n,
