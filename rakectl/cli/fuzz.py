@@ -14,11 +14,13 @@ from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim.campaign import campaign, declares_sites, replay
 from rakectl.sim.case_files import read_case_file
 from rakectl.sim.cases import Family
+from rakectl.sim.compare import compare, describe, read_results
+from rakectl.sim.compare import summary as compare_summary
 from rakectl.sim.injection import FaultyRakeLoop
 from rakectl.sim.parallel import executor_for
 from rakectl.sim.plants import BASE_COLUMNS
 from rakectl.sim.progress import Progress
-from rakectl.sim.results import RESULTS_FILE, WORST_CASE_FILE, Report
+from rakectl.sim.results import RESULTS_FILE, WORST_CASE_FILE, CaseResult, Report
 
 FORCES_PLOT = "forces.png"  # --plot's figure, in --out
 EDGE_PLOT = "edge.png"  # --plot's second figure for the edge family, in --out
@@ -74,6 +76,11 @@ def _parser() -> argparse.ArgumentParser:
                    "along the reach: the object's force, the soil's and the mount's, what "
                    "the massless tines' balance leaves over, and the soil's cutting "
                    "resistance at their cut (rakectl.sim.trace)")
+    p.add_argument("--compare", type=Path, default=None, metavar="DIR",
+                   help="after the campaign, compare its results case by case with the same "
+                   "cases in an earlier run's --out DIR (another chain's): how many differ, "
+                   "which outcomes changed, the largest moves of each force "
+                   "(rakectl.sim.compare); with a finished --out it runs nothing")
     p.add_argument("--mcap", type=Path, default=None, metavar="OUT.mcap",
                    help="with --replay: record the replay as MCAP (and its telemetry as "
                    "OUT.csv next to it; the [view] extra; docs/viewer.md)")
@@ -236,6 +243,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         from rakectl.sim.plot import pyplot
 
         pyplot()  # matplotlib missing: said now, not after the campaign
+    earlier: list[CaseResult] = []
+    if args.compare is not None:  # an earlier run that is not there: said before running
+        try:
+            earlier = read_results(args.compare)
+        except OSError as e:
+            print(f"rakectl fuzz: --compare {args.compare}: no campaign results there ({e})",
+                  file=sys.stderr)
+            return 2
+        if not earlier:
+            print(f"rakectl fuzz: --compare {args.compare}: its {RESULTS_FILE} holds no "
+                  "case's result", file=sys.stderr)
+            return 2
     executor = executor_for(args.scheduler, args.workers)
     try:
         print(banner(args, executor.describe(), executor.physics()), file=sys.stderr)
@@ -255,6 +274,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         if Family(args.family) is Family.EDGE:
             _plot_edge(report, args.out / EDGE_PLOT, span)
     print(human(report))
+    figures = report.summary()
+    if args.compare is not None:
+        comparison = compare(report.results, earlier)
+        print("\n".join(describe(comparison, str(args.compare))))
+        figures["compare"] = {"against": str(args.compare), **compare_summary(comparison)}
     if args.json:
-        print(json.dumps(report.summary()))
+        print(json.dumps(figures))
     return 0 if report.safe else 1

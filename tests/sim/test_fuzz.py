@@ -251,6 +251,50 @@ def test_the_cli_tables_a_finished_campaign_by_command_fault_and_supervision(
     assert any(int(rows[g][5]) for g in groups)  # the sample trips the watchdog
 
 
+def test_the_cli_compares_a_finished_campaign_with_an_earlier_run(
+        ci_sample: results.Report, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--compare DIR``: the CI sample read back (nothing runs) against an earlier run
+    made from its own results, one case's stone side and finding changed, four cases
+    left out; a directory with no results is refused before anything runs."""
+    out = Path(ci_sample.worst_case_path).parent
+    lines = (out / results.RESULTS_FILE).read_text(encoding="utf-8").splitlines()
+    moved = json.loads(lines[5])
+    moved["f_stone_side_max_n"] += 12.5
+    moved["object_found"] = not moved["object_found"]
+    earlier = tmp_path / "earlier"
+    earlier.mkdir()
+    (earlier / results.RESULTS_FILE).write_text(
+        "\n".join([lines[0], json.dumps(moved), *lines[6:]]) + "\n", encoding="utf-8")
+    left_out = sorted(json.loads(line)["index"] for line in lines[1:5])
+    argv = ["--scenarios", str(CI_SAMPLE), "--first", str(CI_FIRST), "--seed", str(CI_SEED),
+            "--out", str(out), "--compare", str(earlier), "--json"]
+    assert fuzz_cli.main(argv) == 0
+    text = capsys.readouterr().out
+    assert f"against {earlier}: 56 of 60 cases there, 1 differ, 55 the same to the bit; " \
+        "4 not there" in text
+    i, found = moved["index"], not moved["object_found"]
+    assert f"outcomes changed: {i} object_found {not found!r} -> {found!r}" in text
+    figures = json.loads(text.strip().splitlines()[-1])
+    assert figures["resumed"] == CI_SAMPLE  # read back: nothing ran
+    compared = figures["compare"]
+    assert (compared["against"], compared["differ"], compared["missing"]) == (
+        str(earlier), 1, left_out)
+    stone = compared["largest_moves"]["f_stone_side_max_n"]
+    assert [(m["index"], round(m["before_n"] - m["after_n"], 6)) for m in stone] == [(i, 12.5)]
+    fresh = tmp_path / "fresh"
+    assert fuzz_cli.main([*argv[:6], "--out", str(fresh), "--compare",
+                          str(tmp_path / "nothing")]) == 2
+    assert f"--compare {tmp_path / 'nothing'}: no campaign results there" in \
+        capsys.readouterr().err
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / results.RESULTS_FILE).write_text(lines[0][:40], encoding="utf-8")  # cut short
+    assert fuzz_cli.main([*argv[:6], "--out", str(fresh), "--compare", str(empty)]) == 2
+    assert f"--compare {empty}: its {results.RESULTS_FILE} holds no case's result" in \
+        capsys.readouterr().err
+    assert not fresh.exists()  # refused before the campaign
+
+
 def test_the_table_gives_refused_sites_a_column_only_where_there_are_any() -> None:
     row = {"cases": 3, "f_true_z_max_n": 12.34, "f_mine_max_n": 0.0, "f_stone_side_max_n": 5.0,
            "watchdog_trips": 1, "unsafe": 0, "refused": 0}
