@@ -57,7 +57,7 @@ import numpy as np
 from drivers.ground_params import BuriedObjects, GroundParams, MineParams, RootParams, StoneParams
 from drivers.soil import original_surface_height_m
 from drivers.soil_params import SoilLayer, SoilParams, SurfaceWave
-from rakectl.sim.scene import laid_in, standing
+from rakectl.sim.scene import apart, laid_in, standing
 
 PLUNGE_END_DEPTH_M = 0.15
 LANE_DURATION_S = 12.0  # cap of one lane or stroke case (simulated)
@@ -340,11 +340,14 @@ def generate(seed: int, index: int, family: Family = Family.RANDOM) -> FuzzCase:
     soil = draw_soil(rng)
     objects = laid_in(objects, soil)  # a scene that can stand: nothing floats
     if at_cut is not None:
-        objects = dataclasses.replace(objects, mines=(*objects.mines, standing(at_cut, soil)))
+        at_cut = standing(at_cut, soil)
+        objects = dataclasses.replace(objects, mines=(*objects.mines, at_cut))
     surface_m = original_surface_height_m(soil, command.reach_far_m)
-    if kind is CommandKind.JOG and command.start_height_m < 0.0:  # it starts in the soil
+    in_soil = kind is CommandKind.JOG and command.start_height_m < 0.0  # it starts there
+    if in_soil:
         objects = _clear_of(objects, command.reach_far_m, -(surface_m + command.start_height_m))
-    else:  # above the ground, and above whatever sticks out of it there (a sloped surface)
+    objects = apart(objects, first=at_cut)  # nor two bodies in one place
+    if not in_soil:  # above the ground, and above whatever sticks out of it (a slope)
         command = dataclasses.replace(command, start_height_m=max(
             command.start_height_m, height_clear_of(objects, command.reach_far_m, surface_m)))
     ground = GroundParams(soil, objects)
