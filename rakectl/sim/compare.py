@@ -52,7 +52,7 @@ def read_results(out_dir: Path) -> list[CaseResult]:
 
 @dataclass(frozen=True)
 class Move:
-    """One case's force in the other run (``before``) and in this one (``after``)."""
+    """One case's force in the other run (``before_n``) and in this one (``after_n``)."""
 
     index: int
     force: str  # a key of FORCES

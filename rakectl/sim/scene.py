@@ -12,10 +12,10 @@ counts it) is sunk, if need be, until its bottom is :data:`BURIED_BOTTOM_M` in t
 
 Each body's reach and depth are drawn apart from the others', and the planar ground
 reads every body across the rake's whole width, so two bodies whose extents overlap
-would be in one place: in more than half the random family's scenes a stone lay
-inside a mine or a root inside a stone (20261128/7116: the tines, between a mine's
-side and a stone's edge 4.2 mm inside it, read a one-substep damping spike).
-:func:`apart` leaves out each body that overlaps one kept before it.
+would be two bodies in one place, a stone inside a mine (more than half the random
+family's scenes draw such a pair): no ground holds that, a body laid into a mine
+covers its plate, and tines between the two read both at once. :func:`apart` leaves
+out each body that overlaps one kept before it.
 """
 
 from __future__ import annotations
