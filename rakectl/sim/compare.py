@@ -12,13 +12,13 @@ deterministic, so an unchanged chain gives each case's result to the bit).
 from __future__ import annotations
 
 import dataclasses
-import json
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rakectl.sim.results import RESULTS_FILE, CaseResult, result_from_dict
+from rakectl.sim.results import RESULTS_FILE, CaseResult
+from rakectl.sim.results import read_results as results_in
 
 # each case's largest forces, and what the campaign's tables call them
 FORCES = {"f_true_z_max_n": "ground", "f_mine_plate_max_n": "mine plate",
@@ -38,16 +38,9 @@ def key(result: CaseResult) -> Key:
 
 
 def read_results(out_dir: Path) -> list[CaseResult]:
-    """The results in ``out_dir``'s results file (a line an interruption cut short is
-    left out, as a resumed campaign leaves it out); :class:`OSError` if there is none."""
-    path = out_dir / RESULTS_FILE
-    found = []
-    for line in path.read_text(encoding="utf-8").splitlines():
-        try:
-            found.append(result_from_dict(json.loads(line)))
-        except (ValueError, TypeError, KeyError):
-            continue
-    return found
+    """The results in ``out_dir``'s results file (:func:`rakectl.sim.results.read_results`);
+    :class:`OSError` if there is none."""
+    return results_in(out_dir / RESULTS_FILE)
 
 
 @dataclass(frozen=True)

@@ -154,23 +154,28 @@ class Report:
 # --------------------------------------------------------------------------- results file
 
 
+def read_results(path: Path) -> list[CaseResult]:
+    """Every result in the results file ``path`` (a line cut short by an interruption,
+    or one that is not a result, is left out); :class:`OSError` if it cannot be read."""
+    found = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            found.append(result_from_dict(json.loads(line)))
+        except (ValueError, TypeError, KeyError):
+            continue
+    return found
+
+
 def finished_results(path: Path, seed: int, wanted: range, family: Family = Family.RANDOM,
                      declared_site: bool = False) -> dict[int, CaseResult]:
     """The results already in ``path`` for these cases of ``family``, run with their site
     declared or not (a line cut short by an interruption is ignored: that case runs
     again)."""
-    done: dict[int, CaseResult] = {}
     if not path.is_file():
-        return done
-    for line in path.read_text(encoding="utf-8").splitlines():
-        try:
-            result = result_from_dict(json.loads(line))
-        except (ValueError, TypeError, KeyError):
-            continue
-        if (result.seed == seed and result.index in wanted and result.family == family
-                and result.declared_site == declared_site):
-            done[result.index] = result
-    return done
+        return {}
+    return {r.index: r for r in read_results(path)
+            if r.seed == seed and r.index in wanted and r.family == family
+            and r.declared_site == declared_site}
 
 
 def open_results(out_dir: Path) -> TextIO:

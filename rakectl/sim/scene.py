@@ -91,7 +91,9 @@ def apart(objects: BuriedObjects, first: MineParams | None = None) -> BuriedObje
         if not any(overlap(body, other) for other in kept):
             kept.append(body)
 
+    kept_ids = {id(body) for body in kept}
+
     def keep(bodies: tuple[Body, ...]) -> tuple[Body, ...]:
-        return tuple(b for b in bodies if any(b is k for k in kept))
+        return tuple(b for b in bodies if id(b) in kept_ids)
 
     return BuriedObjects(keep(objects.stones), keep(objects.roots), keep(objects.mines))
