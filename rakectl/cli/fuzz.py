@@ -11,7 +11,7 @@ from pathlib import Path
 
 from rakectl.bench.sections import markdown_table
 from rakectl.limits import FORCE_LIMIT_N
-from rakectl.sim.campaign import campaign, declares_sites, replay
+from rakectl.sim.campaign import campaign, declares_sites, merged, replay
 from rakectl.sim.case_files import read_case_file
 from rakectl.sim.cases import Family
 from rakectl.sim.compare import compare, describe, read_results
@@ -81,6 +81,12 @@ def _parser() -> argparse.ArgumentParser:
                    "cases in an earlier run's --out DIR (another chain's): how many differ, "
                    "which outcomes changed, the largest moves of each force "
                    "(rakectl.sim.compare); with a finished --out it runs nothing")
+    p.add_argument("--merge", type=Path, nargs="+", default=None, metavar="DIR",
+                   help="run nothing: report the finished campaigns in these --out "
+                   "directories as one (several seeds, or one seed run in parts): the "
+                   "largest forces, the cases over the limit and the table by command, "
+                   "fault and supervision; exit status as a campaign's. A case found in "
+                   "two of them is refused")
     p.add_argument("--mcap", type=Path, default=None, metavar="OUT.mcap",
                    help="with --replay: record the replay as MCAP (and its telemetry as "
                    "OUT.csv next to it; the [view] extra; docs/viewer.md)")
@@ -218,8 +224,33 @@ def _plot_edge(report: Report, path: Path, title: str) -> None:
     print(f"fuzz: plot written to {path}", file=sys.stderr)
 
 
+def _merge_main(args: argparse.Namespace) -> int:
+    given = [f"--{name}" for name, value in (("out", args.out), ("compare", args.compare),
+                                             ("replay", args.replay), ("trace", args.trace),
+                                             ("mcap", args.mcap), ("plot", args.plot or None))
+             if value is not None]
+    if given:
+        print(f"rakectl fuzz: --merge reads finished campaigns and runs nothing; "
+              f"{', '.join(given)} cannot go with it", file=sys.stderr)
+        return 2
+    try:
+        report, counts = merged(args.merge)
+    except ValueError as e:
+        print(f"rakectl fuzz: --merge: {e}", file=sys.stderr)
+        return 2
+    for out_dir, n in counts.items():
+        print(f"merged: {n} results from {out_dir}")
+    print(human(report))
+    if args.json:
+        print(json.dumps({**report.summary(),
+                          "merged": {str(d): n for d, n in counts.items()}}))
+    return 0 if report.safe else 1
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if args.merge is not None:
+        return _merge_main(args)
     if args.mcap is not None and args.replay is None:
         print("rakectl fuzz: --mcap records a --replay: give the case file", file=sys.stderr)
         return 2

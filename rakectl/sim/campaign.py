@@ -18,7 +18,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from drivers.objects import Contact
@@ -31,6 +31,7 @@ from rakectl.core.supervision import ForceLevel
 from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim.case_files import read_case_file, write_case
 from rakectl.sim.cases import CommandKind, Family, FuzzCase, generate
+from rakectl.sim.compare import Key, key
 from rakectl.sim.injection import FaultyRakeLoop, HoldReference, JogReference, PlungeReference
 from rakectl.sim.parallel import Executor, LocalExecutor
 from rakectl.sim.rake_plant import RakeLoop
@@ -41,6 +42,7 @@ from rakectl.sim.results import (
     Report,
     finished_results,
     open_results,
+    read_results,
 )
 from rakectl.sim.scenario import PlantKind, PlantSettings, Scenario, TrajectoryKind
 from rakectl.sim.simulate import HOLD_AFTER_DONE_S, Reference
@@ -284,6 +286,36 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
         return report
     path = write_case(out_dir / WORST_CASE_FILE, report.worst_case, worst)
     return dataclasses.replace(report, worst_case_path=str(path))
+
+
+def merged(out_dirs: Sequence[Path]) -> tuple[Report, dict[Path, int]]:
+    """The finished campaigns in ``out_dirs`` (each a ``--out`` directory) as one report,
+    and how many results each gave: several seeds, or one seed run in parts into several
+    directories, judged and tabled together. Nothing runs. :class:`ValueError` naming the
+    directory that has no results or is given twice, or the case found in two of them
+    (its results could come from two chains: merged, it would count twice)."""
+    found: dict[Key, tuple[Path, CaseResult]] = {}
+    counts: dict[Path, int] = {}
+    for out_dir in out_dirs:
+        if out_dir in counts:
+            raise ValueError(f"{out_dir} is given twice")
+        try:
+            here = {key(r): r for r in read_results(out_dir / RESULTS_FILE)}  # last line wins
+        except OSError as e:
+            raise ValueError(f"{out_dir}: no campaign results there ({e})") from e
+        if not here:
+            raise ValueError(f"{out_dir}: its {RESULTS_FILE} holds no case's result")
+        for k, r in here.items():
+            if k in found:
+                raise ValueError(f"case {r.seed}/{r.index} ({r.family}) is in both "
+                                 f"{found[k][0]} and {out_dir}")
+            found[k] = (out_dir, r)
+        counts[out_dir] = len(here)
+    results = sorted((r for _, r in found.values()),
+                     key=lambda r: (r.family, r.declared_site, r.seed, r.index))
+    worst = max(results, key=_severity)
+    case = generated_case(worst.seed, worst.index, Family(worst.family), worst.declared_site)
+    return Report(len(results), tuple(results), worst, case, 0.0, resumed=len(results)), counts
 
 
 def replay(path: Path, on_tick: Callable[[FaultyRakeLoop], None] | None = None

@@ -126,7 +126,7 @@ class Report:
 
     def over_limit(self) -> list[str]:
         """Every unsafe case: 'seed/index kind ground F N, mine F N [mine fired]'."""
-        return [f"{self.worst_case.seed}/{r.index} {r.kind} ground {r.f_true_z_max_n:.1f} N, "
+        return [f"{r.seed}/{r.index} {r.kind} ground {r.f_true_z_max_n:.1f} N, "
                 f"mine {r.f_mine_max_n:.1f} N" + (" mine fired" if r.mine_activated else "")
                 for r in self.unsafe]
 

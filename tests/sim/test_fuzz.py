@@ -295,6 +295,57 @@ def test_the_cli_compares_a_finished_campaign_with_an_earlier_run(
     assert not fresh.exists()  # refused before the campaign
 
 
+def test_the_cli_merges_finished_campaigns_into_one_report(
+        ci_sample: results.Report, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--merge DIR...``: the CI sample's results split into two directories give the
+    sample's own table; a third directory holding one case of another seed over the limit
+    makes the merge unsafe, that case named with its own seed; a case in two directories,
+    a directory given twice or without results, and a flag that would run something are
+    each refused with exit 2."""
+    out = Path(ci_sample.worst_case_path).parent
+    lines = (out / results.RESULTS_FILE).read_text(encoding="utf-8").splitlines()
+    parts = {"a": lines[:25], "b": lines[25:]}
+    for name, part in parts.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / results.RESULTS_FILE).write_text("\n".join(part) + "\n",
+                                                             encoding="utf-8")
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert fuzz_cli.main(["--merge", str(a), str(b), "--json"]) == 0
+    text = capsys.readouterr().out
+    assert f"merged: 25 results from {a}" in text and f"merged: 35 results from {b}" in text
+    figures = json.loads(text.strip().splitlines()[-1])
+    assert figures["merged"] == {str(a): 25, str(b): 35}
+    assert figures["scenarios"] == CI_SAMPLE and figures["by_kind"] == ci_sample.by_kind()
+    assert figures["f_true_z_max_n"] == ci_sample.f_true_z_max_n
+
+    over = [json.loads(lines[0]) for _ in range(2)]  # the worst one's seed names neither
+    over[0].update(seed=CI_SEED + 1, f_mine_side_max_n=FORCE_LIMIT_N + 30.0)
+    over[1].update(seed=CI_SEED + 2, f_mine_side_max_n=FORCE_LIMIT_N + 10.0)
+    c = tmp_path / "c"
+    c.mkdir()
+    (c / results.RESULTS_FILE).write_text("".join(json.dumps(r) + "\n" for r in over),
+                                          encoding="utf-8")
+    assert fuzz_cli.main(["--merge", str(a), str(b), str(c)]) == 1
+    text = capsys.readouterr().out
+    for r in over:
+        assert f"unsafe: {r['seed']}/{r['index']} {r['kind']} ground " in text
+    assert f"{CI_SAMPLE + 2} scenarios" in text
+
+    first = json.loads(lines[0])
+    assert fuzz_cli.main(["--merge", str(out), str(a)]) == 2
+    assert f"--merge: case {CI_SEED}/{first['index']} (random) is in both {out} and {a}" \
+        in capsys.readouterr().err
+    assert fuzz_cli.main(["--merge", str(a), str(a)]) == 2
+    assert f"--merge: {a} is given twice" in capsys.readouterr().err
+    assert fuzz_cli.main(["--merge", str(a), str(tmp_path / "nothing")]) == 2
+    assert f"--merge: {tmp_path / 'nothing'}: no campaign results there" in \
+        capsys.readouterr().err
+    assert fuzz_cli.main(["--merge", str(a), "--out", str(tmp_path / "d"), "--plot"]) == 2
+    assert "--merge reads finished campaigns and runs nothing; --out, --plot cannot go " \
+        "with it" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
+
+
 def test_the_table_gives_refused_sites_a_column_only_where_there_are_any() -> None:
     row = {"cases": 3, "f_true_z_max_n": 12.34, "f_mine_max_n": 0.0, "f_stone_side_max_n": 5.0,
            "watchdog_trips": 1, "unsafe": 0, "refused": 0}
