@@ -298,8 +298,8 @@ def test_the_cli_compares_a_finished_campaign_with_an_earlier_run(
 def test_the_cli_merges_finished_campaigns_into_one_report(
         ci_sample: results.Report, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """``--merge DIR...``: the CI sample's results split into two directories give the
-    sample's own table; a third directory holding one case of another seed over the limit
-    makes the merge unsafe, that case named with its own seed; a case in two directories,
+    sample's own table; a third directory holding two cases of other seeds over the
+    limit makes the merge unsafe, each named with its own seed; a case in two directories,
     a directory given twice or without results, and a flag that would run something are
     each refused with exit 2."""
     out = Path(ci_sample.worst_case_path).parent
@@ -318,7 +318,8 @@ def test_the_cli_merges_finished_campaigns_into_one_report(
     assert figures["scenarios"] == CI_SAMPLE and figures["by_kind"] == ci_sample.by_kind()
     assert figures["f_true_z_max_n"] == ci_sample.f_true_z_max_n
 
-    over = [json.loads(lines[0]) for _ in range(2)]  # the worst one's seed names neither
+    over = [json.loads(lines[0]) for _ in range(2)]  # each named with its own seed,
+    # not the worst case's
     over[0].update(seed=CI_SEED + 1, f_mine_side_max_n=FORCE_LIMIT_N + 30.0)
     over[1].update(seed=CI_SEED + 2, f_mine_side_max_n=FORCE_LIMIT_N + 10.0)
     c = tmp_path / "c"
