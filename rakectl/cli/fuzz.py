@@ -224,11 +224,15 @@ def _plot_edge(report: Report, path: Path, title: str) -> None:
     print(f"fuzz: plot written to {path}", file=sys.stderr)
 
 
+# what chooses or runs cases: a merge reads the cases its directories hold
+_NOT_WITH_MERGE = ("scenarios", "seed", "first", "family", "declared_site", "workers",
+                   "scheduler", "out", "plot", "compare", "replay", "trace", "mcap")
+
+
 def _merge_main(args: argparse.Namespace) -> int:
-    given = [f"--{name}" for name, value in (("out", args.out), ("compare", args.compare),
-                                             ("replay", args.replay), ("trace", args.trace),
-                                             ("mcap", args.mcap), ("plot", args.plot or None))
-             if value is not None]
+    defaults = _parser().parse_args([])
+    given = ["--" + name.replace("_", "-") for name in _NOT_WITH_MERGE
+             if getattr(args, name) != getattr(defaults, name)]
     if given:
         print(f"rakectl fuzz: --merge reads finished campaigns and runs nothing; "
               f"{', '.join(given)} cannot go with it", file=sys.stderr)

@@ -344,6 +344,8 @@ def test_the_cli_merges_finished_campaigns_into_one_report(
     assert fuzz_cli.main(["--merge", str(a), "--out", str(tmp_path / "d"), "--plot"]) == 2
     assert "--merge reads finished campaigns and runs nothing; --out, --plot cannot go " \
         "with it" in capsys.readouterr().err
+    assert fuzz_cli.main(["--merge", str(a), "--seed", "7", "--family", "edge"]) == 2
+    assert "runs nothing; --seed, --family cannot go with it" in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
 
 
