@@ -31,7 +31,7 @@ from rakectl.core.supervision import ForceLevel
 from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim.case_files import read_case_file, write_case
 from rakectl.sim.cases import CommandKind, Family, FuzzCase, generate
-from rakectl.sim.compare import Key, key
+from rakectl.sim.compare import Key, key, read_results
 from rakectl.sim.injection import FaultyRakeLoop, HoldReference, JogReference, PlungeReference
 from rakectl.sim.parallel import Executor, LocalExecutor
 from rakectl.sim.rake_plant import RakeLoop
@@ -42,7 +42,6 @@ from rakectl.sim.results import (
     Report,
     finished_results,
     open_results,
-    read_results,
 )
 from rakectl.sim.scenario import PlantKind, PlantSettings, Scenario, TrajectoryKind
 from rakectl.sim.simulate import HOLD_AFTER_DONE_S, Reference
@@ -300,7 +299,7 @@ def merged(out_dirs: Sequence[Path]) -> tuple[Report, dict[Path, int]]:
         if out_dir in counts:
             raise ValueError(f"{out_dir} is given twice")
         try:
-            here = {key(r): r for r in read_results(out_dir / RESULTS_FILE)}  # last line wins
+            here = {key(r): r for r in read_results(out_dir)}  # last line wins
         except OSError as e:
             raise ValueError(f"{out_dir}: no campaign results there ({e})") from e
         if not here:
