@@ -230,6 +230,15 @@ def _severity(r: CaseResult) -> float:
     return max(r.f_true_z_max_n, r.f_mine_max_n)
 
 
+def _report(scenarios: int, results: Sequence[CaseResult], elapsed_s: float,
+            resumed: int) -> Report:
+    """The report on ``results``: the worst of them, and the case that replays it (drawn
+    from its own seed, index, family and declaration)."""
+    worst = max(results, key=_severity)
+    case = generated_case(worst.seed, worst.index, Family(worst.family), worst.declared_site)
+    return Report(scenarios, tuple(results), worst, case, elapsed_s, resumed=resumed)
+
+
 def declares_sites(family: Family, declared_site: bool) -> bool:
     """Whether a campaign's cases run with their sites declared: on request, and always in
     the mapped family, whose cases are drawn for the descent limiter."""
@@ -277,13 +286,10 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
         if sink is not None:
             sink.close()
     results.sort(key=lambda r: r.index)
-    worst = max(results, key=_severity)
-    report = Report(scenarios, tuple(results), worst,
-                    generated_case(seed, worst.index, family, declared_site),
-                    time.perf_counter() - started, resumed=len(done))
+    report = _report(scenarios, results, time.perf_counter() - started, len(done))
     if out_dir is None:
         return report
-    path = write_case(out_dir / WORST_CASE_FILE, report.worst_case, worst)
+    path = write_case(out_dir / WORST_CASE_FILE, report.worst_case, report.worst)
     return dataclasses.replace(report, worst_case_path=str(path))
 
 
@@ -312,9 +318,7 @@ def merged(out_dirs: Sequence[Path]) -> tuple[Report, dict[Path, int]]:
         counts[out_dir] = len(here)
     results = sorted((r for _, r in found.values()),
                      key=lambda r: (r.family, r.declared_site, r.seed, r.index))
-    worst = max(results, key=_severity)
-    case = generated_case(worst.seed, worst.index, Family(worst.family), worst.declared_site)
-    return Report(len(results), tuple(results), worst, case, 0.0, resumed=len(results)), counts
+    return _report(len(results), results, 0.0, len(results)), counts
 
 
 def replay(path: Path, on_tick: Callable[[FaultyRakeLoop], None] | None = None
