@@ -60,7 +60,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", action="store_true",
                    help=f"with --out: also write OUT/{FORCES_PLOT} (how many cases read at least "
                    "each force, by what carried it, by fault and by command, against the "
-                   "limit; the [plot] extra); with --family edge also OUT/"
+                   "limit; the [plot] extra); for the edge family's cases also OUT/"
                    f"{EDGE_PLOT} (each case's side force on its object against the soil's "
                    "cutting resistance at the object's edge). On a finished --out it runs "
                    "nothing and plots")
@@ -86,7 +86,8 @@ def _parser() -> argparse.ArgumentParser:
                    "directories as one (several seeds, or one seed run in parts): the "
                    "largest forces, the cases over the limit and the table by command, "
                    "fault and supervision; exit status as a campaign's. A case found in "
-                   "two of them is refused")
+                   "two of them is refused. With --plot --out DIR, the figures of all of "
+                   "them together are written to DIR")
     p.add_argument("--mcap", type=Path, default=None, metavar="OUT.mcap",
                    help="with --replay: record the replay as MCAP (and its telemetry as "
                    "OUT.csv next to it; the [view] extra; docs/viewer.md)")
@@ -212,21 +213,35 @@ def _trace_main(args: argparse.Namespace) -> int:
     return 0 if trace.result.safe else 1
 
 
-def _plot_edge(report: Report, path: Path, title: str) -> None:
-    """The edge family's side forces against the soil's resistance at the objects' edges."""
+def _plot(report: Report, out_dir: Path, title: str) -> None:
+    """``--plot``: OUT/forces.png, and where the report holds edge cases OUT/edge.png (their
+    side forces against the soil's resistance at the objects' edges)."""
     from rakectl.config.settings import ClampSettings
     from rakectl.sim.edge import edge_readings
-    from rakectl.sim.plot import plot_edge_resistance
+    from rakectl.sim.plot import plot_campaign, plot_edge_resistance
 
-    clamp = ClampSettings()
-    plot_edge_resistance(edge_readings(report.results), path,
-                         clamp.force_limit_n * clamp.model_margin, title)
-    print(f"fuzz: plot written to {path}", file=sys.stderr)
+    plot_campaign(report, out_dir / FORCES_PLOT, title)
+    print(f"fuzz: plot written to {out_dir / FORCES_PLOT}", file=sys.stderr)
+    readings = edge_readings(report.results)
+    if readings:
+        clamp = ClampSettings()
+        plot_edge_resistance(readings, out_dir / EDGE_PLOT,
+                             clamp.force_limit_n * clamp.model_margin, title)
+        print(f"fuzz: plot written to {out_dir / EDGE_PLOT}", file=sys.stderr)
+
+
+def merged_title(results: Sequence[CaseResult]) -> str:
+    """What a merged report's plots are titled with: its seeds, families and cases."""
+    seeds = sorted({r.seed for r in results})
+    families = sorted({r.family + (", sites declared" if r.declared_site else "")
+                       for r in results})
+    return (f"seed{'s' if len(seeds) > 1 else ''} {', '.join(map(str, seeds))} "
+            f"({'; '.join(families)}), merged")
 
 
 # what chooses or runs cases: a merge reads the cases its directories hold
 _NOT_WITH_MERGE = ("scenarios", "seed", "first", "family", "declared_site", "workers",
-                   "scheduler", "out", "plot", "compare", "replay", "trace", "mcap")
+                   "scheduler", "compare", "replay", "trace", "mcap")
 
 
 def _merge_main(args: argparse.Namespace) -> int:
@@ -237,6 +252,14 @@ def _merge_main(args: argparse.Namespace) -> int:
         print(f"rakectl fuzz: --merge reads finished campaigns and runs nothing; "
               f"{', '.join(given)} cannot go with it", file=sys.stderr)
         return 2
+    if args.plot != (args.out is not None):
+        print("rakectl fuzz: --merge takes --plot and --out together (the figures are "
+              "written to --out DIR) or neither", file=sys.stderr)
+        return 2
+    if args.plot:
+        from rakectl.sim.plot import pyplot
+
+        pyplot()  # matplotlib missing: said now, before reading the runs
     try:
         report, counts = merged(args.merge)
     except ValueError as e:
@@ -244,6 +267,9 @@ def _merge_main(args: argparse.Namespace) -> int:
         return 2
     for out_dir, n in counts.items():
         print(f"merged: {n} results from {out_dir}")
+    if args.plot:
+        args.out.mkdir(parents=True, exist_ok=True)
+        _plot(report, args.out, merged_title(report.results))
     print(human(report))
     if args.json:
         print(json.dumps({**report.summary(),
@@ -299,15 +325,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         executor.close()
     if args.plot:
-        from rakectl.sim.plot import plot_campaign
-
         declared = ", sites declared" if declares_sites(Family(args.family),
                                                         args.declared_site) else ""
         span = f"seed {args.seed}, cases {args.first}..{args.first + args.scenarios - 1}"
-        plot_campaign(report, args.out / FORCES_PLOT, f"{span} ({args.family}{declared})")
-        print(f"fuzz: plot written to {args.out / FORCES_PLOT}", file=sys.stderr)
-        if Family(args.family) is Family.EDGE:
-            _plot_edge(report, args.out / EDGE_PLOT, span)
+        _plot(report, args.out, f"{span} ({args.family}{declared})")
     print(human(report))
     figures = report.summary()
     if args.compare is not None:

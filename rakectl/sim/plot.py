@@ -249,7 +249,8 @@ def plot_edge_resistance(readings: list[EdgeReading], path: Path, budget_n: floa
     ax.set_ylabel("largest side force on the object [N]")
     excess = max((r.side_n - r.resistance_n for r in touched), default=0.0)
     below = [r.side_n for r in readings if r.resistance_n <= budget_n]
-    ax.set_title(f"{title}{': ' if title else ''}side force at most H + {excess:.1f} N; "
+    heading = f"{title}\n" if title else ""  # a merged run's title takes a line of its own
+    ax.set_title(f"{heading}side force at most H + {excess:.1f} N; "
                  f"where H ≤ {budget_n:g} N at most {max(below, default=0.0):.1f} N "
                  f"({len(below)} cases)", fontsize="medium")
     ax.grid(True, which="both", alpha=0.3)

@@ -341,12 +341,35 @@ def test_the_cli_merges_finished_campaigns_into_one_report(
     assert fuzz_cli.main(["--merge", str(a), str(tmp_path / "nothing")]) == 2
     assert f"--merge: {tmp_path / 'nothing'}: no campaign results there" in \
         capsys.readouterr().err
-    assert fuzz_cli.main(["--merge", str(a), "--out", str(tmp_path / "d"), "--plot"]) == 2
-    assert "--merge reads finished campaigns and runs nothing; --out, --plot cannot go " \
-        "with it" in capsys.readouterr().err
+    for half in (["--out", str(tmp_path / "d")], ["--plot"]):  # only together
+        assert fuzz_cli.main(["--merge", str(a), *half]) == 2
+        assert "--merge takes --plot and --out together" in capsys.readouterr().err
     assert fuzz_cli.main(["--merge", str(a), "--seed", "7", "--family", "edge"]) == 2
     assert "runs nothing; --seed, --family cannot go with it" in capsys.readouterr().err
     assert not (tmp_path / "d").exists()
+
+
+def test_the_cli_plots_merged_campaigns_together(
+        ci_sample: results.Report, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--merge A B --plot --out DIR``: one figure of both runs, titled with their seeds,
+    in a directory made for it; the random family's runs draw no edge plot."""
+    out = Path(ci_sample.worst_case_path).parent
+    lines = (out / results.RESULTS_FILE).read_text(encoding="utf-8").splitlines()
+    moved = [json.dumps({**json.loads(line), "seed": CI_SEED + 1}) for line in lines[:10]]
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / results.RESULTS_FILE).write_text("\n".join(moved) + "\n",
+                                                       encoding="utf-8")
+    plots = tmp_path / "merged" / "plots"
+    assert fuzz_cli.main(["--merge", str(out), str(tmp_path / "b"), "--plot",
+                          "--out", str(plots)]) == 0
+    captured = capsys.readouterr()
+    assert f"plot written to {plots / fuzz_cli.FORCES_PLOT}" in captured.err
+    assert png_size(plots / fuzz_cli.FORCES_PLOT) == (990, 1210)
+    assert sorted(p.name for p in plots.iterdir()) == [fuzz_cli.FORCES_PLOT]
+    assert f"{CI_SAMPLE + 10} scenarios" in captured.out
+    runs = [results.result_from_dict(json.loads(line)) for line in [*lines, *moved]]
+    assert fuzz_cli.merged_title(runs) == f"seeds {CI_SEED}, {CI_SEED + 1} (random), merged"
+    assert fuzz_cli.merged_title(runs[:3]) == f"seed {CI_SEED} (random), merged"
 
 
 def test_the_table_gives_refused_sites_a_column_only_where_there_are_any() -> None:
