@@ -129,12 +129,19 @@ def _coerce(tp: Any, raw: _Value, dotted: str, bounds: Bounds | None) -> Any:
         return value
     if tp in (int, float):
         if isinstance(value, str) and _NUMBER.fullmatch(value.strip()):
-            value = float(value) if tp is float else value
+            if tp is int and not value.strip().lstrip("+-").isdigit():
+                raise ConfigError(f"{where}: {dotted} must be a whole number, got {value!r}")
+            value = float(value) if tp is float else int(value)
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ConfigError(f"{where}: {dotted} must be a number, got {value!r}")
         if tp is int and not isinstance(value, int):
             raise ConfigError(f"{where}: {dotted} must be a whole number, got {value!r}")
-        problem = bounds.violation(float(value)) if bounds else None
+        try:
+            as_float = float(value)
+        except OverflowError:  # a whole number past any float: no bound can judge it
+            raise ConfigError(f"{where}: {dotted} must be finite, got a whole number of "
+                              f"{len(str(abs(value)))} digits") from None
+        problem = bounds.violation(as_float) if bounds else None
         if problem:
             raise ConfigError(f"{where}: {dotted} {problem}")
         return tp(value)

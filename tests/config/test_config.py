@@ -68,6 +68,10 @@ def test_number_literals_yaml_1_1_would_read_as_strings(tmp_path: Path) -> None:
         ("impedance:\n  mass_kg: heavy\n", ":2: impedance.mass_kg must be a number, got 'heavy'"),
         ("impedance:\n  mass_kg: true\n", ":2: impedance.mass_kg must be a number, got True"),
         ("impedance:\n  mass_kg: .nan\n", ":2: impedance.mass_kg must be finite, got nan"),
+        ("rate_hz: 1" + "0" * 400 + "\n",  # past any float: not an OverflowError
+         ":1: rate_hz must be finite, got a whole number of 401 digits"),
+        ("drives:\n  r_node_id: '1e0'\n",
+         ":2: drives.r_node_id must be a whole number, got '1e0'"),
         ("impedance: 3\n", ":1: impedance must be a section"),
         ("rate_hz:\n  a: 1\n", ":1: rate_hz must be a single value"),
         ("plant:\n  kind: cubic\n", ":2: plant.kind must be one of first_order, rake, got 'cubic'"),
