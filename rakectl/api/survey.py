@@ -84,7 +84,8 @@ def read_marks(path: Path) -> list[Mark]:
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise ConfigError(f"{path}: not a survey file: {exc}") from None
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__  # one line
+        raise ConfigError(f"{path}: not a survey file: {first}") from None
     marks = data.get("marks") if isinstance(data, dict) else None
     if not isinstance(marks, list):
         raise ConfigError(f"{path}: not a survey file: no 'marks' list")
@@ -92,11 +93,15 @@ def read_marks(path: Path) -> list[Mark]:
     for i, item in enumerate(marks):
         try:
             mark = Mark(*(float(item[k]) for k in ("reach_m", "tines_height_max_m", "error_m")))
-        except (TypeError, KeyError, ValueError):
+        except (TypeError, KeyError, ValueError, OverflowError):
             raise ConfigError(f"{path}: marks[{i}]: expected reach_m, tines_height_max_m and "
                               f"error_m numbers, got {item!r}") from None
         if not all(map(math.isfinite, dataclasses.astuple(mark))):
             raise ConfigError(f"{path}: marks[{i}]: a number is not finite: {item!r}")
+        if not 0.0 <= mark.error_m <= MAX_ERROR_MM * 1e-3:  # a negative one lowers the point
+            raise ConfigError(f"{path}: marks[{i}]: error_m must be within 0–"
+                              f"{MAX_ERROR_MM * 1e-3:g} m, as `survey mark` takes it, got "
+                              f"{mark.error_m:g}")
         out.append(mark)
     return out
 
@@ -158,6 +163,11 @@ def show(args: argparse.Namespace) -> int:
     if not points:
         raise ConfigError(f"{args.file}: no marks: `rakectl survey mark` adds them")
     settings: Settings = load_settings(args.config)
+    for i, point in enumerate(points):  # each option's declared bounds, as the loader's
+        for f in dataclasses.fields(SurveyPoint):
+            problem = f.metadata["bounds"].violation(getattr(point, f.name))
+            if problem:
+                raise ConfigError(f"{args.file}: descent.survey[{i}].{f.name} {problem}")
     descent = dataclasses.replace(settings.descent, survey=points)
     for dotted, message in descent_checks(descent, settings.clamp.force_limit_n,
                                           settings.clamp.model_margin):

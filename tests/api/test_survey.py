@@ -124,14 +124,34 @@ def test_a_point_above_the_ceiling_is_named_and_nothing_is_printed(tmp_path: Pat
     ("marks:\n  - {reach_m: .nan, tines_height_max_m: 0.0, error_m: 0.001}\n",
      "marks[0]: a number is not finite"),
     ("marks: [\n", "not a survey file"),
+    ("marks:\n  - {reach_m: 1" + "0" * 400 + ", tines_height_max_m: 0.0, error_m: 0.001}\n",
+     "marks[0]: expected reach_m"),  # past any float
+    ("marks:\n  - {reach_m: 1.0, tines_height_max_m: 0.0, error_m: -0.005}\n",
+     "marks[0]: error_m must be within 0–0.05 m, as `survey mark` takes it, got -0.005"),
 ])
 def test_a_bad_marks_file_is_named_and_not_written(tmp_path: Path, text: str,
                                                    message: str) -> None:
     marks = tmp_path / "survey.yaml"
     marks.write_text(text)
-    with pytest.raises(ConfigError, match=f"^{marks}: .*{message}".replace("[", r"\[")):
+    with pytest.raises(ConfigError, match=f"^{marks}: .*{message}".replace("[", r"\[")) as e:
         survey.append_mark(marks, _mark(1.0, 0.0))
+    assert "\n" not in str(e.value)  # one line, the YAML error's too
     assert marks.read_text() == text  # the engineer's marks stay as they were
+
+
+@pytest.mark.parametrize(("mark", "message"), [
+    (_mark(-1.0, 0.0), "descent.survey[0].reach_m must be >= 0, got -1"),
+    (_mark(1.0, -3.0), "descent.survey[0].height_m must be >= -0.5, got -2.999"),
+])
+def test_a_point_out_of_its_declared_bounds_is_named_and_nothing_is_printed(
+        tmp_path: Path, mark: survey.Mark, message: str) -> None:
+    """``show`` judges each point by the bounds the loader would: a block it printed is
+    one the daemon loads."""
+    marks = tmp_path / "survey.yaml"
+    survey.append_mark(marks, mark)
+    done = run_rakectl("survey", "show", "--file", str(marks))
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr.strip() == f"rakectl: error: {marks}: {message}"
 
 
 @pytest.mark.parametrize(("reply", "error_m", "message"), [
