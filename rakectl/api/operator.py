@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from rakectl.api.client import Client, call, socket_path
-from rakectl.api.schema import DEAD_MAN_PERIOD_S
+from rakectl.api.schema import COMMANDS, DEAD_MAN_PERIOD_S, ApiCommand
 from rakectl.errors import ApiError
 
 POLL_S = 0.2
@@ -171,13 +171,13 @@ def jog(args: argparse.Namespace) -> int:
                    "theta_rad_per_s": args.theta}
     started = time.monotonic()
     end = started + (args.duration if args.duration is not None else math.inf)
-    if args.duration is None:
-        print("jog: moving while this runs; Ctrl-C stops", file=sys.stderr)
     with Client(_path(args)) as client:
         moving, refused = False, None
         try:
             while time.monotonic() < end:
                 client.request(request)
+                if not moving and args.duration is None:  # said once the daemon took it
+                    print("jog: moving while this runs; Ctrl-C stops", file=sys.stderr)
                 moving = True
                 time.sleep(DEAD_MAN_PERIOD_S)
         except KeyboardInterrupt:
@@ -247,6 +247,25 @@ def follow_excavation(path: Path, out: TextIO, timeout_s: float = 3600.0) -> dic
             time.sleep(POLL_S)
 
 
+# excavate's flags by the API argument each gives
+EXCAVATE_FLAGS = {"reach_far_m": "--reach-far", "reach_near_m": "--reach-near",
+                  "target_depth_m": "--depth", "depth_step_m": "--step",
+                  "stroke_speed_m_per_s": "--speed"}
+
+
+def check_excavate(request: dict[str, Any]) -> None:
+    """The API's bounds on an excavate request, said with the flags that gave each value
+    (the daemon checks them again, naming its arguments)."""
+    for arg in COMMANDS[ApiCommand.EXCAVATE].args:
+        value = request.get(arg.name)
+        problem = arg.bounds.violation(value) if value is not None else None
+        if problem:
+            raise ApiError(f"excavate: {EXCAVATE_FLAGS[arg.name]} {problem}")
+    if not request["reach_far_m"] > request["reach_near_m"]:
+        raise ApiError(f"excavate: --reach-far must be > --reach-near "
+                       f"({request['reach_near_m']:g}), got {request['reach_far_m']:g}")
+
+
 def excavate(args: argparse.Namespace) -> int:
     request: dict[str, Any] = {"cmd": "excavate", "reach_far_m": args.reach_far,
                                "reach_near_m": args.reach_near, "target_depth_m": args.depth}
@@ -254,6 +273,7 @@ def excavate(args: argparse.Namespace) -> int:
         request["depth_step_m"] = args.step
     if args.speed is not None:
         request["stroke_speed_m_per_s"] = args.speed
+    check_excavate(request)  # before the daemon is asked
     call(_path(args), request)
     if args.no_wait:
         print("excavate: started")

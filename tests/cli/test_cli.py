@@ -118,6 +118,33 @@ def test_jog_arguments_are_checked_before_anything_is_sent(tmp_path: Path,
     assert len(done.stderr.strip().splitlines()) == 1
 
 
+def test_a_jog_without_a_daemon_is_one_line_and_never_says_moving(tmp_path: Path) -> None:
+    done = run_rakectl("jog", "--socket", str(tmp_path / "none.sock"), "--height", "-0.01")
+    assert done.returncode != 0
+    assert done.stderr.startswith("rakectl: error: cannot reach the rakectl daemon")
+    assert len(done.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(("args", "expected"), [
+    (("--reach-far", "nan", "--reach-near", "0.5", "--depth", "0.1"),
+     "excavate: --reach-far must be finite, got nan"),
+    (("--reach-far", "1.2", "--reach-near", "0.5", "--depth", "-5"),
+     "excavate: --depth must be > 0, got -5"),
+    (("--reach-far", "1.2", "--reach-near", "0.5", "--depth", "0.05", "--speed", "inf"),
+     "excavate: --speed must be finite, got inf"),
+    (("--reach-far", "1.2", "--reach-near", "0.5", "--depth", "0.05", "--step", "0"),
+     "excavate: --step must be > 0, got 0"),
+    (("--reach-far", "1.0", "--reach-near", "1.2", "--depth", "0.05"),
+     "excavate: --reach-far must be > --reach-near (1.2), got 1"),
+])
+def test_excavate_arguments_are_checked_before_anything_is_sent(
+        tmp_path: Path, args: tuple[str, ...], expected: str) -> None:
+    """The API's bounds, named by the flag that gave the value; no daemon listens here."""
+    done = run_rakectl("excavate", "--socket", str(tmp_path / "none.sock"), *args)
+    assert done.returncode != 0
+    assert done.stderr.strip() == f"rakectl: error: {expected}"
+
+
 def test_the_progress_line_clears_what_a_longer_line_left() -> None:
     from rakectl.api.operator import CLEAR_TO_END, progress_line
 
