@@ -93,9 +93,20 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--set", dest="overrides", action="append", default=[],
                         metavar="KEY=VALUE", help="override one option (repeatable)")
     parser.add_argument("--truth", type=Path, help="write the ground truth to this CSV file")
-    parser.add_argument("--bench", type=int, metavar="CYCLES",
+    parser.add_argument("--bench", type=_cycles, metavar="CYCLES",
                         help="time CYCLES SYNCs on a private virtual bus, print µs, exit")
     return parser
+
+
+def _cycles(text: str) -> int:
+    """``--bench``'s count: a whole number of at least 1 (0 would start the emulator)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -109,20 +120,25 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"python -m drivers: {exc}", file=sys.stderr)
         return 2
     configure_logging()
-    if args.bench:
+    if args.bench is not None:
         bench(config, args.bench)
         return 0
-    try:
-        bus = open_bus(config.bus)
-    except (can.CanError, OSError, ValueError, ImportError) as exc:
-        print(f"python -m drivers: cannot open {config.bus.interface.value}:"
-              f"{config.bus.channel}: {exc}", file=sys.stderr)
-        return 1
     with ExitStack() as stack:
+        try:  # the files first: a path that cannot be written starts nothing
+            truth = stack.enter_context(args.truth.open("w")) if args.truth else None
+            trace = (stack.enter_context(can.CanutilsLogWriter(config.bus.trace_path))
+                     if config.bus.trace_path else None)
+        except OSError as exc:
+            print(f"python -m drivers: cannot write {exc.filename}: "
+                  f"{exc.strerror or exc}", file=sys.stderr)
+            return 1
+        try:
+            bus = open_bus(config.bus)
+        except (can.CanError, OSError, ValueError, ImportError) as exc:
+            print(f"python -m drivers: cannot open {config.bus.interface.value}:"
+                  f"{config.bus.channel}: {exc}", file=sys.stderr)
+            return 1
         stack.callback(bus.shutdown)
-        truth = stack.enter_context(args.truth.open("w")) if args.truth else None
-        trace = (stack.enter_context(can.CanutilsLogWriter(config.bus.trace_path))
-                 if config.bus.trace_path else None)
         stop = StopRequest()
         stop.install()
         emulator = Emulator(config, bus, truth=truth, trace=trace)

@@ -420,6 +420,24 @@ def test_config_file_loads_and_errors_name_file_and_line(tmp_path: Path) -> None
     assert main(["--config", str(bad)]) == 2
 
 
+def test_bad_command_lines_are_one_line_and_start_nothing(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A file that cannot be written is said before the bus opens; --bench takes at
+    least one cycle (0 used to start the emulator, -5 to time minus five cycles)."""
+    for argv, expected in (
+            (["--truth", str(tmp_path / "no" / "truth.csv")], "cannot write "),
+            (["--set", f"bus.trace_path={tmp_path / 'no' / 'trace.log'}"], "cannot write ")):
+        assert main([*argv, "--interface", "virtual"]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith(f"python -m drivers: {expected}{tmp_path / 'no'}")
+        assert len(err.strip().splitlines()) == 1
+    for count in ("0", "-5", "two"):
+        with pytest.raises(SystemExit) as exit_:
+            main(["--bench", count])
+        assert exit_.value.code == 2
+        assert "argument --bench: must be" in capsys.readouterr().err
+
+
 def test_process_prints_ready_and_exits_cleanly_on_sigterm(tmp_path: Path) -> None:
     truth = tmp_path / "truth.csv"
     process = subprocess.Popen(
