@@ -3,7 +3,7 @@
 The substep of the arm, its tine mount, the soil and the buried objects
 (``PHYSICS``) is plain scalar Python run 20 000 times a simulated second; mypyc
 compiles those modules, as they are, into C extensions (a campaign case then takes
-2.6× less CPU: bench/BENCHMARKS.md section (f)). The arithmetic is the
+2.9–3.4× less CPU: bench/BENCHMARKS.md section (f)). The arithmetic is the
 same IEEE double arithmetic in the same order, so a compiled emulator gives the
 same results as the Python one, to the last bit (tests/drivers/test_compiled.py runs
 campaign cases both ways and compares them exactly).

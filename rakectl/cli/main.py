@@ -79,8 +79,9 @@ def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], i
                        "into DIR (refused if DIR already holds them)")
     cli_bench.add_parser(sub)
     comp = sub.add_parser("compile", help="compile the emulator's physics with mypyc (the "
-                          "[fast] extra and a C compiler): the same results, 2.6x less CPU a case; "
-                          "used by every process started after it, until the sources change")
+                          "[fast] extra and a C compiler): the same results, about 3x less "
+                          "CPU a case (bench/BENCHMARKS.md section (f)); used by every "
+                          "process started after it, until the sources change")
     comp.add_argument("--force", action="store_true", help="build again even if built")
     from rakectl.cli import drives as cli_drives
     from rakectl.cli import replay as cli_replay
