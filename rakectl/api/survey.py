@@ -114,8 +114,12 @@ def append_mark(path: Path, mark: Mark) -> int:
             + yaml.safe_dump({"marks": [dataclasses.asdict(m) for m in marks]},
                              sort_keys=False))
     partial = path.with_name(path.name + ".partial")
-    partial.write_text(text, encoding="utf-8")
-    partial.replace(path)
+    try:
+        partial.write_text(text, encoding="utf-8")
+        partial.replace(path)
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot write the survey file: "
+                          f"{exc.strerror or exc}") from None
     return len(marks)
 
 
@@ -145,6 +149,10 @@ def survey_yaml(points: Sequence[SurveyPoint]) -> str:
 
 def mark(args: argparse.Namespace) -> int:
     check_error(args.error_mm * 1e-3)  # before anything is asked of the daemon
+    read_marks(args.file)  # a file that is not a survey: said now, not after the daemon
+    if not args.file.parent.is_dir():
+        raise ConfigError(f"{args.file}: cannot write the survey file: no directory "
+                          f"{args.file.parent}")
     reply = call(socket_path(args.socket), {"cmd": "status"})
     new = mark_from_status(reply, args.error_mm * 1e-3)
     count = append_mark(args.file, new)

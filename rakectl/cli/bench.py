@@ -59,6 +59,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         raise ConfigError("bench: --workers must be in [1, 64]")
     if not 1 <= args.cases <= 100_000:
         raise ConfigError("bench: --cases must be in [1, 100000]")
+    if args.ticks < 1000:  # every mode that times ticks: --tick took 0 and ran
+        raise ConfigError("bench: --ticks must be >= 1000")
     if args.scheduler is not None:
         from rakectl.sim.parallel import local_workers
 
@@ -81,8 +83,6 @@ def cmd_bench(args: argparse.Namespace) -> int:
             raise ConfigError("bench: --seconds must be in [1, 3600]")
         print(run_bench(args.seconds, args.out))
         return 0
-    if args.ticks < 1000:
-        raise ConfigError("bench: --ticks must be >= 1000")
     from rakectl.bench.hot_path import bench_hot_path
 
     print(bench_controller_step(args.ticks))
@@ -95,8 +95,6 @@ def _cmd_bench_profiles(args: argparse.Namespace, report: Path) -> int:
     from rakectl.bench.hot_path import bench_hot_path, hot_path_section, write_hot_path_section
     from rakectl.bench.report import BENCHMARKS_FILE, git_revision
 
-    if args.ticks < 1000:
-        raise ConfigError("bench: --ticks must be >= 1000")
     text = bench_hot_path(args.ticks // 10)
     print(text)
     path = report / BENCHMARKS_FILE

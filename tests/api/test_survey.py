@@ -185,6 +185,20 @@ def test_marking_without_a_daemon_or_with_a_bad_error_writes_nothing(
     assert not marks.exists()
 
 
+def test_a_survey_file_that_cannot_be_written_is_said_before_the_daemon_is_asked(
+        tmp_path: Path) -> None:
+    """No daemon listens here: the file's problem comes first, in one line; and a write
+    that fails names the file (not the '.partial' beside it)."""
+    marks = tmp_path / "no" / "survey.yaml"
+    done = run_rakectl("survey", "mark", "--socket", str(tmp_path / "none.sock"),
+                       "--file", str(marks), "--error-mm", "1")
+    assert done.returncode == 2
+    assert done.stderr.strip() == (f"rakectl: error: {marks}: cannot write the survey file: "
+                                   f"no directory {marks.parent}")
+    with pytest.raises(ConfigError, match=f"^{marks}: cannot write the survey file: "):
+        survey.append_mark(marks, _mark(1.0, 0.0))
+
+
 def test_a_non_finite_lift_withholds_only_the_mark_height(tmp_path: Path) -> None:
     """The status reply's tip: a force reading gone non-finite leaves the tines' height
     unknown (null: no mark can be taken) while the pose, from finite encoders, stands."""

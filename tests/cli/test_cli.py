@@ -86,6 +86,15 @@ def test_config_docs_and_bench_print_figures() -> None:
     assert "median" in bench.stdout and "µs" in bench.stdout
 
 
+@pytest.mark.parametrize("mode", [(), ("--tick",), ("--profiles",)])
+def test_bench_refuses_too_few_ticks_in_every_mode_that_times_them(
+        mode: tuple[str, ...], tmp_path: Path) -> None:
+    done = run_rakectl("bench", *mode, "--ticks", "0", "--report", str(tmp_path))
+    assert done.returncode == 2 and done.stdout == ""
+    assert done.stderr.strip() == "rakectl: error: bench: --ticks must be >= 1000"
+    assert not list(tmp_path.iterdir())  # nothing timed, nothing written
+
+
 @pytest.mark.parametrize("command", ["emulator", "fuzz"])
 def test_pass_through_commands_read_their_own_options(command: str) -> None:
     done = run_rakectl(command, "--help")
