@@ -28,7 +28,7 @@ from contextlib import ExitStack
 from dataclasses import replace
 from pathlib import Path
 from types import FrameType
-from typing import Any, TextIO
+from typing import Any, NoReturn, TextIO
 
 import can
 import structlog
@@ -85,8 +85,15 @@ class StopRequest:
         return self.signal is not None
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line (``--help`` gives the usage), exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m drivers", description=__doc__.split("\n")[0])
+    parser = _Parser(prog="python -m drivers", description=__doc__.split("\n")[0])
     parser.add_argument("--config", type=Path, help="YAML file (default: built-in defaults)")
     parser.add_argument("--interface", choices=[i.value for i in BusInterface])
     parser.add_argument("--channel")

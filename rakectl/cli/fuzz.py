@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from rakectl.bench.sections import markdown_table
+from rakectl.cli.usage import Parser
 from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim.campaign import campaign, declares_sites, merged, replay
 from rakectl.sim.case_files import read_case_file
@@ -27,7 +28,7 @@ EDGE_PLOT = "edge.png"  # --plot's second figure for the edge family, in --out
 
 
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog="rakectl fuzz",
         description="Closed-loop safety campaign: random grounds, commands (lanes, hostile "
         "plunges and strokes, jogs at full speed) and faults (lost feedback and commands, "

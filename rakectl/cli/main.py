@@ -13,6 +13,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from rakectl.cli.usage import Parser
 from rakectl.errors import ConfigError, RakeError, TraceError
 
 if TYPE_CHECKING:
@@ -24,14 +25,7 @@ EXIT_FAILURE = 1
 EXIT_USAGE = 2
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse, but usage errors raise instead of exiting from library code."""
-
-    def error(self, message: str) -> None:  # type: ignore[override]
-        raise ConfigError(f"{self.prog}: {message}")
-
-
-def _add_simulate(sub: argparse._SubParsersAction[_Parser]) -> None:
+def _add_simulate(sub: argparse._SubParsersAction[Parser]) -> None:
     p = sub.add_parser("simulate", help="run a scenario in simulated time")
     p.add_argument("scenario", type=Path, help="scenario YAML file (see config/scenarios/)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -43,13 +37,13 @@ def _add_simulate(sub: argparse._SubParsersAction[_Parser]) -> None:
                    "rake; the [view] extra)")
 
 
-def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], int]]]:
+def _build_parser() -> tuple[Parser, dict[str, Callable[[argparse.Namespace], int]]]:
     from rakectl.api import operator as cli_ops
     from rakectl.api import survey as cli_survey
     from rakectl.cli import bench as cli_bench
 
-    parser = _Parser(prog="rakectl", description=__doc__.splitlines()[0] if __doc__ else None)
-    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    parser = Parser(prog="rakectl", description=__doc__.splitlines()[0] if __doc__ else None)
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     _add_simulate(sub)
     run = sub.add_parser("run", help="the 1 kHz control daemon (the service)")
     run.add_argument("--config", type=Path, help="YAML configuration (e.g. config/rakectl.yaml)")
@@ -57,7 +51,7 @@ def _build_parser() -> tuple[_Parser, dict[str, Callable[[argparse.Namespace], i
                      help="override one option (repeatable)")
     sub.add_parser("emulator", help="the emulated drives and physics (bench set-ups); "
                    "its options: rakectl emulator --help", add_help=False)
-    client = _Parser(add_help=False)
+    client = Parser(add_help=False)
     client.add_argument("--socket", help="the daemon's command socket")
     client.add_argument("--json", action="store_true", help="the reply as JSON on stdout")
     ops = cli_ops.add_parsers(sub, client)
