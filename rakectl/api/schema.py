@@ -236,7 +236,14 @@ def decode_request(line: bytes, client: int = 0, peer: Peer | None = None) -> Re
 
 
 def show(value: Any) -> str:
-    text = json.dumps(value)
+    """A value as an error names it: its JSON, cut at 40 characters; a container nested
+    too deeply for the encoder (a request line can nest about 2000 deep) by its kind."""
+    try:
+        text = json.dumps(value)
+    except (RecursionError, ValueError, TypeError):
+        kind = "an array" if isinstance(value, list) else \
+            "an object" if isinstance(value, dict) else "a value"
+        text = f"{kind} nested too deeply to show"
     return text if len(text) <= 40 else text[:39] + "…"
 
 

@@ -35,6 +35,7 @@ from rakectl.errors import RakeError
 MAX_CLIENTS = 16
 MAX_BACKLOG_BYTES = 256 * 1024  # replies queued for a client that does not read them
 IDLE_TIMEOUT_S = 60.0  # a client silent this long is closed
+EVICT_IDLE_S = 1.0  # with every slot taken, a client silent this long makes room for a new one
 _RECV_BYTES = 8192
 _POLLIN = select.POLLIN
 _POLLOUT = select.POLLOUT
@@ -172,7 +173,7 @@ class CommandServer:
         if not peer_allowed(peer, self._uid, self._socket_gid):
             self._turn_away(sock, ErrorKind.PERMISSION, f"permission denied: uid {peer.uid} is "
                             f"not root, not the daemon's user and not in group {self._group_name}")
-        elif len(self._conns) >= self._max_clients:
+        elif len(self._conns) >= self._max_clients and not self._evict_idle():
             self._turn_away(sock, ErrorKind.BUSY,
                             f"too many clients (limit {self._max_clients}); try again later")
         else:
@@ -182,6 +183,18 @@ class CommandServer:
             self._poller.register(conn.fd, _POLLIN)
             self.stats.accepted += 1
             self.stats.clients = len(self._conns)
+
+    def _evict_idle(self) -> bool:
+        """Make room for a new client by closing the one idle longest, if it has been idle
+        EVICT_IDLE_S or more (forgotten connections must not keep an e-stop out; clients
+        in use, a jog's dead-man or an excavation followed, are never idle that long)."""
+        now_s = self._clock()
+        idlest = min(self._conns.values(), key=lambda c: c.last_active_s, default=None)
+        if idlest is None or now_s - idlest.last_active_s < EVICT_IDLE_S or idlest.outbuf:
+            return False
+        self._count(ErrorKind.IDLE)
+        self._close(idlest)
+        return True
 
     def _turn_away(self, sock: socket.socket, kind: ErrorKind, error: str) -> None:
         self._count(kind)
@@ -232,9 +245,13 @@ class CommandServer:
             self._close(conn)
             return
         if not data:  # end of input: answer the complete lines, then close
+            if conn.inbuf.strip():  # a last request without its newline: said, not dropped
+                conn.lines.append(Refusal(ErrorKind.MALFORMED, "incomplete request at the end "
+                                          "of input (a request ends with a newline)"))
+                self._ready.append(conn)
             conn.closing, conn.inbuf = True, bytearray()
             self._watch(conn)
-            if not conn.outbuf:
+            if not conn.outbuf and not conn.lines:
                 self._close(conn)
             return
         conn.last_active_s = self._clock()
@@ -268,7 +285,12 @@ class CommandServer:
         return answered
 
     def _answer(self, conn: _Conn, line: bytes | Refusal) -> None:
-        result = line if isinstance(line, Refusal) else decode_request(line, conn.serial, conn.peer)
+        try:
+            result = line if isinstance(line, Refusal) else decode_request(line, conn.serial,
+                                                                           conn.peer)
+        except Exception as exc:  # a bug in the validation must not end the loop either
+            result = Refusal(ErrorKind.INTERNAL,
+                             f"internal error: {type(exc).__name__} reading the request")
         self.stats.requests += 1
         if isinstance(result, Refusal):
             self._count(result.kind)

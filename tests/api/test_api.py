@@ -16,6 +16,7 @@ import shutil
 import socket
 import stat
 import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -41,8 +42,9 @@ from rakectl.api.schema import (
     Request,
     api_reference,
     decode_request,
+    show,
 )
-from rakectl.api.server import CommandServer
+from rakectl.api.server import EVICT_IDLE_S, CommandServer
 from rakectl.errors import ApiError, CommandRejected, DaemonUnreachable, RakeError
 
 JOG_TASK = {"cmd": "jog", "space": "task", "reach_m_per_s": 0.1}
@@ -294,12 +296,16 @@ def test_client_gone_mid_request(server: CommandServer, recorder: Recorder) -> N
 
 
 def test_half_closed_client_still_gets_its_replies(server: CommandServer) -> None:
+    """Its complete requests answered, and its last line without a newline said to be
+    incomplete, not dropped in silence; then the connection closes."""
     with _connect(server.path) as sock:
         sock.sendall(b'{"cmd": "status"}\n{"cmd": "arm"}\n{"cmd": "st')
         sock.shutdown(socket.SHUT_WR)
         replies, closed = _replies(server, sock, 3)
-    assert [r["did"] for r in replies] == ["status", "arm"] and closed
-    assert server.stats.clients == 0
+    assert [r.get("did") for r in replies] == ["status", "arm", None] and closed
+    assert replies[2] == {"ok": False, "error": "incomplete request at the end of input (a "
+                          "request ends with a newline)"}
+    assert server.stats.errors[ErrorKind.MALFORMED] == 1 and server.stats.clients == 0
 
 
 def test_client_that_never_reads_is_dropped(sock_path: Path) -> None:
@@ -315,7 +321,7 @@ def test_client_that_never_reads_is_dropped(sock_path: Path) -> None:
 
 
 def test_client_limit(sock_path: Path, recorder: Recorder) -> None:
-    with CommandServer(sock_path, None, recorder, max_clients=2) as server:
+    with CommandServer(sock_path, None, recorder, max_clients=2, clock=lambda: 0.0) as server:
         first, second = _connect(sock_path), _connect(sock_path)
         server.poll(0.01)
         third = _connect(sock_path)
@@ -326,6 +332,65 @@ def test_client_limit(sock_path: Path, recorder: Recorder) -> None:
         assert server.stats.errors[ErrorKind.BUSY] == 1
         for sock in (first, second, third):
             sock.close()
+
+
+def test_a_full_server_makes_room_by_closing_its_idlest_client(
+        sock_path: Path, recorder: Recorder) -> None:
+    """Every slot taken by connections silent for EVICT_IDLE_S: the one silent longest
+    is closed so that a new one (an e-stop) gets in; a client in use keeps its slot."""
+    now = [0.0]
+    with CommandServer(sock_path, None, recorder, max_clients=2,
+                       clock=lambda: now[0]) as server:
+        forgotten, busy = _connect(sock_path), _connect(sock_path)
+        server.poll(0.01)
+        now[0] = EVICT_IDLE_S
+        busy.sendall(b'{"cmd": "status"}\n')
+        assert _replies(server, busy, 1)[0][0]["ok"]
+        now[0] = 2 * EVICT_IDLE_S
+        estop = _connect(sock_path)
+        estop.sendall(b'{"cmd": "estop"}\n')
+        assert _replies(server, estop, 1)[0][0]["did"] == "estop"
+        assert _drain(forgotten)[1]  # closed by the server
+        busy.sendall(b'{"cmd": "status"}\n')
+        assert _replies(server, busy, 1)[0][0]["ok"]
+        assert server.stats.errors[ErrorKind.IDLE] == 1
+        assert server.stats.errors[ErrorKind.BUSY] == 0
+        for sock in (forgotten, busy, estop):
+            sock.close()
+
+
+def test_a_request_the_validation_fails_on_is_an_internal_error_and_the_server_goes_on(
+        server: CommandServer, recorder: Recorder, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A bug in decoding (a RecursionError from a request nested near the stack's limit
+    once ended the daemon's loop) is answered, counted and survived."""
+    from rakectl.api import server as server_module
+
+    def broken(line: bytes, client: int = 0, peer: Peer | None = None) -> Request | Refusal:
+        raise RecursionError("maximum recursion depth exceeded")
+
+    monkeypatch.setattr(server_module, "decode_request", broken)
+    [reply] = _exchange(server, b'{"cmd": "estop"}\n')
+    assert reply == {"ok": False, "error": "internal error: RecursionError reading the request"}
+    assert server.stats.errors[ErrorKind.INTERNAL] == 1 and recorder.requests == []
+    monkeypatch.undo()
+    assert _exchange(server, b'{"cmd": "status"}\n')[0]["ok"]
+
+
+def test_a_value_nested_too_deeply_to_encode_is_named_by_its_kind() -> None:
+    """Near the stack's limit, as deep in the daemon's loop, the encoder cannot show a
+    value nested 900 deep that the decoder could read: the error names its kind."""
+    nested: list[Any] = []
+    for _ in range(900):
+        nested = [nested]
+    depth, frame = 0, sys._getframe()
+    while frame is not None:
+        depth, frame = depth + 1, frame.f_back
+
+    def down(frames: int) -> str:
+        return show(nested) if frames <= 0 else down(frames - 1)
+
+    assert show(nested).startswith("[[[[")  # with the stack to spare
+    assert down(sys.getrecursionlimit() - depth - 300) == "an array nested too deeply to show"
 
 
 def test_one_flooding_client_does_not_starve_another(sock_path: Path, recorder: Recorder) -> None:
