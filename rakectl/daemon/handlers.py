@@ -28,6 +28,7 @@ from rakectl.daemon.timing import timing_verdict
 from rakectl.errors import CommandRejected, KinematicsError
 
 Reply = Mapping[str, Any]
+MAX_PENDING_DUMPS = 4  # operator dumps waiting for the slack (about 0.7 MB of memory each)
 
 # The commands that change what the loop sends; a replay applies them again. The others
 # read (status), write files (dump) or reset the timing statistics (timing_reset), which
@@ -169,6 +170,9 @@ def _dump(daemon: Daemon, request: Request) -> Reply:
     """Start a dump; the reply names the file, written in the slack (``status`` lists it
     under ``dumps.pending`` until it is complete). A path that cannot be written is
     refused here, before anything is queued."""
+    if len(daemon.pending_dumps()) >= MAX_PENDING_DUMPS:  # each holds a snapshot in memory
+        raise CommandRejected(f"cannot dump: {MAX_PENDING_DUMPS} dumps are still being "
+                              "written (status: dumps.pending); ask again when they are done")
     given = request.text("path")
     if not given:
         return {"path": str(daemon._dump("request")), "pending": True}
@@ -176,11 +180,30 @@ def _dump(daemon: Daemon, request: Request) -> Reply:
     if not path.is_absolute():
         raise CommandRejected(f"dump path must be absolute (the daemon's working directory "
                               f"is not the client's), got {given!r}")
+    problem = _dump_path_problem(path)
+    if problem:
+        raise CommandRejected(f"cannot dump to {given!r}: {problem}")
     try:
         daemon.dump_to(path, open_now=True)
     except DumpError as error:
         raise CommandRejected(f"cannot dump: {error}") from None
     return {"path": str(path), "pending": True}
+
+
+def _dump_path_problem(path: Path) -> str | None:
+    """Why ``path`` cannot take a new dump, or None: a dump never replaces a file (the
+    daemon's own socket among them) and needs a file name in a directory that exists."""
+    try:
+        os.fsencode(path)
+    except UnicodeEncodeError:
+        return "the path cannot be encoded as a file name"
+    if path.name in ("", ".", ".."):
+        return "it names a directory, not a file"
+    if path.exists() or path.is_symlink():
+        return "a file is already there (a dump never replaces one)"
+    if not path.parent.is_dir():
+        return f"no directory {str(path.parent)!r}"
+    return None
 
 
 def _timing_verdict(daemon: Daemon, summary: dict[str, Any] | None = None) -> str:

@@ -125,7 +125,8 @@ class DumpWriter:
         try:
             self._open()
         except OSError as exc:
-            raise DumpError(f"flight-recorder dump {self.path}: {exc.strerror or exc}") from exc
+            raise DumpError(f"flight-recorder dump {self.path}: cannot create "
+                            f"{self.partial_path.name}: {exc.strerror or exc}") from exc
 
     def work(self, budget_s: float) -> bool:
         """Write for about ``budget_s`` (at least one batch); True once the file is final."""
@@ -159,7 +160,8 @@ class DumpWriter:
             before_s = now_s
 
     def _open(self) -> TextIO:
-        self._file = open(self.partial_path, "w", encoding="ascii", newline="")  # noqa: SIM115
+        # "x": a file already there (another's, or the daemon's own) is never truncated
+        self._file = open(self.partial_path, "x", encoding="ascii", newline="")  # noqa: SIM115
         self._file.write(",".join(self._columns) + "\n")
         return self._file
 
@@ -170,7 +172,13 @@ class DumpWriter:
             os.fsync(file.fileno())
         file.close()
         self._file = None
-        os.replace(self.partial_path, self.path)
+        try:  # a link, not a rename: a file that appeared at the final name is kept
+            os.link(self.partial_path, self.path)
+        except FileExistsError:
+            self.partial_path.unlink(missing_ok=True)
+            raise DumpError(f"flight-recorder dump {self.path}: a file appeared there while "
+                            "the dump was written; it is kept, the dump dropped") from None
+        self.partial_path.unlink()
         if self._durable:
             _fsync_directory(self.path.parent)
         self.done = True

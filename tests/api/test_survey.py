@@ -13,25 +13,18 @@ import pytest
 from drivers.objects import Contact
 from drivers.soil import original_surface_height_m
 from rakectl.api import survey
-from rakectl.api.schema import decode_request
 from rakectl.bench.tick import LockstepRig
 from rakectl.config.loader import load_settings
 from rakectl.config.settings import Settings
-from rakectl.daemon.handlers import make_handler
 from rakectl.daemon.states import DaemonState
 from rakectl.errors import ApiError, ConfigError
 from tests.cli_run import run_rakectl
+from tests.rig_commands import command
 from tests.scripted_daemon import ScriptedDaemon
 
 # what the mark may stand above the truth besides the declared error: the tine mount's
 # compression by the currents' force reading and its 3 N margin (0.6 mm at 5 kN/m)
 SLACK_M = 1.5e-3
-
-
-def _command(rig: LockstepRig, line: bytes) -> dict[str, Any]:
-    request = decode_request(line)
-    assert not isinstance(request, str), request
-    return dict(make_handler(rig.daemon)(request))
 
 
 @pytest.mark.parametrize("late_m", [0.0, 2e-3])
@@ -45,7 +38,7 @@ def test_a_mark_stands_at_or_above_the_true_surface(tmp_path: Path, late_m: floa
     try:
         rig.bring_up()
         rig.until(DaemonState.DISARMED, 3000)
-        _command(rig, b'{"cmd": "arm"}')
+        command(rig, b'{"cmd": "arm"}')
         rig.until(DaemonState.ARMED, 8000)
         emulator = rig.emulator
         soil = emulator.config.physics.ground.soil
@@ -54,19 +47,19 @@ def test_a_mark_stands_at_or_above_the_true_surface(tmp_path: Path, late_m: floa
             surface_m = original_surface_height_m(soil, reach_m)
             speed = 0.1 if height_m - surface_m > 0.02 else 0.01
             if k % 100 == 0:
-                _command(rig, json.dumps({"cmd": "jog", "space": "task",
+                command(rig, json.dumps({"cmd": "jog", "space": "task",
                                           "height_m_per_s": -speed}).encode())
             rig.tick()
             if height_m <= surface_m - late_m:
                 break
         assert emulator.ground.truth.contact is Contact.SOIL
-        jogging = _command(rig, b'{"cmd": "status"}')
+        jogging = command(rig, b'{"cmd": "status"}')
         with pytest.raises(ApiError, match="the daemon is jog: mark with the rake held still"):
             survey.mark_from_status(jogging, late_m)
-        _command(rig, b'{"cmd": "stop"}')
+        command(rig, b'{"cmd": "stop"}')
         for _ in range(300):
             rig.tick()
-        status = _command(rig, b'{"cmd": "status"}')
+        status = command(rig, b'{"cmd": "status"}')
         reach_m, tines_m = emulator.plant.tine_m()
         surface_m = original_surface_height_m(soil, reach_m)
     finally:
@@ -207,7 +200,7 @@ def test_a_non_finite_lift_withholds_only_the_mark_height(tmp_path: Path) -> Non
         rig.bring_up()
         rig.until(DaemonState.DISARMED, 3000)
         rig.daemon.supervisor.f_current_n = math.nan
-        tip = _command(rig, b'{"cmd": "status"}')["tip"]
+        tip = command(rig, b'{"cmd": "status"}')["tip"]
     finally:
         rig.close()
     assert tip["tines_height_max_m"] is None

@@ -9,14 +9,13 @@ import math
 from pathlib import Path
 from typing import Any
 
-from rakectl.api.schema import decode_request
 from rakectl.bench.tick import LockstepRig
 from rakectl.config.settings import Settings
 from rakectl.core.descent import SoilBound
 from rakectl.core.ground_map import TRACKING_MARGIN_M
 from rakectl.daemon.events import EventLog
-from rakectl.daemon.handlers import make_handler
 from rakectl.daemon.states import DaemonState
+from tests.rig_commands import command
 
 
 class _Captured:
@@ -27,12 +26,6 @@ class _Captured:
 
     def __getattr__(self, level: str) -> Any:
         return lambda name, **fields: self.lines.append((level, name, fields))
-
-
-def _command(rig: LockstepRig, line: bytes) -> dict[str, object]:
-    request = decode_request(line)
-    assert not isinstance(request, str), request
-    return make_handler(rig.daemon)(request)
 
 
 def test_a_jog_down_is_held_at_the_floor_and_the_log_says_so(tmp_path: Path) -> None:
@@ -57,12 +50,12 @@ def test_a_jog_down_is_held_at_the_floor_and_the_log_says_so(tmp_path: Path) -> 
         rig.until(DaemonState.DISARMED, 3000)
         daemon = rig.daemon
         daemon.events = EventLog(captured)
-        _command(rig, b'{"cmd": "arm"}')
+        command(rig, b'{"cmd": "arm"}')
         rig.until(DaemonState.ARMED, 8000)
         lowest_m = math.inf
         for k in range(3000):
             if k % 100 == 0:
-                _command(rig, b'{"cmd": "jog", "space": "task", "height_m_per_s": -0.1}')
+                command(rig, b'{"cmd": "jog", "space": "task", "height_m_per_s": -0.1}')
             rig.tick()
             lowest_m = min(lowest_m, -daemon.controller.depth_m)
         assert daemon.state is DaemonState.JOG, daemon.fault_reason

@@ -3,18 +3,18 @@ what absurd feedback does, and that a reset really restarts."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from pathlib import Path
 
 import can
 import pytest
 
-from rakectl.api.schema import decode_request
 from rakectl.bench.tick import LockstepRig
-from rakectl.daemon.handlers import make_handler
 from rakectl.daemon.states import DaemonState
 from rakectl.errors import CommandRejected
 from rakectl.protocol import codec
+from tests.rig_commands import command
 
 
 @pytest.fixture
@@ -28,12 +28,6 @@ def rig(tmp_path: Path) -> Iterator[LockstepRig]:
         rig.close()
 
 
-def _command(rig: LockstepRig, line: bytes) -> dict[str, object]:
-    request = decode_request(line)
-    assert not isinstance(request, str), request
-    return make_handler(rig.daemon)(request)
-
-
 def _absurd_tpdo1(rig: LockstepRig) -> None:
     """A TPDO1 of the r drive with position 2^31 − 1 counts, as the drive's own bus sends."""
     frame = can.Message(arbitration_id=0x181, is_extended_id=False,
@@ -44,7 +38,7 @@ def _absurd_tpdo1(rig: LockstepRig) -> None:
 
 def test_absurd_feedback_is_named_and_a_reset_arms_again(rig: LockstepRig) -> None:
     daemon = rig.daemon
-    _command(rig, b'{"cmd": "arm"}')
+    command(rig, b'{"cmd": "arm"}')
     rig.until(DaemonState.ARMED, 6000)
     _absurd_tpdo1(rig)
     assert daemon.state is DaemonState.FAULT
@@ -52,12 +46,29 @@ def test_absurd_feedback_is_named_and_a_reset_arms_again(rig: LockstepRig) -> No
     assert "outside 0.3 … 1.65 m" in daemon.fault_reason
     for _ in range(50):
         rig.tick()  # the drive's next TPDO1s are plausible again
-    _command(rig, b'{"cmd": "reset"}')
+    command(rig, b'{"cmd": "reset"}')
     rig.until(DaemonState.DISARMED, 1500)
-    _command(rig, b'{"cmd": "arm"}')
+    command(rig, b'{"cmd": "arm"}')
     for _ in range(1000):  # before the fix, the clamp's latch faulted every arm at once
         rig.tick()
     assert daemon.state is DaemonState.ARMED, daemon.fault_reason
+
+
+def test_a_non_finite_voltage_at_the_bus_is_a_fault_not_the_end_of_the_loop(
+        rig: LockstepRig, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The clamp sends only finite voltages; were a bug to hand the drive client a NaN,
+    the tick faults, sends 0 V instead and the loop goes on."""
+    daemon = rig.daemon
+    command(rig, b'{"cmd": "arm"}')
+    rig.until(DaemonState.ARMED, 6000)
+    monkeypatch.setattr(daemon, "_control", lambda: (math.nan, 1.0))
+    rig.tick()
+    assert daemon.state is DaemonState.FAULT
+    assert daemon.fault_reason.startswith("non-finite voltage at the bus: ")
+    assert daemon.voltages == (0.0, 0.0)
+    for _ in range(20):
+        rig.tick()  # the loop goes on, the drives read 0 V
+    assert [node.output_voltage_v for node in rig.emulator.nodes] == [0.0, 0.0]
 
 
 def test_arming_on_absurd_feedback_is_refused_naming_it(rig: LockstepRig) -> None:
@@ -67,5 +78,5 @@ def test_arming_on_absurd_feedback_is_refused_naming_it(rig: LockstepRig) -> Non
     rig.daemon.tick()  # no emulator service: the absurd frame is the last one read
     with pytest.raises(CommandRejected, match=r"cannot arm: implausible feedback: θ drive "
                                               r"\(node 2\) reports"):
-        _command(rig, b'{"cmd": "arm"}')
+        command(rig, b'{"cmd": "arm"}')
     assert rig.daemon.state is DaemonState.DISARMED

@@ -15,23 +15,16 @@ import pytest
 from drivers.cli import load_config
 from drivers.roboteq import RoboteqNode
 from drivers.settings import EmulatorConfig
-from rakectl.api.schema import decode_request
 from rakectl.bench.tick import LockstepRig
 from rakectl.config.settings import Settings
-from rakectl.daemon.handlers import make_handler
 from rakectl.daemon.states import DaemonState
 from rakectl.protocol.cia402 import DriveState
 from rakectl.protocol.files import DriveProfile
 from rakectl.protocol.roboteq import FAULT_EMERGENCY_STOP
+from tests.rig_commands import command
 
 LANE = (b'{"cmd": "excavate", "reach_far_m": 1.25, "reach_near_m": 1.15, '
         b'"target_depth_m": 0.01, "depth_step_m": 0.01}')
-
-
-def _command(rig: LockstepRig, line: bytes) -> dict[str, object]:
-    request = decode_request(line)
-    assert not isinstance(request, str), request
-    return make_handler(rig.daemon)(request)
 
 
 @contextlib.contextmanager
@@ -42,9 +35,9 @@ def _raking(tmp_path: Path, lane: bytes, defaults: Settings | None = None,
     try:
         rig.bring_up()
         rig.until(DaemonState.DISARMED, 3000)
-        _command(rig, b'{"cmd": "arm"}')
+        command(rig, b'{"cmd": "arm"}')
         rig.until(DaemonState.ARMED, 8000)
-        _command(rig, lane)
+        command(rig, lane)
         yield rig
     finally:
         rig.close()
@@ -83,7 +76,7 @@ def test_a_lane_with_answers_15_ms_late_every_150_ms_is_raked_to_its_depth(
                 rig.emulator.service(0.0)
             lowest_m = min(lowest_m, rig.emulator.plant.tine_m()[1])
             force_max_n = max(force_max_n, truth.force_down_n)
-        status = _command(rig, b'{"cmd": "status"}')
+        status = command(rig, b'{"cmd": "status"}')
     assert daemon.state is DaemonState.HOLD, daemon.fault_reason
     excavation = status["excavation"]
     assert isinstance(excavation, dict)
@@ -107,7 +100,7 @@ def test_a_plunge_onto_a_stone_ends_the_lane_with_the_object_found(tmp_path: Pat
     with _raking(tmp_path, lane, emulator=load_config(None, stone)) as rig:
         daemon = rig.daemon
         force_max_n = _rake(rig)
-        status = _command(rig, b'{"cmd": "status"}')
+        status = command(rig, b'{"cmd": "status"}')
     assert daemon.state is DaemonState.HOLD, daemon.state
     excavation = status["excavation"]
     assert isinstance(excavation, dict)
@@ -132,13 +125,13 @@ def test_on_roboteq_class_drives_the_daemon_arms_rakes_and_switches_them_off(
         daemon = rig.daemon
         assert all(isinstance(node, RoboteqNode) for node in rig.emulator.nodes)
         force_max_n = _rake(rig)
-        status = _command(rig, b'{"cmd": "status"}')
+        status = command(rig, b'{"cmd": "status"}')
         assert daemon.state is DaemonState.HOLD, daemon.fault_reason
         excavation = status["excavation"]
         assert isinstance(excavation, dict)
         assert excavation["done"] and excavation["depth_m"] == 0.01, excavation
         assert force_max_n < 90.0
-        _command(rig, b'{"cmd": "disarm"}')
+        command(rig, b'{"cmd": "disarm"}')
         for _ in range(200):
             rig.tick()
         assert daemon.state is DaemonState.DISARMED

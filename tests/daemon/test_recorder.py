@@ -132,6 +132,25 @@ def test_unwritable_dump_raises_a_named_error(tmp_path: Path) -> None:
     assert isinstance(caught.value, RakeError) and isinstance(caught.value, OSError)
 
 
+def test_a_dump_never_replaces_a_file_it_did_not_write(tmp_path: Path) -> None:
+    """Neither a file at the final name that appeared while the dump was written nor one
+    at its partial name: each is kept, and the error names the dump."""
+    recorder = FlightRecorder(COLUMNS, 10)
+    late = tmp_path / "late.csv"
+    writer = recorder.start_dump(late)
+    writer.open_now()
+    late.write_text("kept")
+    with pytest.raises(DumpError, match=r"late\.csv: a file appeared there"):
+        writer.work(1.0)
+    assert late.read_text() == "kept" and not writer.partial_path.exists()
+    partial = tmp_path / "busy.csv.partial"
+    partial.write_text("kept too")
+    with pytest.raises(DumpError, match=r"busy\.csv: cannot create busy\.csv\.partial: "
+                       "File exists"):
+        recorder.start_dump(tmp_path / "busy.csv").open_now()
+    assert partial.read_text() == "kept too" and not (tmp_path / "busy.csv").exists()
+
+
 def test_rows_must_fit_the_columns(tmp_path: Path) -> None:
     with pytest.raises(ConfigError):
         DumpWriter(np.zeros((3, 2)), COLUMNS, tmp_path / "d.csv")
