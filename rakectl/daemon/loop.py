@@ -53,7 +53,7 @@ from rakectl.daemon.transitions import StateChanges
 from rakectl.drive.canbus import TraceRecorder
 from rakectl.drive.client import DriveClient
 from rakectl.drive.joints import Joint
-from rakectl.errors import CommsTimeout
+from rakectl.errors import CommsTimeout, NonFiniteError
 from rakectl.protocol.cia402 import DriveState
 from rakectl.protocol.nmt import NmtState
 
@@ -191,7 +191,12 @@ class Daemon(StateChanges):
                 voltages = self._control()
         elif self._reset_deadline >= 0:
             self._try_reset()
-        client.send(*voltages)
+        try:
+            client.send(*voltages)
+        except NonFiniteError as error:  # the clamp's output is finite: a bug, made a fault
+            self.fault(f"non-finite voltage at the bus: {error}")
+            voltages = (0.0, 0.0)
+            client.send(*voltages)
         client.sync()
         self._send_failures = self._send_failures + 1 if client.send_failed() else 0
         self._overrun_streak = self._overrun_streak + 1 if skipped else 0
