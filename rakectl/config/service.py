@@ -65,6 +65,19 @@ class DrivesSettings:
     r_node_id: int = setting(1, "Node-ID of the r (DC-servo) drive.", ge=1, le=127)
     theta_node_id: int = setting(2, "Node-ID of the θ (geared-motor) drive.", ge=1, le=127)
     controller_node_id: int = setting(10, "Node-ID of the controller's heartbeat.", ge=1, le=127)
+    r_vendor_id: int = setting(
+        -1, "Vendor-ID (0x1018:1) the r drive must report at bring-up; -1: its EDS's "
+        "VendorNumber. A vendor's drive reports the vendor's own, not the 0 of the EDS files "
+        "of the drive types (docs/installation.md, section 6).", ge=-1, le=0xFFFFFFFF)
+    r_product_code: int = setting(
+        -1, "Product code (0x1018:2) the r drive must report at bring-up; -1: its EDS's "
+        "ProductNumber.", ge=-1, le=0xFFFFFFFF)
+    theta_vendor_id: int = setting(
+        -1, "Vendor-ID (0x1018:1) the θ drive must report at bring-up; -1: its EDS's.",
+        ge=-1, le=0xFFFFFFFF)
+    theta_product_code: int = setting(
+        -1, "Product code (0x1018:2) the θ drive must report at bring-up; -1: its EDS's.",
+        ge=-1, le=0xFFFFFFFF)
     watchdog_timeout_ms: int = setting(
         3, "Drive command watchdog: no RPDO or SYNC this long → 0 V, quick stop, fault. The "
         "last command of a stalled or dead controller (or the one a lost command leaves) "

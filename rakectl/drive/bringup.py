@@ -300,15 +300,20 @@ class BringUp:
                            f"{error}") from error
 
     def _check_identity(self, joint: Joint) -> Identity:
+        """0x1018 against the configured identity (``drives.<joint>_vendor_id``,
+        ``_product_code``) where one is set, else against the EDS's."""
         info = self._nodes[joint].object_dictionary.device_information
         identity = Identity(*(self._read(joint, 0x1018, sub, "identity") for sub in (1, 2, 3, 4)))
-        expected = {"vendor-ID": info.vendor_number, "product code": info.product_number}
-        found = {"vendor-ID": identity.vendor_id, "product code": identity.product_code}
-        for name, value in found.items():
-            if expected[name] is not None and value != expected[name]:
-                raise DriveFault(f"{self._label(joint)}: wrong identity: {name} {value}, "
-                                 f"expected {expected[name]} "
-                                 f"({eds_file(self._drives, joint)})")
+        for name, option, from_eds, found in (
+                ("vendor-ID", "vendor_id", info.vendor_number, identity.vendor_id),
+                ("product code", "product_code", info.product_number, identity.product_code)):
+            key = f"{joint.name.lower()}_{option}"
+            wanted, source = getattr(self._drives, key), f"drives.{key}"
+            if wanted < 0:
+                wanted, source = from_eds, eds_file(self._drives, joint)
+            if wanted is not None and found != wanted:
+                raise DriveFault(f"{self._label(joint)}: wrong identity: {name} {found}, "
+                                 f"expected {wanted} ({source})")
         return identity
 
     def _check_range(self, joint: Joint, p: Parameter) -> None:

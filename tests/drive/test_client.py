@@ -722,6 +722,26 @@ def test_a_drive_of_the_wrong_type_is_refused(network: LoopbackNetwork) -> None:
                                  "expected 1 (dc_servo_drive.eds)")
 
 
+def test_a_configured_identity_replaces_the_eds_s(network: LoopbackNetwork) -> None:
+    """A vendor's drive reports the vendor's identity, not the EDS's: configured, it is the
+    one required (and named when it is not there)."""
+    drives = (FakeDrive(network, Joint.R, R_NODE, eds_of=Joint.THETA),  # product code 2
+              FakeDrive(network, Joint.THETA, THETA_NODE))
+    bring_up = make_bring_up(network, replace(FAST, r_product_code=2))
+    r_info, _ = _announce_and_run(bring_up, drives)
+    bring_up.close()
+    assert (r_info.identity.vendor_id, r_info.identity.product_code) == (0, 2)
+
+
+def test_a_configured_identity_the_drive_does_not_report_is_refused_naming_the_key(
+        network: LoopbackNetwork, fake_drives: tuple[FakeDrive, FakeDrive]) -> None:
+    with pytest.raises(DriveFault) as raised:
+        _announce_and_run(make_bring_up(network, replace(FAST, theta_vendor_id=0x31A)),
+                          fake_drives)
+    assert str(raised.value) == ("θ drive (node 2): wrong identity: vendor-ID 0, expected "
+                                 "794 (drives.theta_vendor_id)")
+
+
 def test_a_read_back_mismatch_names_object_written_and_read(
     network: LoopbackNetwork, fake_drives: tuple[FakeDrive, FakeDrive]
 ) -> None:
