@@ -69,8 +69,11 @@ def _build_parser() -> tuple[Parser, dict[str, Callable[[argparse.Namespace], in
                       "Roboteq-class motor controllers (roboteq)")
     files = sub.add_parser("files", help="where the example configurations and systemd "
                            "files are (installed with the package), or copy them")
-    files.add_argument("--copy", type=Path, metavar="DIR", help="copy config/ and systemd/ "
-                       "into DIR (refused if DIR already holds them)")
+    files.add_argument("--copy", type=Path, metavar="DIR", help="copy config/, systemd/ "
+                       "and the drives' EDS files (eds/) into DIR (refused if DIR already "
+                       "holds them)")
+    files.add_argument("--eds", action="store_true", help="print where the drives' EDS "
+                       "files are (for a CANopen tool; docs/installation.md, section 6)")
     cli_bench.add_parser(sub)
     comp = sub.add_parser("compile", help="compile the emulator's physics with mypyc (the "
                           "[fast] extra and a C compiler): the same results, about 3x less "
@@ -173,17 +176,25 @@ def _cmd_files(args: argparse.Namespace) -> int:
     import shutil
 
     from rakectl.config.files import shared_root
+    from rakectl.protocol.files import EDS_DIR
 
+    if args.eds and args.copy is not None:
+        raise ConfigError("files: --eds prints where the EDS files are; --copy copies them "
+                          "too: give one of them")
+    if args.eds:
+        print(EDS_DIR)
+        return 0
     root = shared_root()
     if args.copy is None:
         print(root)
         return 0
-    for name in ("config", "systemd"):
-        target = args.copy / name
-        if target.exists():
-            raise ConfigError(f"files: {target} exists; copy into an empty directory")
-        shutil.copytree(root / name, target)
-    print(f"files: config/ and systemd/ copied into {args.copy}")
+    sources = {"config": root / "config", "systemd": root / "systemd", "eds": EDS_DIR}
+    for name in sources:
+        if (args.copy / name).exists():
+            raise ConfigError(f"files: {args.copy / name} exists; copy into an empty directory")
+    for name, source in sources.items():
+        shutil.copytree(source, args.copy / name)
+    print(f"files: config/, systemd/ and eds/ copied into {args.copy}")
     return 0
 
 

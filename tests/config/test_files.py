@@ -38,8 +38,20 @@ def test_files_copy_refuses_to_overwrite(tmp_path: Path, capsys: pytest.CaptureF
     assert main(["files", "--copy", str(tmp_path)]) == 0
     assert (tmp_path / "systemd/rakectl.service").is_file()
     assert (tmp_path / "config/scenarios/paper-fig5.yaml").is_file()
+    assert (tmp_path / "eds/roboteq_class_drive.eds").is_file()  # for a CANopen tool
     assert main(["files", "--copy", str(tmp_path)]) == 2
     assert "exists; copy into an empty directory" in capsys.readouterr().err
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "eds").mkdir()  # one of them there: nothing is copied
+    assert main(["files", "--copy", str(tmp_path / "other")]) == 2
+    assert not (tmp_path / "other" / "config").exists()
+
+
+def test_files_says_where_the_eds_files_are(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["files", "--eds"]) == 0
+    eds = Path(capsys.readouterr().out.strip())
+    assert sorted(p.name for p in eds.glob("*.eds")) == [
+        "dc_servo_drive.eds", "geared_motor_drive.eds", "roboteq_class_drive.eds"]
 
 
 def test_the_wheel_ships_the_configurations_and_units(tmp_path: Path) -> None:
