@@ -172,13 +172,14 @@ class DumpWriter:
             os.fsync(file.fileno())
         file.close()
         self._file = None
-        try:  # a link, not a rename: a file that appeared at the final name is kept
-            os.link(self.partial_path, self.path)
-        except FileExistsError:
+        # a file that appeared at the final name while the dump was written is kept (the
+        # service's system-call filter refuses link(), which would close the gap between
+        # this check and the rename)
+        if self.path.exists() or self.path.is_symlink():
             self.partial_path.unlink(missing_ok=True)
             raise DumpError(f"flight-recorder dump {self.path}: a file appeared there while "
-                            "the dump was written; it is kept, the dump dropped") from None
-        self.partial_path.unlink()
+                            "the dump was written; it is kept, the dump dropped")
+        os.replace(self.partial_path, self.path)
         if self._durable:
             _fsync_directory(self.path.parent)
         self.done = True
