@@ -27,7 +27,9 @@ the start of tick k+1. There is no round trip inside a tick.
   drive lost its configuration). A frame of the wrong length, undecodable
   content, an unknown ID, an echo of the controller's own frames (udp_multicast),
   an error frame (socketcan) or a receive error is counted in
-  :class:`~rakectl.drive.health.Stats`, never raised. A drive whose TPDO1 did not
+  :class:`~rakectl.drive.health.Stats`, never raised (the drain reads on past a
+  receive error, an undecodable datagram, and ends after
+  ``RECEIVE_ERRORS_PER_DRAIN`` of them, a dead bus). A drive whose TPDO1 did not
   arrive after a SYNC gets one more stale cycle; TPDO1 carries no SYNC counter, so
   the counter recorded with it is the last SYNC sent before the drain (right while
   TPDO1 latency < one period). ``Feedback.samples`` counts the SYNCs both drives
@@ -118,6 +120,7 @@ from rakectl.protocol.nmt import (
 from rakectl.protocol.roboteq import pack_command_into, volts_to_per_mille
 
 LATENCY_RING = 65536  # SYNC → TPDO1 latencies kept for the benchmark
+RECEIVE_ERRORS_PER_DRAIN = 4  # one bad datagram does not end the drain; a dead bus does
 
 
 # =========================================================================== hot path
@@ -233,14 +236,17 @@ class DriveClient(FrameDecoder):
         trace = self._trace
         fresh = self._fresh
         fresh[0] = fresh[1] = 0
-        count = 0
+        count = errors = 0
         while True:
             try:
                 msg = recv(0.0)
             except can.CanError as error:
                 stats.receive_errors += 1
                 self.last_receive_error = error
-                break
+                errors += 1
+                if errors >= RECEIVE_ERRORS_PER_DRAIN:
+                    break
+                continue
             if msg is None:
                 break
             count += 1

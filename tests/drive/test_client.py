@@ -38,7 +38,7 @@ from rakectl.core.motor_model import joint_per_motor_rad, joint_resolution
 from rakectl.drive import canbus
 from rakectl.drive.bringup import BringUp
 from rakectl.drive.canbus import BusError, TraceRecorder
-from rakectl.drive.client import DriveClient
+from rakectl.drive.client import RECEIVE_ERRORS_PER_DRAIN, DriveClient
 from rakectl.drive.joints import Joint, load_drive_od, own_ids, receive_ids
 from rakectl.drive.profiles import EDS_FILES, drive_parameters
 from rakectl.errors import CommsTimeout, ConfigError, DriveFault, NonFiniteError
@@ -75,6 +75,7 @@ class FakeBus(can.BusABC):
         self.keep_sent = True
         self.send_error: can.CanError | None = None
         self.recv_error: can.CanError | None = None
+        self.recv_error_once = False  # raised by one receive (an undecodable datagram)
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         if self.send_error is not None:
@@ -84,7 +85,10 @@ class FakeBus(can.BusABC):
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         if self.recv_error is not None:
-            raise self.recv_error
+            error = self.recv_error
+            if self.recv_error_once:
+                self.recv_error = None
+            raise error
         return (self.rx.popleft() if self.rx else None), True
 
     def feed(self, can_id: int, data: bytes, **flags: Any) -> None:
@@ -262,8 +266,14 @@ def test_bad_frames_are_counted_never_raised(bus: FakeBus, client: DriveClient) 
     assert (s.error_frames, s.bus_off_frames) == (1, 1)
     assert client.feedback.r_m == pytest.approx(5 * joint_resolution(MOTORS.r))
     bus.recv_error = can.CanOperationError("Failed to receive: Network is down", 100)
-    assert client.receive() == 0
-    assert s.receive_errors == 1 and client.last_receive_error is bus.recv_error
+    assert client.receive() == 0  # a dead bus: the drain ends after a few tries
+    assert s.receive_errors == RECEIVE_ERRORS_PER_DRAIN
+    assert client.last_receive_error is bus.recv_error
+    bus.recv_error, bus.recv_error_once = can.CanError("undecodable datagram"), True
+    bus.feed(*tpdo1(R_NODE, 7))  # read in the same drain, after the bad one
+    assert client.receive() == 1
+    assert s.receive_errors == RECEIVE_ERRORS_PER_DRAIN + 1
+    assert client.feedback.r_m == pytest.approx(7 * joint_resolution(MOTORS.r))
 
 
 def canbus_busoff() -> int:
