@@ -199,7 +199,7 @@ def _dump_path_problem(path: Path) -> str | None:
         return "the path cannot be encoded as a file name"
     if path.name in ("", ".", ".."):
         return "it names a directory, not a file"
-    if path.exists() or path.is_symlink():
+    if os.path.lexists(path):  # a dangling link too
         return "a file is already there (a dump never replaces one)"
     if not path.parent.is_dir():
         return f"no directory {str(path.parent)!r}"

@@ -175,7 +175,7 @@ class DumpWriter:
         # a file that appeared at the final name while the dump was written is kept (the
         # service's system-call filter refuses link(), which would close the gap between
         # this check and the rename)
-        if self.path.exists() or self.path.is_symlink():
+        if os.path.lexists(self.path):  # a dangling link too
             self.partial_path.unlink(missing_ok=True)
             raise DumpError(f"flight-recorder dump {self.path}: a file appeared there while "
                             "the dump was written; it is kept, the dump dropped")

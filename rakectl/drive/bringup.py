@@ -84,6 +84,7 @@ from rakectl.drive.joints import (
     Parameter,
     PdoReading,
     allowed_range,
+    configured_identity,
     drive_label,
     load_drive_od,
     motor_of,
@@ -304,12 +305,14 @@ class BringUp:
         ``_product_code``) where one is set, else against the EDS's."""
         info = self._nodes[joint].object_dictionary.device_information
         identity = Identity(*(self._read(joint, 0x1018, sub, "identity") for sub in (1, 2, 3, 4)))
-        for name, option, from_eds, found in (
-                ("vendor-ID", "vendor_id", info.vendor_number, identity.vendor_id),
-                ("product code", "product_code", info.product_number, identity.product_code)):
-            key = f"{joint.name.lower()}_{option}"
-            wanted, source = getattr(self._drives, key), f"drives.{key}"
-            if wanted < 0:
+        vendor_id, product_code = configured_identity(self._drives, joint)
+        for name, option, configured, from_eds, found in (
+                ("vendor-ID", "vendor_id", vendor_id, info.vendor_number, identity.vendor_id),
+                ("product code", "product_code", product_code, info.product_number,
+                 identity.product_code)):
+            wanted: int | None = configured
+            source = f"drives.{joint.name.lower()}_{option}"
+            if configured < 0:
                 wanted, source = from_eds, eds_file(self._drives, joint)
             if wanted is not None and found != wanted:
                 raise DriveFault(f"{self._label(joint)}: wrong identity: {name} {found}, "

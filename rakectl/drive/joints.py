@@ -139,6 +139,13 @@ def motor_of(motors: MotorsSettings, joint: Joint) -> MotorParams:
     return motors.r if joint is Joint.R else motors.theta
 
 
+def configured_identity(drives: DrivesSettings, joint: Joint) -> tuple[int, int]:
+    """(vendor-ID, product code) the drive of ``joint`` must report; -1: its EDS's."""
+    if joint is Joint.R:
+        return drives.r_vendor_id, drives.r_product_code
+    return drives.theta_vendor_id, drives.theta_product_code
+
+
 def load_drive_od(eds_file: str, node_id: int) -> ObjectDictionary:
     """The object dictionary of a drive type, from its EDS file."""
     return canopen.import_od(str(EDS_DIR / eds_file), node_id)
