@@ -54,8 +54,14 @@ class Mark:
         return SurveyPoint(self.reach_m, self.tines_height_max_m + self.error_m)
 
 
+def error_in_range(error_m: float) -> bool:
+    """Whether a mark's added error is one ``survey mark`` takes (never negative: that
+    would lower the point below the tines)."""
+    return math.isfinite(error_m) and 0.0 <= error_m <= MAX_ERROR_MM * 1e-3
+
+
 def check_error(error_m: float) -> None:
-    if not (math.isfinite(error_m) and 0.0 <= error_m <= MAX_ERROR_MM * 1e-3):
+    if not error_in_range(error_m):
         raise ApiError(f"survey: --error-mm must be within 0–{MAX_ERROR_MM:g} mm, got "
                        f"{error_m * 1e3:g}")
 
@@ -98,7 +104,7 @@ def read_marks(path: Path) -> list[Mark]:
                               f"error_m numbers, got {item!r}") from None
         if not all(map(math.isfinite, dataclasses.astuple(mark))):
             raise ConfigError(f"{path}: marks[{i}]: a number is not finite: {item!r}")
-        if not 0.0 <= mark.error_m <= MAX_ERROR_MM * 1e-3:  # a negative one lowers the point
+        if not error_in_range(mark.error_m):
             raise ConfigError(f"{path}: marks[{i}]: error_m must be within 0–"
                               f"{MAX_ERROR_MM * 1e-3:g} m, as `survey mark` takes it, got "
                               f"{mark.error_m:g}")
