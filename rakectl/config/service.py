@@ -116,14 +116,23 @@ class SelfTestSettings:
         0.3, "Largest relative difference between the measured and the configured unbalanced "
         "weight (a missing counterweight doubles it).", gt=0, lt=1)
     press: bool = setting(
-        False, "After the weight check, press the tines on the anvil and compare the tine "
-        "mount's stiffness, measured through the motor currents and encoders, with "
-        "clamp.contact_stiffness_n_per_m (rakectl.core.mount_check); a mismatch faults "
-        "instead of arming. Needs the anvil: a rigid block on the robot's frame.")
+        False, "After the weight check, press the tines on the anvil from above and on its near "
+        "side and compare the tine mount's stiffness each way, measured through the motor "
+        "currents and encoders, with clamp.contact_stiffness_n_per_m and "
+        "side_contact_stiffness_n_per_m (rakectl.core.mount_check); a mismatch faults instead "
+        "of arming. Needs the anvil: a rigid block on the robot's frame.")
     anvil_reach_m: float = setting(0.45, "Reach of the anvil's centre (from the pivot).",
                                    unit="m", gt=0, le=3)
     anvil_height_m: float = setting(0.1, "Height of the anvil's flat top above ground level 0, "
                                     "known within 5 mm.", unit="m", ge=-0.5, le=1)
+    anvil_width_m: float = setting(
+        0.06, "Width of the anvil along the reach: its near side, the flat vertical face toward "
+        "the robot at anvil_reach_m − anvil_width_m/2, is pressed sideways; known within 5 mm.",
+        unit="m", gt=0, le=1)
+    anvil_side_height_m: float = setting(
+        0.05, "Height above ground level 0 at which the tines press the anvil's near side: on "
+        "its flat face, at least 10 mm below the anvil's top (its rounded edge) and clear of "
+        "the soil.", unit="m", ge=-0.5, le=1)
     press_force_n: float = setting(
         10.0, "How hard the tines press the anvil, read through the currents above their "
         "reading in free air; the clamp's worst-case model holds a press near 18 N at best "
@@ -133,13 +142,17 @@ class SelfTestSettings:
     travel_speed_m_per_s: float = setting(0.05, "Speed to the anvil and back.", unit="m/s",
                                           ge=0.01, le=0.1)
     mount_stiffer_tolerance: float = setting(
-        0.2, "How much stiffer than clamp.contact_stiffness_n_per_m the measured mount may be "
-        "(the clamp takes that stiffness as the stiffest contact: 20 % stiffer raises the "
-        "spring part of an impact's bound √1.2 ≈ 1.1 times, inside clamp.model_margin).",
+        0.2, "How much stiffer than configured (clamp.contact_stiffness_n_per_m, "
+        "side_contact_stiffness_n_per_m) the measured mount may be, each way (the clamp takes "
+        "the configured stiffnesses as the stiffest contacts: 20 % stiffer raises the spring "
+        "part of an impact's bound √1.2 ≈ 1.1 times, inside clamp.model_margin).",
         gt=0, le=0.2)
     mount_softer_tolerance: float = setting(
-        0.5, "How much softer than clamp.contact_stiffness_n_per_m the measured mount may be "
-        "(softer is safe for the clamp; much softer is another mount).", gt=0, lt=1)
+        0.5, "How much softer than configured the measured mount may be, each way (much "
+        "softer is another mount). Softer both ways alike is safe for the clamp; one way "
+        "softer than the other stores energy a rounded edge turns into a push √ratio times "
+        "larger, which the presses' readings cannot resolve within clamp.model_margin (their "
+        "ratio is reported, not judged: rakectl.core.mount_check).", gt=0, lt=1)
 
 
 @dataclass(frozen=True)

@@ -377,13 +377,24 @@ PRESS_HEIGHT_TOLERANCE_M = 0.005  # how well the anvil's height must be known
 PRESS_MAX_DEPTH_M = 0.02
 
 
-def press_depth_m(selftest: SelfTestSettings, clamp: ClampSettings) -> float:
-    """How far below the anvil's configured top the tine-mount check's press may go: the
-    height's tolerance plus 2.5 times the configured mount's compression at the press's
-    force, at most ``PRESS_MAX_DEPTH_M`` (with no anvil there, what lies below is pressed
-    no deeper)."""
-    compression_m = selftest.press_force_n / clamp.contact_stiffness_n_per_m
+SIDE_BELOW_TOP_M = 0.01  # the anvil's side is pressed at least this far below its top
+
+
+def press_depth_m(selftest: SelfTestSettings, clamp: ClampSettings, sideways: bool = False
+                  ) -> float:
+    """How far past the anvil's configured face (its top, or with ``sideways`` its near
+    side) the tine-mount check's press may go: the face's tolerance plus 2.5 times the
+    configured mount's compression that way at the press's force, at most
+    ``PRESS_MAX_DEPTH_M`` (with no anvil there, what lies beyond is pressed no further)."""
+    stiffness = clamp.side_contact_stiffness_n_per_m if sideways else \
+        clamp.contact_stiffness_n_per_m
+    compression_m = selftest.press_force_n / stiffness
     return min(PRESS_MAX_DEPTH_M, PRESS_HEIGHT_TOLERANCE_M + 2.5 * compression_m)
+
+
+def anvil_side_reach_m(selftest: SelfTestSettings) -> float:
+    """The reach of the anvil's near side, the face the sideways press meets."""
+    return selftest.anvil_reach_m - 0.5 * selftest.anvil_width_m
 
 
 def _press_checks(s: Settings) -> list[tuple[str, str]]:
@@ -396,6 +407,11 @@ def _press_checks(s: Settings) -> list[tuple[str, str]]:
     if t.press_force_n > 0.5 * s.clamp.force_limit_n:
         errors.append(("selftest.press_force_n", f"must be <= half clamp.force_limit_n "
                        f"({0.5 * s.clamp.force_limit_n:g} N), got {t.press_force_n:g}"))
+    if t.anvil_side_height_m > t.anvil_height_m - SIDE_BELOW_TOP_M:
+        errors.append(("selftest.anvil_side_height_m", "must be at least "
+                       f"{1e3 * SIDE_BELOW_TOP_M:g} mm below the anvil's top "
+                       f"(selftest.anvil_height_m {t.anvil_height_m:g} m): the side is pressed "
+                       f"on its flat face, got {t.anvil_side_height_m:g}"))
     g = s.geometry
     try:  # from below the anvil's top (the press's deepest) to above it (the approach)
         workspace = Workspace(g.pivot_height_m, g.r_min_m, g.r_max_m, g.theta_min_rad,
@@ -405,4 +421,16 @@ def _press_checks(s: Settings) -> list[tuple[str, str]]:
     except KinematicsError as error:
         errors.append(("selftest.anvil_reach_m", "the press on the anvil (selftest.anvil_reach_m, "
                        f"anvil_height_m) leaves the workspace: {error}"))
+        return errors
+    side_m = anvil_side_reach_m(t)
+    try:  # beside the near side, above it, and the sideways press's furthest
+        for reach_m, height_m in ((side_m - 0.02, t.anvil_height_m + 0.02),
+                                  (side_m - 0.02, t.anvil_side_height_m),
+                                  (side_m + press_depth_m(t, s.clamp, sideways=True),
+                                   t.anvil_side_height_m)):
+            inverse(workspace, reach_m, height_m)
+    except KinematicsError as error:
+        errors.append(("selftest.anvil_width_m", "the press on the anvil's near side "
+                       "(selftest.anvil_reach_m − anvil_width_m/2, anvil_side_height_m) leaves "
+                       f"the workspace: {error}"))
     return errors

@@ -40,8 +40,8 @@ What it does not cover: the current's electrical transient after a command drops
 (L/R ≈ 0.3 ms), which the margin absorbs; a mount stiffer than configured (the
 clamp is only as true as ``contact_stiffness_n_per_m`` and
 ``side_contact_stiffness_n_per_m``, and of the counterweight: hardware requirements,
-the vertical mount and the weight checked before arming, rakectl.core.mount_check and
-rakectl.core.selftest, the sideways mount at assembly); the
+the mount each way and the weight checked before arming, rakectl.core.mount_check and
+rakectl.core.selftest, the ratio of the mount's two stiffnesses at assembly); the
 tines' own mass below the mount (its impulse is ignored). A non-finite input
 gives 0 V and sets ``non_finite`` (the caller must fault): it is never silently
 replaced.

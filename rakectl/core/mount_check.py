@@ -1,50 +1,74 @@
 """The tine-mount check before the first arming (pure): is the mount as soft as the clamp
-assumes?
+assumes, down and sideways?
 
-The clamp's dynamic budget rests on ``clamp.contact_stiffness_n_per_m``: no contact is
-stiffer than the tines' compliant mount. A mount whose springs were swapped for stiffer
-ones, or blocked, makes every impact harder than the bound allows (rigid tines with the
-clamp set for the mount: 279 N on a stone). Nothing on the robot measures the mount, so
-with ``selftest.press`` on, after the weight check, the daemon presses the tines on the
-anvil: a rigid block on the robot's frame whose flat top is at ``selftest.anvil_reach_m``,
-``selftest.anvil_height_m`` (a hardware requirement, like the mount; its height known
-within 5 mm). The tip goes up to the travel height (the start's, or ``CLEARANCE_M`` above
-the anvil's top if that is higher), across, and down to ``CLEARANCE_M`` above the anvil,
-at ``selftest.travel_speed_m_per_s``; then down at ``selftest.press_speed_m_per_s`` until
-the vertical force read through the motor currents is ``selftest.press_force_n`` above
-its reading in the press's first ``BASELINE_S`` (in free air); it holds ``HOLD_S`` and
-goes back the same way to where it started. Each move waits for the measured tip to
+The clamp's dynamic budget rests on ``clamp.contact_stiffness_n_per_m`` and
+``side_contact_stiffness_n_per_m``: no contact is stiffer than the tines' compliant mount,
+vertically or horizontally. A mount whose springs were swapped for stiffer ones, or
+blocked, makes every impact harder than the bound allows (rigid tines with the clamp set
+for the mount: 279 N on a stone; a tine rigid sideways meets a stone's side at 0.1 m/s
+with several hundred newtons). Nothing on the robot measures the mount, so with
+``selftest.press`` on, after the weight check, the daemon presses the tines on the anvil:
+a rigid block on the robot's frame whose flat top is at ``selftest.anvil_reach_m``,
+``selftest.anvil_height_m``, and whose near side, a flat vertical face toward the robot,
+is ``selftest.anvil_width_m`` / 2 nearer (a hardware requirement, like the mount; its top
+and its side known within 5 mm). The tip goes up to the travel height (the start's, or
+``CLEARANCE_M`` above the anvil's top if that is higher), across, and down to
+``CLEARANCE_M`` above the anvil, at ``selftest.travel_speed_m_per_s``; then down at
+``selftest.press_speed_m_per_s`` until the vertical force read through the motor
+currents is ``selftest.press_force_n`` above its reading in the press's first
+``BASELINE_S`` (in free air), holds ``HOLD_S`` and goes back up. Then it goes over to
+``CLEARANCE_M`` short of the near side, down beside it to ``selftest.anvil_side_height_m``,
+and presses the side the same way, moving away from the robot with its height held, until
+the force along the reach is ``press_force_n`` above its free-air reading; it holds, backs
+off, rises, and goes back to where it started. Each move waits for the measured tip to
 arrive (``ARRIVED_M``, at most ``ARRIVE_TIMEOUT_S`` after its reference did).
 
-On a rigid anvil the arm's descent past the first touch is the mount's compression, so
-the slope of the force against the arm's height (its encoders, before the mount) is the
-mount's stiffness; what stays constant during the press drops out of a slope: the
-weight, friction at a steady speed, where exactly the anvil's top is. The force is the
-joints' loads from their currents (the motor model's band, on the side the press moves
-each joint to, as the weight check reads them), the configured weight taken off, through
-J⁻ᵀ (:func:`rakectl.core.supervision.down_force_n`), low-passed (``FILTER_S``: a joint
-creeping a few encoder counts per tick sticks and slips), and the height through the
-same low-pass, so that each force is paired with its height. The slope is fitted by least
-squares over the press's ticks whose force lies within ``FIT_WINDOW`` of
+On a rigid anvil the arm's travel past the first touch is the mount's compression, so
+the slope of the force against the arm's travel (its encoders, before the mount: its
+depth, and sideways its reach) is the mount's stiffness that way; what stays constant
+during a press drops out of a slope: the weight, friction at a steady speed, where
+exactly the anvil's face is. The force is the joints' loads from their currents (the
+motor model's band, on the side the press moves each joint to, as the weight check reads
+them), the configured weight taken off, through J⁻ᵀ
+(:func:`rakectl.core.supervision.tip_force_from_loads_n`), low-passed (``FILTER_S``: a
+joint creeping a few encoder counts per tick sticks and slips), and the travel through
+the same low-pass, so that each force is paired with its travel. The slope is fitted by
+least squares over the press's ticks whose force lies within ``FIT_WINDOW`` of
 ``press_force_n``. Above the configured stiffness by more than
 ``selftest.mount_stiffer_tolerance`` (0.2: the clamp takes that stiffness as the
-stiffest contact), or below it by more than ``mount_softer_tolerance`` (0.5), the check
-fails, naming both. A mount too stiff for the encoders to see it give is at least
-ΔF/(``MIN_SPREAD_COUNTS`` counts of the tip's height) stiff, and fails the same way.
-Only a press that reached its force is weighed: one whose reference ran ``STALL_LAG_M``
-ahead of the arm was held by the clamp (its stalled ticks would read any mount as soft)
-and fails naming it; one whose reference went ``press_depth_m`` below the anvil's
-configured top without the force fails as nothing met, or (the force rose less than
-``MIN_FORCE_SPAN`` of the press) as too little to weigh.
+stiffest contact), or below it by more than ``mount_softer_tolerance`` (0.5), either
+press fails the check, naming both values and the setting. A mount too stiff for the
+encoders to see it give is at least ΔF/(``MIN_SPREAD_COUNTS`` counts of the travel)
+stiff, and fails the same way. Only a press that reached its force is weighed: one whose
+reference ran ``STALL_LAG_M`` ahead of the arm was held by the clamp (its stalled ticks
+would read any mount as soft) and fails naming it; one whose reference went
+``press_depth_m`` past the face's configured place without the force fails as nothing
+met, or (the force rose less than ``MIN_FORCE_SPAN`` of the press) as too little to
+weigh.
 
-On the emulated arm (tests/core/test_mount_check.py) the press of 10 N reads the default
-5000 N/m mount as 4951 N/m (5181 N/m at the robot's anvil, config/rakectl.yaml), 4000 as
-3993, 2000 as 1978, 6500 as 6386, and the stiffest, whose press lasts a few filter
-times, lower than they are but far above the tolerance: 50 000 as 31 000 and 10⁶ as
-58 000; the true force on the anvil stayed under 19 N. The push is the clamp's to
-bound, whatever the mount: a press asked for 15 N at that pose was held near 13 N (and
-asked for 30 N, near 18 N true) by the clamp's worst-case model. The press is slow: met at
-5 mm/s by a 10⁶ N/m mount and about 2 kg of arm, its kinetic energy adds v·√(k m) ≈ 7 N.
+On the emulated arm (tests/core/test_mount_check.py) the default 5000 N/m mount reads
+4984 N/m down and 4474 N/m sideways at the test's anvil (1 m of reach, its top 30 mm up,
+its side pressed 15 mm up), 4465 and 5478 N/m at the robot's (0.45 m, 0.1 m, 0.05 m:
+config/rakectl.yaml). Down, 4000 reads 3985 and passes; 2000 reads about 2000 and fails;
+6500 (1.3 times) fails; ten times stiffer (springs swapped) and 10⁶ N/m (blocked), whose
+presses last a few filter times, read lower than they are but far above the tolerance.
+Sideways: rigid reads 63 824 and 50 878 N/m, ten times stiffer 28 502 and 32 330, 2000
+reads 1803 and 2214: each fails; 4000 reads 3595 and 4393 and passes; 6500 reads 5743 at
+the test's anvil and passes, 6982 at the robot's and fails. So the sideways reading errs
+by −11 to +10 % with the pose, down by −11 to 0 %: enough to catch a mount blocked,
+swapped or missing either way, not one 1.3 times stiffer everywhere. The true push on
+the anvil stayed under 20 N, and under 37 N with a mount rigid sideways (a steel block
+met at 5 mm/s, the read force lagging its low-pass). The push is the clamp's to bound,
+whatever the mount: a press asked for 15 N at the test's pose was held near 13 N (and
+asked for 30 N, near 18 N true) by the clamp's worst-case model.
+
+What the presses cannot judge: the ratio of the two stiffnesses. One way softer than the
+other stores energy a rounded edge turns into a push √ratio times what the clamp's energy
+envelope allows for (:mod:`rakectl.core.envelope`); held to the stiffer tolerance's √1.2,
+the ratio would need the readings within a few per cent, and they err by about 10 % each
+way (the default mount read 0.82 and 1.11 times the configured ratio at the two anvils).
+It is reported (``MountResult.ratio``), not judged; nor is the mount's damping (the
+presses are quasi-static).
 """
 
 from __future__ import annotations
@@ -54,14 +78,14 @@ import math
 from dataclasses import dataclass
 
 from rakectl.config.service import SelfTestSettings
-from rakectl.config.settings import ClampSettings, press_depth_m
+from rakectl.config.settings import ClampSettings, anvil_side_reach_m, press_depth_m
 from rakectl.core import kinematics
 from rakectl.core.envelope import unbalanced_weight_n
 from rakectl.core.motor_model import MotorParams, joint_load_band, joint_resolution
-from rakectl.core.supervision import down_force_n
+from rakectl.core.supervision import tip_force_from_loads_n
 from rakectl.errors import KinematicsError
 
-CLEARANCE_M = 0.01  # above the anvil's top, where the press starts
+CLEARANCE_M = 0.01  # from the anvil's face, where each press starts
 SETTLE_S = 0.2  # held at the press's start before the baseline (the arm just arrived)
 BASELINE_S = 0.5  # the press's first ticks, in free air: the force read there is its zero
 FILTER_S = 0.05  # low-pass on the force read (a joint creeping at a few counts per tick
@@ -71,9 +95,9 @@ ARRIVE_TIMEOUT_S = 3.0  # after the reference arrived
 HOLD_S = 0.3  # at the press's end
 FIT_WINDOW = (0.2, 1.0)  # of press_force_n: the ticks the slope is fitted over
 MIN_FIT_SAMPLES = 20
-MIN_SPREAD_COUNTS = 5.0  # least spread of the tip's height, in encoder counts, for a slope
+MIN_SPREAD_COUNTS = 5.0  # least spread of the arm's travel, in encoder counts, for a slope
 MIN_FORCE_SPAN = 0.5  # of press_force_n: the least rise of the force over the fit's ticks
-STALL_LAG_M = 0.003  # the reference this far below the arm: the clamp holds the press
+STALL_LAG_M = 0.003  # the reference this far past the arm: the clamp holds the press
 PATH_STEP_M = 0.01  # the way to the anvil is checked against the joints' limits this often
 
 
@@ -84,6 +108,12 @@ class Phase(enum.Enum):
     PRESS = "press"
     HOLD = "hold"
     UP = "up"
+    OVER = "over to the side"
+    BESIDE = "down beside"
+    SIDE_PRESS = "side press"
+    SIDE_HOLD = "side hold"
+    OFF = "off the side"
+    CLEAR = "up from the side"
     BACK = "back"
     RETURN = "return"
     LOWER = "lower"
@@ -91,73 +121,154 @@ class Phase(enum.Enum):
 
 
 @dataclass(frozen=True)
-class MountResult:
+class PressResult:
+    """One press's verdict: the mount's stiffness that way against the configured one."""
+
     passed: bool
     stiffness_n_per_m: float  # measured (a lower bound when ``at_least``); nan if none
-    expected_n_per_m: float  # configured (clamp.contact_stiffness_n_per_m)
+    expected_n_per_m: float  # configured
     at_least: bool
     samples: int
     peak_force_n: float  # the press's largest force read through the currents, over free air
+    message: str  # what was measured, or why nothing was
+
+
+@dataclass(frozen=True)
+class MountResult:
+    passed: bool
+    down: PressResult  # pressed from above (clamp.contact_stiffness_n_per_m)
+    side: PressResult  # pressed on the near side (clamp.side_contact_stiffness_n_per_m)
+    ratio: float  # measured vertical over sideways stiffness, over the configured ratio; nan
     message: str
 
 
+class _Press:
+    """One press's readings: the force along the press read through the currents above its
+    free-air baseline and the arm's travel along it, low-passed alike (each force is paired
+    with its travel), summed for the least-squares slope of one against the other."""
+
+    def __init__(self, expected_n_per_m: float, sign: tuple[float, float],
+                 resolution_m: float, baseline_ticks: int, alpha: float,
+                 limit_m: float) -> None:
+        self.expected_n_per_m = expected_n_per_m
+        self.sign = sign  # the side of each joint's load band: the way the press moves it
+        self.resolution_m = resolution_m  # of the travel, from the encoders
+        self.limit_m = limit_m  # the reference's furthest travel
+        self._baseline_ticks, self._alpha = baseline_ticks, alpha
+        self.sums = [0.0] * 5  # n, Σs, ΣF, Σs², ΣsF over the fit's ticks
+        self.spread = (math.inf, -math.inf, math.inf, -math.inf)  # s and F, min and max
+        self.peak_force_n = 0.0  # above the baseline
+        self.stalled = False
+        self._baseline = [0.0, 0.0]  # ticks, Σ force read
+        self._filtered_n = self._filtered_m = math.nan
+
+    def add(self, force_n: float, travel_m: float, window: tuple[float, float]) -> None:
+        """One tick's force read along the press and the arm's travel along it."""
+        baseline = self._baseline
+        if baseline[0] < self._baseline_ticks:
+            baseline[0] += 1.0
+            baseline[1] += force_n
+            self._filtered_n = baseline[1] / baseline[0]
+            self._filtered_m = travel_m
+            return
+        alpha = self._alpha
+        self._filtered_n += alpha * (force_n - self._filtered_n)
+        self._filtered_m += alpha * (travel_m - self._filtered_m)
+        force_n = self._filtered_n - baseline[1] / baseline[0]
+        travel_m = self._filtered_m
+        self.peak_force_n = max(self.peak_force_n, force_n)
+        if not window[0] <= force_n <= window[1]:
+            return
+        sums = self.sums
+        sums[0] += 1.0
+        sums[1] += travel_m
+        sums[2] += force_n
+        sums[3] += travel_m * travel_m
+        sums[4] += travel_m * force_n
+        s_lo, s_hi, f_lo, f_hi = self.spread
+        self.spread = (min(s_lo, travel_m), max(s_hi, travel_m), min(f_lo, force_n),
+                       max(f_hi, force_n))
+
+
 class MountCheck:
-    """Drives the tip reference to the anvil, through the press and back; see the module."""
+    """Drives the tip reference to the anvil, through both presses and back; see the
+    module."""
 
     def __init__(self, settings: SelfTestSettings, clamp: ClampSettings, motor_r: MotorParams,
                  motor_theta: MotorParams, workspace: kinematics.Workspace, dt_s: float,
                  reach_m: float, depth_m: float) -> None:
         self._s, self._clamp = settings, clamp
-        self.expected_n_per_m = clamp.contact_stiffness_n_per_m
         self._ws, self._dt_s = workspace, dt_s
         self._weight_n = unbalanced_weight_n(clamp)
         self._half_length_m = 0.5 * clamp.rake_length_m
         self._motors = (motor_r, motor_theta)
         self.start = (reach_m, depth_m)
         anvil_depth_m = -settings.anvil_height_m
-        self._approach_depth_m = anvil_depth_m - CLEARANCE_M
-        travel_depth_m = min(depth_m, self._approach_depth_m)
-        self._press_limit_m = anvil_depth_m + press_depth_m(settings, clamp)
+        approach_depth_m = anvil_depth_m - CLEARANCE_M
+        travel_depth_m = min(depth_m, approach_depth_m)
+        self._side_reach_m = anvil_side_reach_m(settings)
+        beside_reach_m = self._side_reach_m - CLEARANCE_M
+        side_depth_m = -settings.anvil_side_height_m
         self._settle_ticks = round(SETTLE_S / dt_s)
-        self._stalled = False
-        reach = settings.anvil_reach_m
+        reach, travel = settings.anvil_reach_m, settings.travel_speed_m_per_s
         self._legs = {
-            Phase.RISE: ((reach_m, travel_depth_m), settings.travel_speed_m_per_s),
-            Phase.ACROSS: ((reach, travel_depth_m), settings.travel_speed_m_per_s),
-            Phase.DOWN: ((reach, self._approach_depth_m), settings.travel_speed_m_per_s),
-            Phase.UP: ((reach, self._approach_depth_m), settings.travel_speed_m_per_s),
-            Phase.BACK: ((reach, travel_depth_m), settings.travel_speed_m_per_s),
-            Phase.RETURN: ((reach_m, travel_depth_m), settings.travel_speed_m_per_s),
-            Phase.LOWER: ((reach_m, depth_m), settings.travel_speed_m_per_s),
+            Phase.RISE: (reach_m, travel_depth_m),
+            Phase.ACROSS: (reach, travel_depth_m),
+            Phase.DOWN: (reach, approach_depth_m),
+            Phase.UP: (reach, approach_depth_m),
+            Phase.OVER: (beside_reach_m, approach_depth_m),
+            Phase.BESIDE: (beside_reach_m, side_depth_m),
+            Phase.OFF: (beside_reach_m, side_depth_m),
+            Phase.CLEAR: (beside_reach_m, approach_depth_m),
+            Phase.BACK: (beside_reach_m, travel_depth_m),
+            Phase.RETURN: (reach_m, travel_depth_m),
+            Phase.LOWER: (reach_m, depth_m),
         }
-        # the side of each joint's load band: the way the press moves it (down, reach held)
-        r_a, theta_a = kinematics.inverse(workspace, reach, settings.anvil_height_m)
-        j11, j12, j21, j22 = kinematics.jacobian(r_a, theta_a)
+        self._speed = travel
+        baseline_ticks = max(1, round(BASELINE_S / dt_s))
+        alpha = 1.0 - math.exp(-dt_s / FILTER_S)
+        # each press's joint motion: down with the reach held, or away from the robot with
+        # the height held; J⁻¹ of that way gives each joint's direction, J's row its travel
+        j11, j12, j21, j22 = _jacobian(workspace, reach, settings.anvil_height_m)
         det = j11 * j22 - j12 * j21
-        self._press_sign = (math.copysign(1.0, j12 / det), math.copysign(1.0, -j11 / det))
-        self._height_resolution_m = max(
-            abs(j21) * joint_resolution(motor_r), abs(j22) * joint_resolution(motor_theta))
+        self.down = _Press(clamp.contact_stiffness_n_per_m,
+                           (math.copysign(1.0, j12 / det), math.copysign(1.0, -j11 / det)),
+                           self._resolution(j21, j22), baseline_ticks, alpha,
+                           anvil_depth_m + press_depth_m(settings, clamp))
+        j11, j12, j21, j22 = _jacobian(workspace, self._side_reach_m,
+                                       settings.anvil_side_height_m)
+        det = j11 * j22 - j12 * j21
+        self.side = _Press(clamp.side_contact_stiffness_n_per_m,
+                           (math.copysign(1.0, j22 / det), math.copysign(1.0, -j21 / det)),
+                           self._resolution(j11, j12), baseline_ticks, alpha,
+                           self._side_reach_m + press_depth_m(settings, clamp, sideways=True))
         self.reach_m, self.depth_m = reach_m, depth_m
         self.phase = Phase.RISE
         self._ticks = 0  # in this phase, since its reference arrived for a move
-        self._sums = [0.0] * 5  # n, Σz, ΣF, Σz², ΣzF over the fit's ticks
-        self._spread = (math.inf, -math.inf, math.inf, -math.inf)  # z and F, min and max
-        self.peak_force_n = 0.0  # above the baseline
-        self._baseline = [0.0, 0.0]  # ticks, Σ force read
-        self._baseline_ticks = max(1, round(BASELINE_S / dt_s))
-        self._alpha = 1.0 - math.exp(-dt_s / FILTER_S)
-        self._filtered_n = self._filtered_m = math.nan  # force, and height filtered alike
         self.result: MountResult | None = None
         self._failure = self._outside_workspace()
         if self._failure:
             self._finish()
 
+    def _resolution(self, along_r: float, along_theta: float) -> float:
+        """The encoders' resolution of a travel whose Jacobian row is given."""
+        motor_r, motor_theta = self._motors
+        return max(abs(along_r) * joint_resolution(motor_r),
+                   abs(along_theta) * joint_resolution(motor_theta))
+
+    @property
+    def peak_force_n(self) -> float:
+        """The running press's largest force read so far (the vertical one's before)."""
+        return self.side.peak_force_n if self.phase in _SIDE_PHASES else \
+            self.down.peak_force_n
+
     def _outside_workspace(self) -> str:
-        """Why the path to the anvil and back leaves the joints' limits ("" if it does not):
-        its legs, straight in (reach, height), checked every ``PATH_STEP_M``."""
+        """Why the path to the anvil and around it leaves the joints' limits ("" if it does
+        not): its legs, straight in (reach, height), checked every ``PATH_STEP_M``."""
         here = self.start
-        for phase in (Phase.RISE, Phase.ACROSS, Phase.DOWN):
-            there = self._legs[phase][0]
+        for phase in (Phase.RISE, Phase.ACROSS, Phase.DOWN, Phase.UP, Phase.OVER,
+                      Phase.BESIDE):
+            there = self._legs[phase]
             parts = max(1, math.ceil(math.dist(here, there) / PATH_STEP_M))
             for i in range(parts + 1):
                 reach_m = here[0] + (there[0] - here[0]) * i / parts
@@ -182,24 +293,36 @@ class MountCheck:
             return
         self._ticks += 1
         if phase is Phase.PRESS:
-            if self.peak_force_n >= self._s.press_force_n:
-                self._next(Phase.HOLD)
-            elif self.depth_m - depth_m > STALL_LAG_M:
-                self._stalled = True  # judged in the end: held short of the press
-                self._next(Phase.UP)
-            elif self.depth_m >= self._press_limit_m:
-                self._next(Phase.UP)  # judged in the end: nothing met where configured
-            elif self._ticks > self._settle_ticks:
-                self.depth_m += self._s.press_speed_m_per_s * self._dt_s
-        elif phase is Phase.HOLD:
+            self._press(self.down, self.depth_m, depth_m, Phase.HOLD, Phase.UP)
+        elif phase is Phase.SIDE_PRESS:
+            self._press(self.side, self.reach_m, reach_m, Phase.SIDE_HOLD, Phase.OFF)
+        elif phase in (Phase.HOLD, Phase.SIDE_HOLD):
             if self._ticks * self._dt_s >= HOLD_S:
-                self._next(Phase.UP)
+                self._next(Phase.UP if phase is Phase.HOLD else Phase.OFF)
         else:
             self._move(phase, reach_m, depth_m)
 
+    def _press(self, press: _Press, reference_m: float, measured_m: float, held: Phase,
+               ended: Phase) -> None:
+        """One tick of a press whose reference travels along ``reference_m`` (the depth
+        down, the reach sideways) and whose arm is at ``measured_m`` along it."""
+        if press.peak_force_n >= self._s.press_force_n:
+            self._next(held)
+        elif reference_m - measured_m > STALL_LAG_M:
+            press.stalled = True  # judged in the end: held short of the press
+            self._next(ended)
+        elif reference_m >= press.limit_m:
+            self._next(ended)  # judged in the end: nothing met where configured
+        elif self._ticks > self._settle_ticks:
+            step_m = self._s.press_speed_m_per_s * self._dt_s
+            if press is self.down:
+                self.depth_m += step_m
+            else:
+                self.reach_m += step_m
+
     def _move(self, phase: Phase, reach_m: float, depth_m: float) -> None:
-        (goal_reach_m, goal_depth_m), speed = self._legs[phase]
-        step_m = speed * self._dt_s
+        goal_reach_m, goal_depth_m = self._legs[phase]
+        step_m = self._speed * self._dt_s
         d_reach, d_depth = goal_reach_m - self.reach_m, goal_depth_m - self.depth_m
         distance = math.hypot(d_reach, d_depth)
         if distance > step_m:
@@ -226,91 +349,95 @@ class MountCheck:
     def observe(self, r_m: float, theta_rad: float, r_vel: float, theta_vel: float,
                 current_r_a: float, current_theta_a: float) -> None:
         """One tick's feedback; read while pressing."""
-        if self.phase is not Phase.PRESS or self._ticks < self._settle_ticks:
+        if self.phase is Phase.PRESS:
+            press = self.down
+        elif self.phase is Phase.SIDE_PRESS:
+            press = self.side
+        else:
+            return
+        if self._ticks < self._settle_ticks:
             return
         loads = [joint_load_band(m, i, v)[0 if sign > 0.0 else 1] for m, i, v, sign in zip(
-            self._motors, (current_r_a, current_theta_a), (r_vel, theta_vel),
-            self._press_sign, strict=True)]
-        force_n = down_force_n(r_m, theta_rad, loads[0], loads[1], self._weight_n,
-                               self._half_length_m)
-        height_m = self._ws.pivot_height_m - r_m * math.sin(theta_rad)
-        baseline = self._baseline
-        if baseline[0] < self._baseline_ticks:
-            baseline[0] += 1.0
-            baseline[1] += force_n
-            self._filtered_n = baseline[1] / baseline[0]
-            self._filtered_m = height_m
-            return
-        alpha = self._alpha  # the same low-pass on both: each force is paired with its height
-        self._filtered_n += alpha * (force_n - self._filtered_n)
-        self._filtered_m += alpha * (height_m - self._filtered_m)
-        force_n = self._filtered_n - baseline[1] / baseline[0]
-        height_m = self._filtered_m
-        self.peak_force_n = max(self.peak_force_n, force_n)
-        low, high = FIT_WINDOW
-        if not low * self._s.press_force_n <= force_n <= high * self._s.press_force_n:
-            return
-        sums = self._sums
-        sums[0] += 1.0
-        sums[1] += height_m
-        sums[2] += force_n
-        sums[3] += height_m * height_m
-        sums[4] += height_m * force_n
-        z_lo, z_hi, f_lo, f_hi = self._spread
-        self._spread = (min(z_lo, height_m), max(z_hi, height_m), min(f_lo, force_n),
-                        max(f_hi, force_n))
+            self._motors, (current_r_a, current_theta_a), (r_vel, theta_vel), press.sign,
+            strict=True)]
+        reach_n, down_n = tip_force_from_loads_n(r_m, theta_rad, loads[0], loads[1],
+                                                 self._weight_n, self._half_length_m)
+        window = (FIT_WINDOW[0] * self._s.press_force_n, FIT_WINDOW[1] * self._s.press_force_n)
+        if press is self.down:  # travel: the arm's depth below the pivot
+            press.add(down_n, r_m * math.sin(theta_rad) - self._ws.pivot_height_m, window)
+        else:  # the near side pushes the tines toward the robot; travel: the arm's reach
+            press.add(-reach_n, r_m * math.cos(theta_rad), window)
 
     def _finish(self) -> None:
         self.phase = Phase.DONE
         self.result = self._judge()
 
     def _judge(self) -> MountResult:
-        expected = self.expected_n_per_m
-        stiffer, softer = self._s.mount_stiffer_tolerance, self._s.mount_softer_tolerance
-        n, sz, sf, szz, szf = self._sums
-        peak = self.peak_force_n
-
-        def result(passed: bool, k: float, at_least: bool, message: str) -> MountResult:
-            return MountResult(passed, k, expected, at_least, int(n), peak, message)
-
+        s = self._s
+        top = (f"the anvil (selftest.anvil_reach_m {s.anvil_reach_m:g} m, "
+               f"anvil_height_m {s.anvil_height_m:g} m)")
+        near = (f"the anvil's near side (reach {self._side_reach_m:.3f} m: selftest."
+                f"anvil_reach_m − anvil_width_m/2; anvil_side_height_m "
+                f"{s.anvil_side_height_m:g} m)")
+        down = self._judge_press(self.down, top, "contact_stiffness_n_per_m", "pressed down",
+                                 press_depth_m(s, self._clamp), "below the top of", "height")
+        side = self._judge_press(self.side, near, "side_contact_stiffness_n_per_m",
+                                 "pressed sideways",
+                                 press_depth_m(s, self._clamp, sideways=True), "past",
+                                 "position and width")
         if self._failure:
-            return result(False, math.nan, False, self._failure)
-        anvil = (f"the anvil (selftest.anvil_reach_m {self._s.anvil_reach_m:g} m, "
-                 f"anvil_height_m {self._s.anvil_height_m:g} m)")
-        force_n, depth_mm = self._s.press_force_n, press_depth_m(self._s, self._clamp) * 1e3
-        z_lo, z_hi, f_lo, f_hi = self._spread
-        if self._stalled and peak < force_n:
+            return MountResult(False, down, side, math.nan, self._failure)
+        ratio = math.nan
+        if down.passed and side.passed:  # reported: the readings cannot judge it (module)
+            ratio = (down.stiffness_n_per_m / side.stiffness_n_per_m) / (
+                down.expected_n_per_m / side.expected_n_per_m)
+        passed = down.passed and side.passed
+        parts = [down.message, "sideways: " + side.message]
+        return MountResult(passed, down, side, ratio, "tine-mount check: " + "; ".join(parts))
+
+    def _judge_press(self, press: _Press, anvil: str, key: str, verb: str, depth_m: float,
+                     where: str, check: str) -> PressResult:
+        """One press's verdict (its message without the check's name)."""
+        expected = press.expected_n_per_m
+        stiffer, softer = self._s.mount_stiffer_tolerance, self._s.mount_softer_tolerance
+        n, ss, sf, sss, ssf = press.sums
+        peak, force_n = press.peak_force_n, self._s.press_force_n
+        s_lo, s_hi, f_lo, f_hi = press.spread
+
+        def result(passed: bool, k: float, at_least: bool, message: str) -> PressResult:
+            return PressResult(passed, k, expected, at_least, int(n), peak, message)
+
+        if press.stalled and peak < force_n:
             return result(False, math.nan, False,
-                          f"tine-mount check: the press was held at {peak:.1f} N of the "
-                          f"{force_n:g} N asked for (selftest.press_force_n) on {anvil}: the "
-                          "clamp's bound at this pose; lower the press or put the anvil "
-                          "where the arm pushes down harder")
+                          f"the press was held at {peak:.1f} N of the {force_n:g} N asked for "
+                          f"(selftest.press_force_n) on {anvil}: the clamp's bound at this "
+                          "pose; lower the press or put the anvil where the arm pushes "
+                          "harder")
         if peak < force_n and n < MIN_FIT_SAMPLES:
             return result(False, math.nan, False,
-                          f"tine-mount check: the tines met nothing: pressed down to "
-                          f"{depth_mm:.0f} mm below the top of {anvil}, the force read "
-                          f"through the currents reached {peak:.1f} N of the {force_n:g} N "
-                          "pressed for: check the anvil's position in the configuration")
+                          f"the tines met nothing: {verb} to {1e3 * depth_m:.0f} mm {where} "
+                          f"{anvil}, the force read through the currents reached {peak:.1f} N "
+                          f"of the {force_n:g} N pressed for: check the anvil's {check} in "
+                          "the configuration")
         if peak < force_n or f_hi - f_lo < MIN_FORCE_SPAN * force_n:
             return result(False, math.nan, False,
-                          f"tine-mount check: the press reached {peak:.1f} N of the "
-                          f"{force_n:g} N pressed for, {depth_mm:.0f} mm below the top of "
-                          f"{anvil}: too little to weigh the mount (the anvil lower than "
-                          f"configured, or a mount much softer than {expected:.0f} N/m)")
-        spread_m = z_hi - z_lo
-        if n >= MIN_FIT_SAMPLES and spread_m >= MIN_SPREAD_COUNTS * self._height_resolution_m:
-            k, at_least = -(n * szf - sz * sf) / (n * szz - sz * sz), False
+                          f"the press reached {peak:.1f} N of the {force_n:g} N pressed for, "
+                          f"{1e3 * depth_m:.0f} mm {where} {anvil}: too little to weigh the "
+                          f"mount (the anvil elsewhere than configured, or a mount much softer "
+                          f"than {expected:.0f} N/m)")
+        spread_m = s_hi - s_lo
+        if n >= MIN_FIT_SAMPLES and spread_m >= MIN_SPREAD_COUNTS * press.resolution_m:
+            k, at_least = (n * ssf - ss * sf) / (n * sss - ss * ss), False
         else:  # the arm did not give measurably: at least this stiff
-            k = (f_hi - f_lo) / max(spread_m, MIN_SPREAD_COUNTS * self._height_resolution_m)
+            k = (f_hi - f_lo) / max(spread_m, MIN_SPREAD_COUNTS * press.resolution_m)
             at_least = True
         ratio = k / expected
         passed = not at_least and 1.0 - softer <= ratio <= 1.0 + stiffer
         bound = "at least " if at_least else ""
         verdict = "matches" if passed else "does not match"
-        message = (f"tine-mount check: stiffness {bound}{k:.0f} N/m measured on {anvil} "
-                   f"{verdict} {expected:.0f} N/m configured (clamp.contact_stiffness_n_per_m;"
-                   f" ratio {bound}{ratio:.2f}, tolerance +{stiffer:g}/−{softer:g}, "
-                   f"{int(n)} samples)")
+        message = (f"stiffness {bound}{k:.0f} N/m measured on {anvil} {verdict} "
+                   f"{expected:.0f} N/m configured (clamp.{key}; ratio {bound}{ratio:.2f}, "
+                   f"tolerance +{stiffer:g}/−{softer:g}, {int(n)} samples)")
         if not passed:
             message += (": the mount is stiffer than the clamp's bound assumes: check the "
                         "tines' springs before arming" if ratio > 1.0 else
@@ -318,6 +445,16 @@ class MountCheck:
         return result(passed, k, at_least, message)
 
 
+def _jacobian(workspace: kinematics.Workspace, reach_m: float, height_m: float
+              ) -> tuple[float, float, float, float]:
+    r_m, theta_rad = kinematics.inverse(workspace, reach_m, height_m)
+    return kinematics.jacobian(r_m, theta_rad)
+
+
+_SIDE_PHASES = frozenset({Phase.OVER, Phase.BESIDE, Phase.SIDE_PRESS, Phase.SIDE_HOLD,
+                          Phase.OFF, Phase.CLEAR, Phase.BACK, Phase.RETURN, Phase.LOWER,
+                          Phase.DONE})
 _AFTER = {Phase.RISE: Phase.ACROSS, Phase.ACROSS: Phase.DOWN, Phase.DOWN: Phase.PRESS,
-          Phase.UP: Phase.BACK, Phase.BACK: Phase.RETURN, Phase.RETURN: Phase.LOWER,
-          Phase.LOWER: Phase.DONE}
+          Phase.UP: Phase.OVER, Phase.OVER: Phase.BESIDE, Phase.BESIDE: Phase.SIDE_PRESS,
+          Phase.OFF: Phase.CLEAR, Phase.CLEAR: Phase.BACK, Phase.BACK: Phase.RETURN,
+          Phase.RETURN: Phase.LOWER, Phase.LOWER: Phase.DONE}

@@ -109,12 +109,20 @@ class ArmingChecks:
         if result is None:
             return None
         self.mount_result, self.mount_check = result, None
+        down, side = result.down, result.side
         return Verdict("mount_check", {"passed": result.passed,
                                        "stiffness_n_per_m": _json_number(
-                                           result.stiffness_n_per_m),
-                                       "expected_n_per_m": result.expected_n_per_m,
-                                       "at_least": result.at_least, "samples": result.samples,
-                                       "press_n": result.peak_force_n},
+                                           down.stiffness_n_per_m),
+                                       "expected_n_per_m": down.expected_n_per_m,
+                                       "at_least": down.at_least, "samples": down.samples,
+                                       "press_n": down.peak_force_n,
+                                       "side_stiffness_n_per_m": _json_number(
+                                           side.stiffness_n_per_m),
+                                       "side_expected_n_per_m": side.expected_n_per_m,
+                                       "side_at_least": side.at_least,
+                                       "side_samples": side.samples,
+                                       "side_press_n": side.peak_force_n,
+                                       "ratio": _json_number(result.ratio)},
                        result.passed, result.message, check.start)
 
 

@@ -64,9 +64,13 @@ def _checks(daemon: Daemon) -> tuple[dict[str, Any], dict[str, Any]]:
         mount_reply: dict[str, Any] = {"passed": None, "message": "running" if
                                        checks.weight_check is None else "after the weight check"}
     elif mount is not None:
+        down, side = mount.down, mount.side
         mount_reply = {"passed": mount.passed,
-                       "stiffness_n_per_m": _finite(mount.stiffness_n_per_m),
-                       "expected_n_per_m": mount.expected_n_per_m, "at_least": mount.at_least,
+                       "stiffness_n_per_m": _finite(down.stiffness_n_per_m),
+                       "expected_n_per_m": down.expected_n_per_m, "at_least": down.at_least,
+                       "side_stiffness_n_per_m": _finite(side.stiffness_n_per_m),
+                       "side_expected_n_per_m": side.expected_n_per_m,
+                       "side_at_least": side.at_least, "ratio": _finite(mount.ratio),
                        "message": mount.message}
     else:
         mount_reply = {"passed": None, "message": "not run" if selftest.enabled and selftest.press

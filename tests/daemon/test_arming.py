@@ -82,22 +82,44 @@ def test_enforce_arms_only_when_the_clamp_carries_the_watchdog(
         rig.close()
 
 
-def _with_anvil(mount_n_per_m: float) -> tuple[Settings, EmulatorConfig]:
+def _with_anvil(mount_n_per_m: float, side_n_per_m: float = 5.0e3
+                ) -> tuple[Settings, EmulatorConfig]:
     """The daemon with the tine-mount check on, and the emulated robot with its anvil (a
-    steel block whose top is 30 mm above the ground at 1 m of reach) and this mount,
-    started 60 mm above the ground beside it."""
+    steel block whose top is 30 mm above the ground at 1 m of reach, its near side pressed
+    15 mm above the ground) and this mount, started 60 mm above the ground beside it."""
     s = Settings()
     selftest = dataclasses.replace(s.selftest, press=True, anvil_reach_m=1.0,
-                                   anvil_height_m=0.03)
+                                   anvil_height_m=0.03, anvil_side_height_m=0.015)
     e = EmulatorConfig()
     anvil = StoneParams(reach_m=1.0, depth_m=-0.03, width_m=0.06, thickness_m=0.2)
     ground = dataclasses.replace(e.physics.ground, objects=BuriedObjects(stones=(anvil,)))
-    arm = dataclasses.replace(e.physics.arm, tine_mount_stiffness_n_per_m=mount_n_per_m)
+    arm = dataclasses.replace(e.physics.arm, tine_mount_stiffness_n_per_m=mount_n_per_m,
+                              tine_mount_side_stiffness_n_per_m=side_n_per_m)
     r_m, theta_rad = inverse(workspace_of(s), 1.05, 0.06)
     emulator = dataclasses.replace(
         e, physics=dataclasses.replace(e.physics, ground=ground, arm=arm),
         drives=dataclasses.replace(e.drives, start_r_m=r_m, start_theta_rad=theta_rad))
     return dataclasses.replace(s, selftest=selftest), emulator
+
+
+def test_a_mount_rigid_sideways_refuses_to_arm_naming_the_side(tmp_path: Path) -> None:
+    """The press on the anvil's near side: a mount whose horizontal springs are blocked
+    (the emulator's rigid sideways mount) faults the first arming, naming
+    clamp.side_contact_stiffness_n_per_m, and the tip comes back where it started."""
+    settings, emulator = _with_anvil(5.0e3, side_n_per_m=0.0)
+    rig = LockstepRig(tmp_path, settings, emulator)
+    try:
+        rig.bring_up()
+        rig.until(DaemonState.DISARMED, 3000)
+        assert _arm(rig)["state"] == "checking"
+        rig.until(DaemonState.FAULT, 30000)
+        check = _call(rig, b'{"cmd": "status"}')["mount_check"]
+        assert not check["passed"] and check["stiffness_n_per_m"] == pytest.approx(5e3, rel=0.2)
+        assert check["side_stiffness_n_per_m"] > 5.0 * 5e3
+        assert ("sideways: stiffness " in check["message"] and "does not match 5000 N/m "
+                "configured (clamp.side_contact_stiffness_n_per_m" in check["message"])
+    finally:
+        rig.close()
 
 
 @pytest.mark.parametrize(("mount_n_per_m", "profile"), [
@@ -129,6 +151,8 @@ def test_the_first_arming_presses_the_anvil_and_refuses_a_stiffer_mount(
         check = status["mount_check"]
         if end is DaemonState.ARMED:
             assert check["passed"] and check["stiffness_n_per_m"] == pytest.approx(5e3, rel=0.2)
+            assert check["side_stiffness_n_per_m"] == pytest.approx(5e3, rel=0.2)
+            assert check["side_expected_n_per_m"] == 5e3 and not check["side_at_least"]
             tip = status["tip"]  # back where the check started
             assert (tip["reach_m"], tip["depth_m"]) == pytest.approx((1.05, -0.06), abs=0.003)
             return
