@@ -93,6 +93,13 @@ def _prepare_directory(directory: Path) -> None:
                        f"owned by root or by uid {os.geteuid()}")
 
 
+def refuse_if_listening(path: Path) -> None:
+    """ApiError if another daemon listens at ``path``, or the path is not a socket (a
+    stale socket nobody listens on is removed): what a daemon checks before it touches
+    the bus, so that a second one never disturbs the drives of the first."""
+    _remove_stale(path)
+
+
 def _remove_stale(path: Path) -> None:
     """Remove a socket file that nobody listens on; refuse anything else."""
     try:

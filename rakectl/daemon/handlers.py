@@ -38,10 +38,20 @@ CHANGING = frozenset({ApiCommand.ARM, ApiCommand.DISARM, ApiCommand.STOP, ApiCom
                       ApiCommand.SHUTDOWN})
 
 
+# What the operator does next, where a state refuses a command (the states' own words).
+_NEXT_STEP = {DaemonState.ESTOP: "reset clears it, then arm",
+              DaemonState.FAULT: "reset clears it once its cause is gone, then arm",
+              DaemonState.DISARMED: "arm first",
+              DaemonState.CHECKING: "the checks before arming are running",
+              DaemonState.INIT: "the drives are being brought up"}
+
+
 def _require(daemon: Daemon, event: Event, what: str) -> None:
     if next_state(daemon.state, event) is None:
+        step = _NEXT_STEP.get(daemon.state)
         raise CommandRejected(f"cannot {what} while {daemon.state.name.lower()}"
-                              + (f" ({daemon.fault_reason})" if daemon.fault_reason else ""))
+                              + (f" ({daemon.fault_reason})" if daemon.fault_reason else "")
+                              + (f": {step}" if step and event is not Event.RESET else ""))
 
 
 def _finite(value: float) -> float | None:
@@ -134,10 +144,28 @@ def status(daemon: Daemon) -> dict[str, Any]:
 
 
 def _jog(daemon: Daemon, request: Request) -> Reply:
-    if daemon.state is not DaemonState.JOG:
+    """A jog belongs to the connection that started it: its requests keep it going, and
+    another connection's are refused while that one stays open (a client that opens a
+    connection per request hands its jog on to its next one); once it has ended (a stop,
+    the force limit, the dead-man) its connection's next requests are refused, naming
+    why, instead of starting it again: a new connection starts a new jog. Requests not
+    from a socket (client 0) are one caller."""
+    if daemon.state is DaemonState.JOG:
+        if request.client != daemon.jog_client:
+            if daemon.connected(daemon.jog_client):
+                raise CommandRejected("cannot jog: another client is jogging (its jog ends "
+                                      "when its requests stop, or with stop)")
+            daemon.jog_client = request.client
+    else:
+        ended = daemon.jog_ended
+        if ended is not None and request.client and ended[0] == request.client:
+            raise CommandRejected(f"this jog has ended ({ended[1]}): start a new jog to move "
+                                  "again")
         _require(daemon, Event.JOG, "jog")
         r_m, theta_rad = daemon.controller.servo.q_ref
         daemon.jog = Jog(daemon.settings.jog, daemon.workspace, daemon.dt_s, r_m, theta_rad)
+        daemon.jog_client, daemon.jog_ended = request.client, None
+        daemon.planner, daemon.f_hat_max_n = None, 0.0  # status: the jog's, not a lane's
         daemon._transition(Event.JOG, "operator jog")
     assert daemon.jog is not None
     if request.args.get("space") == JogSpace.TASK:

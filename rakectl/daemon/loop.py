@@ -52,6 +52,7 @@ from rakectl.daemon.timing import LoopTiming, TickTimer
 from rakectl.daemon.transitions import StateChanges
 from rakectl.drive.canbus import TraceRecorder
 from rakectl.drive.client import DriveClient
+from rakectl.drive.health import FOREIGN_SYNC_ANSWERS, state_name
 from rakectl.drive.joints import Joint
 from rakectl.errors import CommsTimeout, NonFiniteError
 from rakectl.protocol.cia402 import DriveState
@@ -96,6 +97,10 @@ class Daemon(StateChanges):
         self.ticks = 0
         self.hold = (0.0, 0.0)  # (reach, depth) held in ARMED and HOLD
         self.jog: Jog | None = None
+        self.jog_client = 0  # the connection whose requests drive the jog (Request.client)
+        self.jog_ended: tuple[int, str] | None = None  # that connection, and why it ended
+        # whether a connection is still open (the command server's; none in-process)
+        self.connected: Callable[[int], bool] = _no_connection
         self.planner: LanePlanner | None = None
         self.checks = ArmingChecks(settings, self.workspace, self.dt_s)  # in CHECKING
         self._plausible = plausible_ranges(settings.geometry)
@@ -207,6 +212,7 @@ class Daemon(StateChanges):
         fb = self.client.feedback
         fresh = fb.stale_cycles[0] == 0 and fb.stale_cycles[1] == 0
         if fresh and math.isfinite(fb.r_m) and math.isfinite(fb.theta_rad):
+            self.client.operational()
             self._transition(Event.READY)
             self.notifier.ready("disarmed: drives configured, feedback valid")
         elif self.ticks % NMT_RETRY_TICKS == 0:
@@ -224,7 +230,8 @@ class Daemon(StateChanges):
         limit = self.settings.drives.feedback_timeout_cycles
         heartbeat_check = self.ticks % HEARTBEAT_CHECK_TICKS == 0
         if client.drive_faults() or (armed and client.stale_feedback(limit)) or (
-                heartbeat_check and self._heartbeat_lost()):
+                heartbeat_check and self._heartbeat_lost()) or (
+                client.answers_beyond_syncs() > FOREIGN_SYNC_ANSWERS):
             return ("; ".join(client.describe_problems(self.heartbeat_clock(), limit))
                     or "drive problem")
         if not armed:
@@ -369,11 +376,12 @@ class Daemon(StateChanges):
         states = self.client.feedback.state
         if states[0] is DriveState.OPERATION_ENABLED and states[1] is DriveState.OPERATION_ENABLED:
             self._enabled = True
+            self.client.enabled()
             self.event("drives_enabled")
             return True
         if self.ticks > self._enable_deadline:
             self.fault(f"drives did not enable within {self.settings.daemon.enable_timeout_s:g} s"
-                       f" (r: {states[0]}, θ: {states[1]})")
+                       f" (r: {state_name(states[0])}, θ: {state_name(states[1])})")
             return False
         for joint in (Joint.R, Joint.THETA):
             state = states[joint]
@@ -392,3 +400,8 @@ class Daemon(StateChanges):
             fb.current_theta_a, self.supervisor.f_current_n, float(self.supervisor.level),
             self.timer.latency_ns * 1e-3, self._exec_us,
         ))
+
+
+def _no_connection(client: int) -> bool:
+    """Without a command server no request comes on a connection that stays open."""
+    return False

@@ -21,6 +21,7 @@ from typing import Any
 import structlog
 
 from rakectl.api.client import socket_path
+from rakectl.api.endpoint import refuse_if_listening
 from rakectl.api.server import CommandServer
 from rakectl.config.loader import load_settings
 from rakectl.config.service import DaemonSettings
@@ -84,6 +85,8 @@ def run(config: Path | None, overrides: list[str]) -> int:
     settings = load_settings(config, overrides, root=Settings)
     configure_logging()
     log = structlog.get_logger("rakectl")
+    # before the bus: a second daemon's bring-up would reset the first one's drives
+    refuse_if_listening(socket_path(settings.daemon.socket_path or None))
     bus = open_bus(settings.bus, receive_ids(settings.drives))
     trace = open_trace(settings.bus)
     inputs = open_inputs(settings.bus)  # what a replay needs besides the trace
@@ -109,6 +112,7 @@ def run(config: Path | None, overrides: list[str]) -> int:
         path = socket_path(settings.daemon.socket_path or None)
         server = CommandServer(path, settings.daemon.socket_group or None, make_handler(daemon))
         daemon.slack_hook = server.poll
+        daemon.connected = server.is_connected
         log.info("started", socket=str(path), rt=str(report.mode.value),
                  bus=f"{settings.bus.interface}:{settings.bus.channel}", priority=report.priority)
         gap = held_command_gap(settings)

@@ -35,6 +35,8 @@ class StateChanges(SlackWork):
     _enabled: bool
     _enable_deadline: int
     _reset_deadline: int
+    jog_client: int  # the connection whose requests drive the jog
+    jog_ended: tuple[int, str] | None  # that connection, and why its jog ended
 
     def _heartbeat_lost(self) -> bool:
         """The heartbeat check, on the wall clock; a lost heartbeat goes to the trace's
@@ -49,6 +51,8 @@ class StateChanges(SlackWork):
         if new is None:
             return False
         old, self.state = self.state, new
+        if old is DaemonState.JOG and new is not DaemonState.JOG:
+            self.jog_ended = (self.jog_client, reason)
         if old is DaemonState.CHECKING:  # passed, or left unfinished (judged again next arm)
             self.checks.stop()
         if old in ARMED_STATES and new not in ARMED_STATES:
@@ -102,11 +106,13 @@ class StateChanges(SlackWork):
     def start_reset(self) -> None:
         """Fault-reset the drives; FAULT/ESTOP → DISARMED once no problem is left (≤ 1 s)."""
         self.client.command(None, DriveCommand.FAULT_RESET)
+        self.client.restart_stopped_nodes()
         self._reset_deadline = self.ticks + round(self.settings.rate_hz)
 
     def _try_reset(self) -> None:
         limit = self.settings.drives.feedback_timeout_cycles
         client = self.client
+        client.clear_contradicted_emcy()
         if not (client.drive_faults() or client.stale_feedback(limit)
                 or self._heartbeat_lost()):
             self._reset_deadline = -1

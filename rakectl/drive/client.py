@@ -199,6 +199,11 @@ class DriveClient(FrameDecoder):
         self._state_fault = [False, False]
         self._emcy_fault = [False, False]
         self._rebooted = [False, False]
+        self._left_enabled: list[DriveState | None] = [None, None]
+        self._nmt_fault = [False, False]
+        self._tpdo2_after_emcy = [True, True]  # a TPDO2 came after the drive's last EMCY
+        self._enabled_expected = False  # both drives were enabled, no other command since
+        self._operational = False  # both drives started (NMT) and answering: heartbeats count
         self._fault = [False, False]
 
     # ------------------------------------------------------------------- bring-up
@@ -217,6 +222,8 @@ class DriveClient(FrameDecoder):
         replay (rakectl.daemon.replay) calls it with the statuswords its run recorded."""
         self._heard_s = [self.clock(), self.clock()]
         self._rebooted = [False, False]
+        self._left_enabled = [None, None]
+        self._nmt_fault = [False, False]
         for joint in JOINTS:
             statusword = statuswords[joint]
             state = state_of(self._drives.profile, statusword)
@@ -290,6 +297,8 @@ class DriveClient(FrameDecoder):
         Repeating the current command changes nothing. FAULT_RESET sends 0, then
         0x80 (held); asked again once 0x80 went out, it makes a new edge.
         """
+        if command is not DriveCommand.ENABLE_OPERATION:
+            self._enabled_expected = False
         for j in JOINTS if joint is None else (joint,):
             if self._roboteq:
                 self._power.command(j, command)
@@ -298,7 +307,42 @@ class DriveClient(FrameDecoder):
                 self._fault_reset(j)
             elif command is not self._command[j]:
                 self._controlword[j] = self._controlword_after[j] = command.value
+            if command is DriveCommand.FAULT_RESET:
+                self._left_enabled[j] = None  # judged again from the next arming on
+                self._update_fault(j)
             self._command[j] = command
+
+    def enabled(self) -> None:
+        """Both drives reached OPERATION ENABLED: from now until another command, a drive
+        reporting any other state is a latched fault (the controlword the next send()
+        carries would enable a drive in QUICK STOP ACTIVE again, CiA 402 transition 16)."""
+        self._enabled_expected = True
+
+    def operational(self) -> None:
+        """Both drives were started and answer: from now on a heartbeat in any NMT state
+        but OPERATIONAL is a fault, until one says OPERATIONAL again."""
+        self._operational = True
+
+    def clear_contradicted_emcy(self) -> None:
+        """During a fault reset: an EMCY flag a later TPDO2 contradicts (the drive not in
+        FAULT, its error register 0) is cleared: its NO_ERROR EMCY was lost, or the drive
+        sends none after a warning."""
+        fb = self.feedback
+        for j in JOINTS:
+            if (self._emcy_fault[j] and self._tpdo2_after_emcy[j] and not self._state_fault[j]
+                    and fb.error_register[j] == 0):
+                self._emcy_fault[j] = False
+                self._update_fault(j)
+
+    def restart_stopped_nodes(self) -> None:
+        """At a fault reset: drives whose heartbeat says PRE-OPERATIONAL or STOPPED (an NMT
+        command from elsewhere) are started again; a rebooted one is not (it needs its
+        bring-up)."""
+        for j in JOINTS:
+            state = self.feedback.nmt_state[j]
+            if (self._operational and not self._rebooted[j]
+                    and state in (NmtState.PRE_OPERATIONAL, NmtState.STOPPED)):
+                self.start_node(j)
 
     def path_to_enabled(self, state: DriveState) -> list[DriveCommand]:
         """The commands that bring a drive from ``state`` to OPERATION_ENABLED

@@ -41,6 +41,9 @@ class FrameDecoder(DriveSupervision):
     _fresh: list[int]
     _answered: int
     _power: PowerRequests
+    _tpdo2_after_emcy: list[bool]
+    _enabled_expected: bool
+    _operational: bool
 
     def _count_stale(self) -> None:
         fresh, stale, stats = self._fresh, self.feedback.stale_cycles, self.stats
@@ -90,6 +93,10 @@ class FrameDecoder(DriveSupervision):
         fb = self.feedback
         fb.statusword[j], fb.error_register[j], fb.state[j] = statusword, error_register, state
         self._state_fault[j] = state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
+        if self._enabled_expected and state is not DriveState.OPERATION_ENABLED \
+                and not self._roboteq:  # latched: the next RPDO1 would enable it again
+            self._left_enabled[j] = state
+        self._tpdo2_after_emcy[j] = True
         self._update_fault(j)
         self.stats.tpdo2_received[j] += 1
 
@@ -100,6 +107,7 @@ class FrameDecoder(DriveSupervision):
         emcy = decode_emcy(data)
         self.feedback.last_emcy[j] = emcy
         self._emcy_fault[j] = emcy.code != EmcyCode.NO_ERROR
+        self._tpdo2_after_emcy[j] = False
         self._update_fault(j)
         self.stats.emcy_received += 1
 
@@ -112,7 +120,8 @@ class FrameDecoder(DriveSupervision):
         self._heard_s[j] = self.clock()
         if state is NmtState.BOOT_UP:
             self._rebooted[j] = True
-            self._update_fault(j)
+        self._nmt_fault[j] = self._operational and state is not NmtState.OPERATIONAL
+        self._update_fault(j)
         self.stats.heartbeats_received += 1
 
     def _on_odd_frame(self, msg: can.Message) -> None:
@@ -125,7 +134,8 @@ class FrameDecoder(DriveSupervision):
 
     def _update_fault(self, j: int) -> None:
         self._fault[j] = (self._state_fault[j] or self._emcy_fault[j] or self._rebooted[j]
-                          or self._power.lost[j])
+                          or self._power.lost[j] or self._left_enabled[j] is not None
+                          or self._nmt_fault[j])
 
     def _power_lost(self, drives: int) -> None:
         """Roboteq-class drives that went off by themselves while asked on (bit j): a fault

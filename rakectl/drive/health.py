@@ -9,6 +9,7 @@ heartbeat times its receive path keeps.
 
 from __future__ import annotations
 
+import enum
 import math
 
 from rakectl.config.service import DrivesSettings
@@ -93,6 +94,11 @@ class Stats:
         return flat
 
 
+# TPDO1s a drive may answer beyond the SYNCs this controller sent before it is taken
+# for another SYNC producer (none is expected: each TPDO1 answers one SYNC).
+FOREIGN_SYNC_ANSWERS = 10
+
+
 class DriveSupervision:
     """The supervision of :class:`~rakectl.drive.client.DriveClient`, a base of it: cheap
     checks run each tick and, off the hot path, their wording.
@@ -101,6 +107,7 @@ class DriveSupervision:
     """
 
     feedback: Feedback
+    stats: Stats
     _drives: DrivesSettings
     _heartbeat_timeout_s: float
     _heard_s: list[float]  # when each drive's heartbeat was last seen (the client's clock)
@@ -108,7 +115,9 @@ class DriveSupervision:
     _emcy_fault: list[bool]  # an EMCY other than NO_ERROR is active
     _rebooted: list[bool]  # a boot-up heartbeat came after bring-up
     _power: PowerRequests  # its lost: a Roboteq-class drive went off by itself while on
-    _fault: list[bool]  # any of the four
+    _left_enabled: list[DriveState | None]  # the state a drive left OPERATION ENABLED for
+    _nmt_fault: list[bool]  # a heartbeat not OPERATIONAL once the drives were started
+    _fault: list[bool]  # any of these
 
     def drive_faults(self) -> bool:
         """A drive is in FAULT (or its reaction), has an active EMCY, or rebooted."""
@@ -118,6 +127,13 @@ class DriveSupervision:
         """A drive's TPDO1 has been missing for ``limit_cycles`` SYNC cycles or more."""
         stale = self.feedback.stale_cycles
         return stale[0] >= limit_cycles or stale[1] >= limit_cycles
+
+    def answers_beyond_syncs(self) -> int:
+        """How many more TPDO1s a drive answered than this controller sent SYNCs: more
+        than a few means another node sends SYNC on this bus (another master, whose
+        SYNCs double the drives' answers and the samples the force estimate counts)."""
+        received, syncs = self.stats.tpdo_received, self.stats.syncs
+        return max(received[0], received[1]) - syncs
 
     def heartbeat_lost(self, now_s: float) -> bool:
         """A drive's heartbeat is older than the heartbeat timeout at ``now_s`` (same clock).
@@ -134,7 +150,16 @@ class DriveSupervision:
         for joint, node in zip(JOINTS, node_ids(self._drives), strict=True):
             label = drive_label(joint, node)
             if self._state_fault[joint]:
-                problems.append(f"{label}: state {fb.state[joint]}")
+                problems.append(f"{label}: state {state_name(fb.state[joint])}")
+            left = self._left_enabled[joint]
+            if left is not None:
+                problems.append(f"{label}: left OPERATION ENABLED for {state_name(left)} while "
+                                "armed (not by this daemon: another CANopen master, or the "
+                                "drive itself)")
+            if self._nmt_fault[joint]:
+                problems.append(f"{label}: its heartbeat says NMT "
+                                f"{state_name(fb.nmt_state[joint])}, not OPERATIONAL (an NMT "
+                                "command from another master, or the drive's own)")
             emcy = fb.last_emcy[joint]
             if self._emcy_fault[joint] and emcy is not None:
                 known = emcy_code(emcy.code)
@@ -146,8 +171,18 @@ class DriveSupervision:
                 flags = fb.statusword[joint]
                 problems.append(f"{label}: its power stage went off by itself (fault flags "
                                 f"0x{flags >> 16:04X}, status flags 0x{flags & 0xFFFF:04X})")
+            extra = self.stats.tpdo_received[joint] - self.stats.syncs
+            if extra > FOREIGN_SYNC_ANSWERS:
+                problems.append(f"{label}: {self.stats.tpdo_received[joint]} TPDO1s for "
+                                f"{self.stats.syncs} SYNCs sent: another node sends SYNC on "
+                                "this bus (another CANopen master)")
             if fb.stale_cycles[joint] >= limit_cycles:
                 problems.append(f"{label}: no TPDO1 for {fb.stale_cycles[joint]} cycles")
             if now_s - self._heard_s[joint] > self._heartbeat_timeout_s:
                 problems.append(f"{label}: no heartbeat for {now_s - self._heard_s[joint]:.3f} s")
         return problems
+
+
+def state_name(state: enum.Enum | None) -> str:
+    """A drive's CiA 402 or NMT state as its standard name (QUICK STOP ACTIVE), for a message."""
+    return "unknown" if state is None else state.name.replace("_", " ")

@@ -1,0 +1,262 @@
+"""What another node on the bus can do to the drives while the daemon runs, and what the
+daemon does about it: the real daemon and drive client against the emulated drives on a
+python-can `virtual` channel in lock-step (rakectl.bench.tick.LockstepRig), and a third
+bus on the same channel playing another CANopen master (an SDO or NMT tool, a second SYNC
+producer). A drive taken out of OPERATION ENABLED or out of NMT OPERATIONAL by someone
+else is a latched fault naming it and never enabled again behind the operator's back; a
+reset recovers from what a reset can recover from."""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterator
+from pathlib import Path
+
+import can
+import pytest
+
+from rakectl.bench.tick import LockstepRig
+from rakectl.daemon.states import DaemonState
+from rakectl.protocol.cia402 import DriveState
+from tests.rig_commands import command
+
+
+@pytest.fixture
+def rig(tmp_path: Path) -> Iterator[LockstepRig]:
+    rig = LockstepRig(tmp_path)
+    try:
+        rig.bring_up()
+        rig.until(DaemonState.DISARMED, 3000)
+        yield rig
+    finally:
+        rig.close()
+
+
+@pytest.fixture
+def other(rig: LockstepRig) -> Iterator[can.BusABC]:
+    """Another node on the daemon's channel."""
+    bus = can.Bus(interface="virtual", channel=rig.controller_bus.channel_id)
+    yield bus
+    bus.shutdown()
+
+
+def _send(other: can.BusABC, can_id: int, data: bytes) -> None:
+    other.send(can.Message(arbitration_id=can_id, is_extended_id=False, data=data))
+
+
+def _controlword(other: can.BusABC, node: int, value: int) -> None:
+    """An expedited SDO download of 0x6040 from another master."""
+    _send(other, 0x600 + node, struct.pack("<BHBH", 0x2B, 0x6040, 0, value) + bytes(2))
+
+
+def _ticks(rig: LockstepRig, n: int) -> None:
+    for _ in range(n):
+        rig.tick()
+
+
+def _arm(rig: LockstepRig) -> None:
+    command(rig, b'{"cmd": "arm"}')
+    rig.until(DaemonState.ARMED, 8000)
+    _ticks(rig, 300)
+    assert rig.daemon.state is DaemonState.ARMED, rig.daemon.fault_reason
+
+
+def _reset(rig: LockstepRig) -> None:
+    command(rig, b'{"cmd": "reset"}')
+    _ticks(rig, 1200)
+
+
+@pytest.mark.parametrize(("controlword", "left_for"), [
+    (0x0000, "SWITCH ON DISABLED"), (0x0002, "QUICK STOP ACTIVE")])
+def test_a_drive_taken_out_of_operation_enabled_while_armed_is_a_fault(
+        rig: LockstepRig, other: can.BusABC, controlword: int, left_for: str) -> None:
+    """Another tool writes controlword 0 (disable voltage) or 2 (quick stop) to the r drive
+    while armed. Before, the daemon stayed armed and silent, and the next RPDO1's 0x0F
+    enabled a quick-stopped drive again (CiA 402 transition 16). Now: FAULT naming the
+    drive and the state it was taken to, 0 V, and the drive left disabled; a reset and an
+    arm bring it back."""
+    _arm(rig)
+    _controlword(other, 1, controlword)
+    _ticks(rig, 50)
+    d = rig.daemon
+    assert d.state is DaemonState.FAULT
+    assert f"r drive (node 1): left OPERATION ENABLED for {left_for} while armed" in (
+        d.fault_reason)
+    assert d.voltages == (0.0, 0.0)
+    assert rig.emulator.nodes[0].state is not DriveState.OPERATION_ENABLED
+    _reset(rig)
+    assert d.state is DaemonState.DISARMED, d.fault_reason
+    _arm(rig)
+
+
+@pytest.mark.parametrize("armed", [False, True])
+def test_a_foreign_nmt_command_is_a_fault_named_and_a_reset_restarts_the_drives(
+        rig: LockstepRig, other: can.BusABC, armed: bool) -> None:
+    """NMT 'enter PRE-OPERATIONAL' to all nodes from another master. Before, disarmed,
+    nothing faulted and every arm and reset was refused until a restart ("feedback is
+    stale"); armed, no reset recovered. Now, disarmed, the heartbeat's state is the
+    fault's reason (armed, the TPDO1s missing come first), and a reset starts the drives
+    again."""
+    if armed:
+        _arm(rig)
+    _send(other, 0x000, bytes([0x80, 0]))
+    _ticks(rig, 300)
+    d = rig.daemon
+    assert d.state is DaemonState.FAULT
+    # armed, the TPDO1s stop first (3 SYNCs), before the next heartbeat says why
+    reason = "no TPDO1 for 3 cycles" if armed else \
+        "its heartbeat says NMT PRE OPERATIONAL, not OPERATIONAL"
+    assert f"r drive (node 1): {reason}" in d.fault_reason
+    _reset(rig)
+    assert d.state is DaemonState.DISARMED, d.fault_reason
+    _arm(rig)
+
+
+def test_an_emcy_warning_the_drives_never_clear_does_not_block_a_reset(
+        rig: LockstepRig, other: can.BusABC) -> None:
+    """One SYNC of the wrong length from another node: both drives send EMCY 0x8240 and
+    no NO_ERROR after it (a warning: they stay as they were, error register 0). The daemon
+    faults on it; before, every reset failed on the EMCY forever. Now a reset clears an
+    EMCY that a later TPDO2 contradicts."""
+    _ticks(rig, 100)
+    _send(other, 0x080, b"")
+    _ticks(rig, 20)
+    d = rig.daemon
+    assert d.state is DaemonState.FAULT and "EMCY 0x8240" in d.fault_reason
+    _reset(rig)
+    assert d.state is DaemonState.DISARMED, d.fault_reason
+
+
+def test_a_lost_no_error_emcy_does_not_block_a_reset(rig: LockstepRig) -> None:
+    """The drives' watchdog trips (the controller silent for 0.2 s of their time), then the
+    r drive's NO_ERROR EMCY after its fault reset is lost on the bus. Before, the drive
+    healthy and its error register 0, every reset failed on the stale EMCY."""
+    _arm(rig)
+    for _ in range(200):
+        rig.now_s += 0.001
+        rig.emulator.service(0.0)
+    _ticks(rig, 20)
+    d = rig.daemon
+    assert d.state is DaemonState.FAULT
+    bus = rig.controller_bus
+    receive, dropped = bus.recv, []
+
+    def lossy(timeout: float | None = None) -> can.Message | None:
+        msg = receive(timeout)
+        if (msg is not None and msg.arbitration_id == 0x081 and not dropped
+                and bytes(msg.data[:2]) == b"\0\0"):
+            dropped.append(msg)
+            return receive(timeout)
+        return msg
+
+    bus.recv = lossy  # type: ignore[method-assign]
+    _reset(rig)
+    assert len(dropped) == 1
+    assert d.state is DaemonState.DISARMED, d.fault_reason
+
+
+def test_a_second_daemon_leaves_the_running_ones_drives_alone(tmp_path: Path) -> None:
+    """`rakectl run` while a daemon listens on the configured socket: refused, naming the
+    socket, before it opens the bus. Before, it ran its whole bring-up first (NMT reset
+    communication of both drives), which faulted the running daemon for good ("rebooted:
+    bring-up needed"), and only then found the socket in use."""
+    from rakectl.api.server import CommandServer
+    from rakectl.daemon.service import run
+    from rakectl.errors import ApiError
+
+    path = tmp_path / "rakectl.sock"
+    server = CommandServer(path, None, lambda request: {})
+    channel = f"second-daemon-{tmp_path.name}"
+    watcher = can.Bus(interface="virtual", channel=channel)
+    try:
+        with pytest.raises(ApiError, match=f"another daemon is already listening at {path}"):
+            run(None, [f"daemon.socket_path={path}", "bus.interface=virtual",
+                       f"bus.channel={channel}", "daemon.startup_cyclictest_s=0"])
+        assert watcher.recv(timeout=0.2) is None  # not one frame: no NMT, no SDO
+    finally:
+        watcher.shutdown()
+        server.close()
+
+
+def _from(client: int, line: bytes, rig: LockstepRig) -> dict[str, object]:
+    """``line`` as the server hands it over from connection number ``client``."""
+    from rakectl.api.schema import Request, decode_request
+    from rakectl.daemon.handlers import make_handler
+
+    request = decode_request(line, client)
+    assert isinstance(request, Request), request
+    return dict(make_handler(rig.daemon)(request))
+
+
+JOG_UP = b'{"cmd": "jog", "space": "task", "height_m_per_s": 0.01}'
+
+
+@pytest.mark.parametrize("ended_by", ["stop", "force limit"])
+def test_a_jog_ended_by_someone_else_is_not_started_again_by_its_own_requests(
+        rig: LockstepRig, ended_by: str) -> None:
+    """Operator A jogs (connection 1, repeating its request as the dead-man wants); B's
+    stop (connection 2), or the force limit, ends it. Before, A's next request started the
+    jog again 30-70 ms later and both CLIs reported success. Now A's requests are refused,
+    naming why the jog ended, B cannot take over a running jog, and a new connection
+    starts a new jog."""
+    from rakectl.errors import CommandRejected
+
+    open_connections = {1, 2, 3}
+    rig.daemon.connected = open_connections.__contains__  # the command server's, in-process
+    _arm(rig)
+    assert _from(1, JOG_UP, rig)["state"] == "jog"
+    _ticks(rig, 50)
+    with pytest.raises(CommandRejected, match="another client is jogging"):
+        _from(2, JOG_UP, rig)
+    if ended_by == "stop":
+        _from(2, b'{"cmd": "stop"}', rig)
+        reason = "operator stop"
+    else:
+        rig.daemon._back_off()  # what the hard force level does (rakectl.daemon.loop)
+        reason = "force limit: backing off"
+    _ticks(rig, 50)
+    assert rig.daemon.state is DaemonState.HOLD
+    with pytest.raises(CommandRejected, match=f"this jog has ended \\({reason}\\): start a "
+                       "new jog to move again"):
+        _from(1, JOG_UP, rig)
+    assert rig.daemon.state is DaemonState.HOLD  # nothing changed
+    assert _from(3, JOG_UP, rig)["state"] == "jog"
+
+
+def test_a_refusal_names_the_next_step(rig: LockstepRig) -> None:
+    """After an e-stop every command but reset is refused; the refusal says what to do."""
+    from rakectl.errors import CommandRejected
+
+    with pytest.raises(CommandRejected, match="cannot jog while disarmed: arm first"):
+        _from(1, JOG_UP, rig)
+    _from(1, b'{"cmd": "estop"}', rig)
+    with pytest.raises(CommandRejected, match=r"cannot arm while estop \(operator e-stop\): "
+                       "reset clears it, then arm"):
+        _from(1, b'{"cmd": "arm"}', rig)
+
+
+def test_a_client_with_a_connection_per_request_keeps_its_jog_going(rig: LockstepRig) -> None:
+    """A client may open a connection for each request (rakectl.api.client.call does):
+    once the jog's connection is closed, the next connection's request continues it."""
+    rig.daemon.connected = lambda client: False  # each closed after its reply
+    _arm(rig)
+    for client in range(1, 6):
+        assert _from(client, JOG_UP, rig)["state"] == "jog"
+        _ticks(rig, 100)
+    assert rig.daemon.state is DaemonState.JOG
+
+
+def test_another_sync_producer_is_a_fault_named(rig: LockstepRig, other: can.BusABC) -> None:
+    """Another node sends SYNC every millisecond as well: each drive answers twice a tick,
+    and the force estimate counted two samples a tick, its delay halved in time (F̂ in a
+    plunge 26 → 14 N mean); the extra answers were only counted. Now more TPDO1s than
+    SYNCs sent is a fault naming it."""
+    _arm(rig)
+    counter = 0
+    for _ in range(30):
+        counter = counter % 240 + 1
+        _send(other, 0x080, bytes([counter]))
+        rig.tick()
+    d = rig.daemon
+    assert d.state is DaemonState.FAULT
+    assert "another node sends SYNC on this bus (another CANopen master)" in d.fault_reason
