@@ -3,7 +3,8 @@
 The operator's client sends a velocity every 100 ms; each command is good for
 ``deadman_s``. The reference moves at the commanded velocity, limited in
 speed and in acceleration (both ways: a stop decelerates, it does not jerk),
-and never leaves the workspace: at a joint limit it stops there. It waits
+and never leaves the workspace: near a joint limit (its end stop, where a drive
+faults on the hit) it stops ``LIMIT_MARGIN`` inside it. It waits
 for the tip: while the measured tip (:meth:`Jog.observe`) is more than
 ``max_lag_m`` from the reference, a step that would take it further is not
 taken, so a tip blocked by something rigid is not pushed on through it. In
@@ -19,6 +20,12 @@ import math
 from rakectl.config.settings import JogSettings
 from rakectl.core import kinematics
 from rakectl.errors import KinematicsError
+
+# The jog's reference stops this far inside each joint's limits (r in m, θ in rad), which
+# are its end stops: a reference stopped there at full jog speed is overshot by about the
+# joint's braking distance (0.1 m/s at 0.4 m/s²: 12.5 mm; 0.15 rad/s at 0.6 rad/s²:
+# 0.019 rad), and a drive that hits its end stop faults (EMCY 0xFF01).
+LIMIT_MARGIN = (0.02, 0.03)
 
 
 class JogFrame(enum.Enum):
@@ -101,9 +108,10 @@ class Jog:
             except KinematicsError:
                 self._velocity = (0.0, 0.0)  # at the edge of the workspace: stop there
                 return
-        ws = self.workspace
-        clipped = (min(ws.r_max_m, max(ws.r_min_m, q[0])),
-                   min(ws.theta_max_rad, max(ws.theta_min_rad, q[1])))
+        ws, (margin_r, margin_theta) = self.workspace, LIMIT_MARGIN
+        clipped = (_within(self.q[0], q[0], ws.r_min_m + margin_r, ws.r_max_m - margin_r),
+                   _within(self.q[1], q[1], ws.theta_min_rad + margin_theta,
+                           ws.theta_max_rad - margin_theta))
         if clipped != q:
             self._velocity = (0.0, 0.0)
         tip = self._tip
@@ -132,3 +140,14 @@ def _toward(value: float, target: float, step: float) -> float:
     if math.isclose(value, target, abs_tol=step):
         return target
     return value + step if target > value else value - step
+
+
+def _within(now: float, step: float, low: float, high: float) -> float:
+    """A joint's next reference ``step`` from ``now``, kept within [low, high]; from a
+    reference already outside (armed there), a step back in is taken as it is and one
+    further out is not taken (never a jump to the bound)."""
+    if step < low:
+        return step if step >= now else (low if now >= low else now)
+    if step > high:
+        return step if step <= now else (high if now <= high else now)
+    return step

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from rakectl.config.settings import JogSettings
 from rakectl.core import kinematics
-from rakectl.core.jog import Jog, JogFrame
+from rakectl.core.jog import LIMIT_MARGIN, Jog, JogFrame
 
 WS = kinematics.Workspace(0.6, 0.35, 1.6, -0.2, 1.3)
 DT = 1e-3
@@ -66,15 +66,32 @@ def test_speed_and_acceleration_are_limited(space: JogFrame, a: float, b: float)
         previous = velocity
 
 
-def test_stops_at_the_workspace_edge() -> None:
+def test_stops_short_of_the_workspace_edge() -> None:
+    """At a joint limit is its end stop, where a drive faults on the hit: the reference
+    stops LIMIT_MARGIN inside it."""
     jog = _jog(r=1.55, theta=0.5)
     for _ in range(50):
         jog.command(JogFrame.JOINT, 0.1, 0.0)
         for _ in range(100):
             jog.step()
-    assert jog.q[0] == WS.r_max_m
+    assert jog.q[0] == WS.r_max_m - LIMIT_MARGIN[0]
     assert not jog.moving
     assert math.isfinite(jog.q[1])
+
+
+@pytest.mark.parametrize(("theta", "rate", "moves"), [(-0.19, -0.1, False), (-0.19, 0.1, True)])
+def test_armed_inside_the_margin_it_only_jogs_back_out(theta: float, rate: float,
+                                                       moves: bool) -> None:
+    """Armed between the margin and the end stop: a jog further toward the stop is not
+    taken, one back in is (never a jump to the margin's bound)."""
+    jog = _jog(r=1.0, theta=theta)
+    previous = jog.q[1]
+    for _ in range(200):
+        jog.command(JogFrame.JOINT, 0.0, rate)
+        jog.step()
+        assert abs(jog.q[1] - previous) <= 0.15 * DT * 1.001  # no jump
+        previous = jog.q[1]
+    assert (jog.q[1] > theta) if moves else (jog.q[1] == theta)
 
 
 def test_contact_flag_follows_depth() -> None:
