@@ -19,14 +19,24 @@ LowLimit/HighLimit and the drive's own bounds and rejects a write by raising
 nothing): 0x2001 ≤ the supply, 0x2002 in 1 … the hardware current limit and
 0x2004 only while not OPERATION_ENABLED (0x08000022), 0x6060 only −1,
 0x1019 (SYNC counter overflow: 0 = no counter, 2 … 240) only outside
-OPERATIONAL (0x08000022; 1 or above 240: 0x06090030). 0x1003, the pre-defined
-error field, holds the last 8 EMCY error codes, newest at sub 1; an entry
-beyond sub 0's count answers 0x08000024, and writing 0 to sub 0 clears it
-(any other value: 0x06090030); reset communication clears it too. Other
-writable communication objects (transmission types, inhibit times) are fixed in
-this drive: writing their present value succeeds, any other value aborts. The PDOs'
-COB-IDs and mappings are remappable in CiA 301's order (:mod:`drivers.pdo_map`). Identity
-0x1018: product code from the EDS, serial number from the configuration.
+OPERATIONAL and only while the communication cycle period 0x1006 is 0
+(0x08000022, as CiA 301 and CANopenNode have it; 1 or above 240: 0x06090030).
+0x1003, the pre-defined error field, holds the last 8 EMCY error codes, newest at
+sub 1; an entry beyond sub 0's count answers 0x08000024, and writing 0 to sub 0
+clears it (any other value: 0x06090030); reset communication clears it too. The
+PDOs' event timers (sub 5) take any value (TPDO2's sends it every that many ms;
+TPDO1 is synchronous and, as CiA 301 has it, ignores it); the transmission types
+and inhibit times are read-only in the EDS. A writable object the drive does not
+act on (0x1005, the COB-ID of SYNC) is fixed: writing its present value succeeds,
+any other value aborts. The PDOs' COB-IDs and mappings are remappable in CiA 301's
+order (:mod:`drivers.pdo_map`); a drive whose TPDOs answer no RTR
+(``DriveSpec.tpdo_rtr`` False) reports their COB-IDs with bit 30 set and refuses a
+COB-ID that clears it (0x06090030). Identity 0x1018: product code from the EDS,
+serial number from the configuration.
+
+Reset communication restores 0x1000–0x1FFF to the EDS's values, or to those
+``DriveSpec.stored`` gives (what another tool stored in the drive: a producer
+heartbeat 0x1017 of 0, CiA 301's default, or an event timer).
 """
 
 from __future__ import annotations
@@ -42,7 +52,7 @@ from typing import Any, Final
 import canopen
 from canopen import SdoAbortedError
 
-from drivers.pdo_map import PdoMaps
+from drivers.pdo_map import Pdo, PdoMaps
 from rakectl.core.motor_model import MotorParams, joint_resolution
 from rakectl.protocol.cia402 import DriveState
 from rakectl.protocol.codec import SYNC_COUNTER_MAX, FunctionCode, cob_id
@@ -56,6 +66,8 @@ ERROR_HISTORY: Final = 8  # entries of 0x1003 (its EDS has sub 1 … 8)
 MAX_COUNTS_PER_REV: Final = 10**9  # MotorParams' bound on encoder_counts_per_rev
 _COMM_RANGE: Final = range(0x1000, 0x2000)
 _SDO_ABORT: Final = struct.Struct("<BHBL")  # command 0x80, index, subindex, abort code
+COB_ID_NO_RTR: Final = 1 << 30  # bit 30 of a PDO's COB-ID: no RTR answered
+_TPDO_COB_IDS: Final = frozenset((p.comm_index, 1) for p in Pdo if p.value[2])
 
 
 Object = tuple[int, int]  # index, subindex
@@ -125,6 +137,9 @@ class DriveSpec:
     serial_number: int
     controller_node_id: int
     overcurrent_time_s: float = 0.5
+    stored: tuple[tuple[int, int, int], ...] = ()  # (index, subindex, value) of 0x1000–0x1FFF
+    # as another tool stored them: reset communication restores these, not the EDS's
+    tpdo_rtr: bool = True  # False: its TPDOs answer no RTR (COB-ID bit 30 set, kept)
 
 
 class _Outbox(canopen.Network):
@@ -164,6 +179,9 @@ class DriveObjects:
     _resolution: float
     _tpdo2_refresh: int
     _sync_overflow: int  # 0x1019: 0 = SYNC without counter, else the counter's top
+    _cycle_period_us: int  # 0x1006: 0x1019 changes only while it is 0
+    _tpdo2_event_ms: int  # 0x1801:5, TPDO2's event timer: 0 = none
+    _next_tpdo2_s: float  # when the event timer next sends TPDO2
     _errors: list[int]  # 0x1003 pre-defined error field: newest first, at most 8
 
     def __init__(self, spec: DriveSpec) -> None:
@@ -211,6 +229,7 @@ class DriveObjects:
         return {
             "consumer": default(0x1016, 1) & 0xFFFF | self.spec.controller_node_id << 16,
             "heartbeat_ms": default(0x1017), "sync_overflow": default(0x1019),
+            "cycle_period_us": default(0x1006), "tpdo2_event_ms": default(0x1801, 5),
             "max_voltage_mv": supply_mv if at.max_voltage is None
             else min(default(*at.max_voltage), supply_mv),
             "current_limit_ma": min(default(*at.current_limit) * at.current_unit_ma,
@@ -238,9 +257,15 @@ class DriveObjects:
         power_on = self._power_on
         self._heartbeat_ms, self._consumer = power_on["heartbeat_ms"], power_on["consumer"]
         self._sync_overflow = power_on["sync_overflow"]
+        self._cycle_period_us, self._tpdo2_event_ms = (power_on["cycle_period_us"],
+                                                      power_on["tpdo2_event_ms"])
         self._errors = []
         self.pdos.restore()
+        for index, subindex, value in self.spec.stored:  # through the SDO server's checks
+            variable: Any = self._od.object_dictionary.get_variable(index, subindex)
+            self._od.set_data(index, subindex, variable.encode_raw(value))
         self._next_heartbeat_s = now_s + self._heartbeat_ms * 0.001
+        self._next_tpdo2_s = now_s + self._tpdo2_event_ms * 0.001
         self._heartbeat_seen_s = None
         self._heartbeat_lost = False
 
@@ -263,6 +288,8 @@ class DriveObjects:
             (0x1016, 1): lambda: self._consumer,
             (0x1017, 0): lambda: self._heartbeat_ms,
             (0x1019, 0): lambda: self._sync_overflow,
+            (0x1006, 0): lambda: self._cycle_period_us,
+            (0x1801, 5): lambda: self._tpdo2_event_ms,
             (0x1003, 0): lambda: len(self._errors),
             **{(0x1003, k): self._error_entry(k) for k in range(1, ERROR_HISTORY + 1)},
             (0x1018, 4): lambda: self.spec.serial_number,
@@ -274,7 +301,9 @@ class DriveObjects:
         if at.max_voltage is not None:
             readers[at.max_voltage] = lambda: self._max_voltage_mv
         writers: dict[tuple[int, int], Writer] = {
-            (0x1006, 0): lambda value: None,  # communication cycle period: informative
+            (0x1006, 0): self._write_cycle_period,
+            (0x1800, 5): lambda value: None,  # TPDO1's event timer: synchronous, unused
+            (0x1801, 5): self._write_tpdo2_event_timer,
             (0x6060, 0): lambda value: None,  # the EDS limits it to −1
             (0x1016, 1): self._write_consumer,
             (0x1017, 0): self._write_heartbeat_period,
@@ -291,7 +320,10 @@ class DriveObjects:
         reader = self._readers.get((index, subindex))
         if reader is not None:
             return reader()
-        return self.pdos.read(index, subindex) if self.pdos.owns(index) else None
+        value = self.pdos.read(index, subindex) if self.pdos.owns(index) else None
+        if value is not None and not self.spec.tpdo_rtr and (index, subindex) in _TPDO_COB_IDS:
+            return value | COB_ID_NO_RTR
+        return value
 
     def _od_write(self, index: int, subindex: int, od: Any, data: bytes, **_: Any) -> None:
         value = od.decode_raw(data)
@@ -302,6 +334,9 @@ class DriveObjects:
         if od.max is not None and value > od.max:
             raise SdoAbortedError(SdoAbort.VALUE_TOO_HIGH)
         writer = self._writers.get((index, subindex))
+        if not self.spec.tpdo_rtr and (index, subindex) in _TPDO_COB_IDS and (
+                not value & COB_ID_NO_RTR):
+            raise SdoAbortedError(SdoAbort.VALUE_RANGE)  # it answers no RTR: bit 30 stays set
         if writer is not None:
             writer(value)
         elif self.pdos.owns(index) and self.pdos.write(index, subindex, value):
@@ -341,6 +376,8 @@ class DriveObjects:
             raise SdoAbortedError(SdoAbort.DEVICE_STATE)
         if value == 1 or value > SYNC_COUNTER_MAX:
             raise SdoAbortedError(SdoAbort.VALUE_RANGE)
+        if self._cycle_period_us:  # CiA 301 (CANopenNode's OD_write_1019): only while 0x1006 = 0
+            raise SdoAbortedError(SdoAbort.DEVICE_STATE)
         self._sync_overflow = value
 
     def _write_current_limit(self, value: int) -> None:
@@ -362,3 +399,9 @@ class DriveObjects:
 
     def _write_tpdo2_refresh(self, value: int) -> None:
         self._tpdo2_refresh = value
+
+    def _write_cycle_period(self, value: int) -> None:
+        self._cycle_period_us = value  # informative otherwise: the SYNCs are not timed
+
+    def _write_tpdo2_event_timer(self, value: int) -> None:
+        self._tpdo2_event_ms, self._next_tpdo2_s = value, self._now_s + value * 0.001

@@ -93,12 +93,16 @@ class Emulator:
 
     def __init__(self, config: EmulatorConfig, bus: can.BusABC, *,
                  clock: Callable[[], float] = time.monotonic, truth: TextIO | None = None,
-                 trace: can.Listener | None = None, log: Any = None) -> None:
+                 trace: can.Listener | None = None, log: Any = None,
+                 specs: tuple[DriveSpec, DriveSpec] | None = None) -> None:
+        """``specs``: the (r, θ) drives, when not those :func:`drive_specs` makes of
+        ``config`` (a drive whose stored values or RTR differ: ``DriveSpec``)."""
         self.config, self.bus, self._clock, self._trace = config, bus, clock, trace
         self._log = log if log is not None else structlog.get_logger("drivers.emulator")
         self._limited = RateLimitedLog(self._log)
         self.stats = EmulatorStats()
-        self.r_node, self.theta_node = (drive_node(spec) for spec in drive_specs(config))
+        self.r_node, self.theta_node = (drive_node(spec)
+                                        for spec in specs or drive_specs(config))
         self.nodes = (self.r_node, self.theta_node)
         self._routes: dict[int, tuple[DriveNode, ...]] = {}
         for node in self.nodes:

@@ -107,7 +107,8 @@ class DriveNode(PowerStage):
         return handler(can_id, data, now_s)
 
     def poll(self, now_s: float) -> Sequence[Frame]:
-        """Timers: heartbeat production, heartbeat consumer, command watchdog."""
+        """Timers: heartbeat production, heartbeat consumer, command watchdog, a fault reset
+        due, TPDO2's event timer."""
         if self.nmt is NmtState.BOOT_UP:
             return NO_FRAMES
         out = list(self.heartbeat(now_s))
@@ -116,7 +117,12 @@ class DriveNode(PowerStage):
             self._heartbeat_seen_s, self._heartbeat_lost = None, True
             self._fault(EmcyCode.HEARTBEAT_LOST, out)
         self._check_watchdog(now_s, out)
-        self._emit_status(out)
+        self._complete_fault_reset(now_s, out)
+        timed = self._tpdo2_timed() and now_s >= self._next_tpdo2_s
+        if not self._emit_status(out) and timed:
+            out.append(self._tpdo2_frame())  # its event timer: the status, changed or not
+        if timed:
+            self._next_tpdo2_s = now_s + self._tpdo2_event_ms * 0.001
         return out
 
     def heartbeat(self, now_s: float) -> Sequence[Frame]:
@@ -138,11 +144,19 @@ class DriveNode(PowerStage):
         if self._watchdog_running():
             oldest_s = min(self._last_rpdo_s, self._last_sync_s)
             deadline = min(deadline, oldest_s + self._watchdog_ms * 0.001)
+        if self._fault_reset_due_s is not None:
+            deadline = min(deadline, self._fault_reset_due_s)
+        if self._tpdo2_timed():
+            deadline = min(deadline, self._next_tpdo2_s)
         return deadline
 
     def _watchdog_running(self) -> bool:
         """Whether the command watchdog counts now (the CiA 402 drive: while enabled)."""
         return self.state is DriveState.OPERATION_ENABLED
+
+    def _tpdo2_timed(self) -> bool:
+        """Whether TPDO2's event timer (0x1801:5) sends it now: set, TPDO2 valid, OPERATIONAL."""
+        return bool(self._tpdo2_event_ms) and self._tpdo2_on and self.nmt is NmtState.OPERATIONAL
 
     # ------------------------------------------------------------------- frames in
 
@@ -173,6 +187,7 @@ class DriveNode(PowerStage):
             stats.lost_syncs += lost_syncs(self._last_counter, counter, overflow)
         self._last_counter = counter
         out = [self._sample()] if self._tpdo1_on else []
+        self._complete_fault_reset(now_s, out, cycle=True)  # taken at an earlier cycle
         self._check_watchdog(now_s, out)
         self._last_sync_s = now_s
         if self._fresh_controlword:

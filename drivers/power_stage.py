@@ -1,6 +1,12 @@
 """An emulated drive's power stage: the CiA 402 state machine, the output voltage and
 the faults, with the statusword, error register and EMCY they produce.
 
+A fault reset (a rising edge of controlword bit 7 in FAULT, by RPDO1 or by SDO) takes
+effect at the drive's next cycle, as a real drive's state machine runs in a cyclic task:
+at the next SYNC, or ``FAULT_RESET_DELAY_S`` later, whichever comes first (the
+subclass's timers call :meth:`PowerStage._complete_fault_reset`). Until then the
+statusword still reads FAULT.
+
 The base of :class:`drivers.node.DriveNode`, which adds the CiA 301 communication
 (NMT, SYNC, PDOs, heartbeats, SDO requests); its parameters and SDO server are
 :class:`drivers.dictionary.DriveObjects`. The behaviour as a drive's manual
@@ -35,6 +41,7 @@ REGISTER: Final = {code: int(reg) for code, reg in EMCY_ERROR_REGISTER.items()}
 _STATUS_FLAGS: Final = StatusFlag.VOLTAGE_ENABLED | StatusFlag.REMOTE  # supply on, CAN control
 _STATUSWORD: Final = {s: cia402.encode_statusword(s, _STATUS_FLAGS) for s in DriveState}
 _CLAMP_FLAGS: Final = int(StatusFlag.WARNING | StatusFlag.INTERNAL_LIMIT_ACTIVE)
+FAULT_RESET_DELAY_S: Final = 0.002  # a fault reset acts at the drive's next cycle, this late
 
 
 class PowerStage(DriveObjects):
@@ -50,6 +57,7 @@ class PowerStage(DriveObjects):
     _last_rpdo_s: float
     _last_sync_s: float
     _overcurrent_s: float
+    _fault_reset_due_s: float | None  # a fault reset taken, acting at the next cycle
 
     def __init__(self, spec: DriveSpec) -> None:
         super().__init__(spec)
@@ -139,7 +147,8 @@ class PowerStage(DriveObjects):
         command = cia402.decode_controlword(controlword, self._controlword)
         self._controlword = controlword
         if command is DriveCommand.FAULT_RESET:
-            self._fault_reset(out)
+            if self.state is DriveState.FAULT and self._fault_reset_due_s is None:
+                self._fault_reset_due_s = now_s + FAULT_RESET_DELAY_S  # the next cycle
             return
         state = cia402.next_state(self.state, command)
         if state is not self.state:
@@ -180,6 +189,13 @@ class PowerStage(DriveObjects):
         self._emcy(code, out)
         self.notes.append(("drive_fault", code))
 
+    def _complete_fault_reset(self, now_s: float, out: list[Frame], cycle: bool = False) -> None:
+        """The fault reset taken at an earlier cycle, once due (``cycle``: a SYNC starts one)."""
+        due_s = self._fault_reset_due_s
+        if due_s is not None and (cycle or now_s >= due_s):
+            self._fault_reset_due_s = None
+            self._fault_reset(out)
+
     def _fault_reset(self, out: list[Frame]) -> None:
         if self.state is not DriveState.FAULT:
             return
@@ -199,6 +215,7 @@ class PowerStage(DriveObjects):
         self.fault = None
         self._clamping, self._controlword, self._latched_mv = False, 0, 0
         self._last_rpdo_s = self._last_sync_s = self._overcurrent_s = 0.0
+        self._fault_reset_due_s = None
         self._statusword = self._error_register = -1
         self._update_output()
 

@@ -1,10 +1,11 @@
 """``rakectl drives``: the daemon's bring-up as a dry run, for a field engineer adding or
 replacing a drive: every step of rakectl.drive.bringup (boot-up after NMT reset
 communication, identity against the EDS, limits written and read back, device name,
-PDO communication and mapping read back against the EDS, a fault left by a previous run
-reset), then what each drive is and holds, printed. The drives are not started: they
-stay PRE-OPERATIONAL, their power stage disabled (0 V). The first thing that differs
-is one line naming the drive, the object and both values, exit status 1.
+PDO communication and mapping read back against the EDS, no other TPDO valid, a fault
+left by a previous run reset), then what each drive is and holds, printed. The drives
+are not started: they stay PRE-OPERATIONAL, their power stage disabled (0 V). The first
+thing that differs is one line naming the drive, the object and both values, exit
+status 1.
 
 Never while the daemon runs: its NMT reset would take the drives from under it."""
 
@@ -122,7 +123,9 @@ def text(r: dict[str, Any]) -> str:
                 else "on change")
         mapped = ", ".join(f"0x{m['index']:04X}:{m['subindex']} ({m['bits']} bit)"
                            for m in pdo["mapped"])
-        lines.append(f"    {pdo['name']:<6} COB-ID 0x{pdo['cob_id']:03X}, {when}: {mapped}")
+        no_rtr = ", no RTR" if pdo["cob_id"] & 1 << 30 else ""  # bit 30: the drive's own
+        lines.append(f"    {pdo['name']:<6} COB-ID 0x{pdo['cob_id'] & 0x7FF:03X}{no_rtr}, {when}: "
+                     f"{mapped}")
     if r["rewritten"]:
         lines.append("  held otherwise by the drive, the EDS's written back (not stored: at "
                      "every bring-up):")

@@ -7,16 +7,18 @@ thread survives it. :class:`BringUp` does the work through the network alone,
 so a test can run it on a bus-less network without any thread. For each drive
 in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.settings.DrivesSettings`:
 
-1. wait for a heartbeat or boot-up of the node (``boot_timeout_s``;
-   :class:`~rakectl.errors.CommsTimeout` naming the node);
-2. NMT reset communication, and wait for its boot-up (the node is then
-   PRE-OPERATIONAL with the EDS defaults of its communication objects); sent
-   again, up to ``RESET_ATTEMPTS`` times, while no boot-up comes (either frame
-   may be lost);
-3. SDO read the identity 0x1018: vendor-ID and product code must be those of
+1. NMT reset communication, and wait for its boot-up (the node is then
+   PRE-OPERATIONAL with the stored values of its communication objects). Nothing is
+   awaited before it: a drive already booted whose producer heartbeat 0x1017 is 0 (CiA
+   301's default) says nothing until it is reset. Sent ``RESET_ATTEMPTS`` times in all,
+   ``boot_timeout_s`` / ``RESET_ATTEMPTS`` apart, while no boot-up comes (either frame
+   may be lost, or the drive still be powering up: the boot-up it sends at power-on
+   counts too); then :class:`~rakectl.errors.CommsTimeout` naming the node and whether
+   anything at all was heard from it;
+2. SDO read the identity 0x1018: vendor-ID and product code must be those of
    the drive type's EDS (``rakectl/protocol/eds/*.eds``, read with ``importlib.resources``),
    revision and serial number are recorded;
-4. SDO write the limits (those of ``drives.profile``, :mod:`rakectl.drive.profiles`: a
+3. SDO write the limits (those of ``drives.profile``, :mod:`rakectl.drive.profiles`: a
    Roboteq-class drive's in its own objects and units, after its supply is read and
    checked against the configured one): 0x2001 max voltage [mV]
    (``motors.<joint>.supply_voltage_v``),
@@ -24,23 +26,32 @@ in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.settings.Driv
    watchdog [ms] (``drives.watchdog_timeout_ms``), 0x2004 encoder counts per turn,
    0x1017 producer heartbeat [ms] (``drives.heartbeat_period_ms``) and 0x1016:1
    consumer heartbeat of the controller (``controller_node_id << 16 | heartbeat_timeout_ms``)
-   and 0x1019 SYNC counter overflow (``drives.sync_counter_overflow``);
+   and 0x1019 SYNC counter overflow (``drives.sync_counter_overflow``), which CiA 301
+   lets change only while the communication cycle period 0x1006 is 0: 0x1006 is read,
+   set to 0 and restored around it. A drive without 0x1019 (abort 0x06020000) takes SYNC
+   without a counter only: accepted when that is what is configured (0);
    a value outside the EDS's data type or limits is a ConfigError before anything is sent;
-5. SDO read every one of them back and compare;
-6. SDO read every PDO's communication and mapping
-   parameters the EDS declares (0x1400 + n and 0x1600 + n, 0x1800 + n and
-   0x1A00 + n): COB-ID, transmission type and each mapped entry must be the
-   EDS's, because the hot path's codecs decode that layout. Reset
+4. SDO read every one of them back and compare;
+5. SDO read every PDO's communication and mapping parameters the EDS declares
+   (0x1400 + n and 0x1600 + n, 0x1800 + n and 0x1A00 + n): COB-ID (bit 30, no RTR,
+   is the drive's own: neither compared nor changed), transmission type, inhibit time,
+   event timer and each mapped entry must be the EDS's, because the hot path's codecs
+   decode that layout and the bus-load budget counts those frames. Reset
    communication restores a drive's *stored* values, so a mapping another tool
    changed and saved is found here: that PDO is written back to the EDS's in
-   CiA 301's order (COB-ID not valid, sub 0 = 0, the entries, sub 0 = n, the
-   COB-ID valid) and read again; a drive that refuses it or keeps its own is
-   refused, naming the object and both values (:mod:`rakectl.drive.pdos`).
+   CiA 301's order (COB-ID not valid, what differs and the EDS declares writable, sub 0
+   = 0, the entries, sub 0 = n, the COB-ID valid) and read again; a drive that refuses
+   it or keeps its own is refused, naming the object and both values; so is a TPDO
+   beyond the EDS's that the drive has and holds valid (:mod:`rakectl.drive.pdos`).
    The dry run (``start=False``) also reads the device name 0x1008.
 
 Then a drive still in FAULT from the previous run (it lost that run's
-heartbeat) is fault-reset over SDO (controlword 0x6040: 0, 0x80, 0), now that
-reset communication has cleared the cause (``DriveFault`` if it stays); then
+heartbeat) is fault-reset over SDO, now that reset communication has cleared the
+cause (:class:`rakectl.drive.profiles.DriveStart`): controlword 0x6040 = 0, then 0x80,
+each held ``FAULT_RESET_HOLD_S`` (a drive samples its controlword once a cycle), the
+statusword read until it leaves FAULT (``DriveFault`` naming ``FAULT_RESET_TIMEOUT_S``,
+0.5 s, if it stays), then 0 again; a Roboteq-class drive is released (0x200D) and its
+flags read the same way. Then
 the statusword 0x6041 of each (the CiA 402 state the hot path starts
 from: the TPDO2 a drive sends on entering OPERATIONAL may reach the bring-up
 Notifier instead), and NMT start for each node (OPERATIONAL). Start ticking right away: an
@@ -52,7 +63,8 @@ Every failure is one line naming the drive, e.g.
 ``DriveFault("θ drive (node 2): read-back mismatch: 0x2003 watchdog timeout: wrote 3 ms,
 read 15 ms")``, ``DriveFault("r drive (node 1): SDO abort 0x06090030 writing 0x2003
 watchdog timeout = 3 ms: Value range of parameter exceeded")``
-(raised ``from`` the canopen error), ``CommsTimeout`` when a node or an SDO
+(raised ``from`` the canopen error; an answer shorter than the object's type, or an SDO
+frame too short to decode, is one too), ``CommsTimeout`` when a node or an SDO
 answer does not come. A transfer that meets an answer of another kind is made
 again, twice at most: canopen empties its answer queue only before it sends, so
 the late answer to a request it had repeated is otherwise taken for the next
@@ -64,12 +76,14 @@ daemon enables the drives only while it is armed.
 
 from __future__ import annotations
 
+import struct
 import threading
 from collections.abc import Callable
 from typing import TypeVar
 
 import can
 import canopen
+from canopen.objectdictionary import ObjectDictionaryError, ODVariable, datatypes
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from rakectl.config.service import DrivesSettings
@@ -94,15 +108,15 @@ from rakectl.drive.joints import (
 )
 from rakectl.drive.pdos import PdoCheck
 from rakectl.drive.profiles import (
+    CYCLE_PERIOD_OBJECT,
     SUPPLY_OBJECT,
+    SYNC_OVERFLOW_OBJECT,
+    DriveStart,
     drive_parameters,
     eds_file,
-    state_of,
     supply_problem,
 )
-from rakectl.errors import CommsTimeout, ConfigError, DriveFault, FrameError
-from rakectl.protocol import roboteq
-from rakectl.protocol.cia402 import DriveState
+from rakectl.errors import CommsTimeout, ConfigError, DriveFault
 from rakectl.protocol.codec import NMT_COB_ID, FunctionCode, cob_id
 from rakectl.protocol.files import DriveProfile
 from rakectl.protocol.nmt import NmtCommand, NmtState, encode_nmt
@@ -112,17 +126,20 @@ NOTIFIER_JOIN_S = 2.0
 _T = TypeVar("_T")
 SDO_RETRIES = 3  # canopen repeats an unanswered SDO request this often at bring-up,
 # and a segmented upload that lost a segment is started again this often
-RESET_ATTEMPTS = 3  # NMT reset communication sent this often before a drive is silent
+RESET_ATTEMPTS = 3  # NMT reset communication sent this often, boot_timeout_s over all
 SDO_TOGGLE_BIT_ABORT = 0x05030000  # a segment lost or repeated
+SDO_NO_OBJECT_ABORTS = (0x06020000, 0x06090011)  # no such object, no such subindex
 SDO_LATE_ANSWER_RETRIES = 2  # a transfer that met a late answer is made again this often
+_TYPE_NAMES = {code: name for name, code in vars(datatypes).items()
+               if name.isupper() and isinstance(code, int)}
 
 
 class BringUp:
     """The bring-up sequence of the module docstring, over any ``canopen.Network``.
 
-    Subscribes to the drives' heartbeats on construction (heartbeats that arrive
-    from then on count), so a test can let its fake drives announce themselves
-    before :meth:`run`. It sends through ``network.send_message`` and waits on
+    Subscribes to the drives' heartbeats on construction: a boot-up that arrives after
+    an NMT reset communication is awaited, and a drive never heard at all is named so
+    when it times out. It sends through ``network.send_message`` and waits on
     events that the network's callbacks set, so it works with a Notifier thread
     and with a network that delivers synchronously.
     """
@@ -135,7 +152,7 @@ class BringUp:
         self._boot_timeout_s = boot_timeout_s
         self._joint_of_node = {node: joint for joint, node in zip(JOINTS, node_ids(drives),
                                                                   strict=True)}
-        self._heard = {joint: threading.Event() for joint in JOINTS}
+        self._heard = {joint: threading.Event() for joint in JOINTS}  # anything from it
         self._booted = {joint: threading.Event() for joint in JOINTS}
         self._nodes: dict[Joint, canopen.RemoteNode] = {}
         self._node_id = dict(zip(JOINTS, node_ids(drives), strict=True))
@@ -147,7 +164,8 @@ class BringUp:
             network.subscribe(cob_id(FunctionCode.HEARTBEAT, node_id), self._on_heartbeat)
             self._nodes[joint] = node
         self._roboteq = drives.profile is DriveProfile.ROBOTEQ
-        self._pdos = PdoCheck(self._read, self._write, self._label,
+        self._start = DriveStart(drives.profile, self._read, self._write, self._label)
+        self._pdos = PdoCheck(self._read, self._write, self._read_if_present, self._label,
                               lambda joint: self._nodes[joint].object_dictionary,
                               lambda joint: eds_file(drives, joint))
 
@@ -171,87 +189,24 @@ class BringUp:
         # (a lost segment is a toggle-bit abort): read for the dry run only
         names = ["" if start else self._read_text(joint, 0x1008, 0, "device name")
                  for joint in JOINTS]
-        cleared = [self._clear_old_fault(joint) for joint in JOINTS]
-        statuswords = [self._status(joint) for joint in JOINTS]
+        cleared = [self._start.clear_old_fault(joint) for joint in JOINTS]
+        statuswords = [self._start.status(joint) for joint in JOINTS]
         if start:
             for joint in JOINTS:
                 self._nmt(joint, NmtCommand.START)
         r_info, theta_info = (
             DriveInfo(joint, self._node_id[joint], identity, limits, statusword,
-                      self._state_of(joint, statusword), code, name, pdos, rewritten)
+                      self._start.state_of(joint, statusword), code, name, pdos, rewritten)
             for joint, (identity, limits, pdos, rewritten), name, statusword, code in zip(
                 JOINTS, configured, names, statuswords, cleared, strict=True))
         return r_info, theta_info
 
-    def _status(self, joint: Joint) -> int:
-        """The status the hot path starts from: the statusword 0x6041 of a CiA 402 drive; a
-        Roboteq-class drive's fault and status flags, once its power stage is switched off
-        by an emergency shutdown (0x200C), as a CiA 402 drive starts switched off."""
-        if not self._roboteq:
-            return self._read(joint, 0x6041, 0, "statusword")
-        self._write(joint, Parameter(0x200C, 0, "emergency shutdown", "", 1,
-                                     "bring-up: the power stage off until armed"))
-        return (self._read(joint, 0x2112, 0, "fault flags") << 16
-                | self._read(joint, 0x2111, 0, "status flags"))
-
-    def _clear_old_fault(self, joint: Joint) -> int:
-        """A drive still in FAULT from the previous run (its controller's heartbeat was
-        lost when that run ended) is fault-reset here, now that reset communication has
-        cleared the cause: a rising edge of controlword bit 7 over SDO (a Roboteq-class
-        drive: release shutdown 0x200D). Returns the code cleared (0x603F; the fault flags
-        0x2112), 0 if none; DriveFault if the fault stays."""
-        if self._roboteq:
-            return self._release_old_fault(joint)
-        state = self._state_of(joint, self._read(joint, 0x6041, 0, "statusword"))
-        if state not in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
-            return 0
-        code = self._read(joint, 0x603F, 0, "error code")
-        for controlword in (0x0000, 0x0080, 0x0000):
-            self._write(joint, Parameter(0x6040, 0, "controlword", "", controlword,
-                                         "bring-up fault reset"))
-        state = self._state_of(joint, self._read(joint, 0x6041, 0, "statusword"))
-        if state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE):
-            raise DriveFault(f"{self._label(joint)}: in FAULT (0x603F = 0x{code:04X}) since "
-                             "before bring-up, and a fault reset does not clear it")
-        return code
-
-    def _release_old_fault(self, joint: Joint) -> int:
-        """A Roboteq-class drive faulted (its error register 0x1001 set, or a fault flag
-        but the emergency stop's: a power stage merely switched off is no fault) is
-        released (0x200D); DriveFault if its fault stays."""
-        flags = self._read(joint, 0x2112, 0, "fault flags")
-        register = self._read(joint, 0x1001, 0, "error register")
-        if not register and not flags & ~roboteq.FAULT_EMERGENCY_STOP:
-            return 0
-        self._write(joint, Parameter(0x200D, 0, "release shutdown", "", 1,
-                                     "bring-up fault reset"))
-        after = self._read(joint, 0x2112, 0, "fault flags")
-        if after & ~roboteq.FAULT_EMERGENCY_STOP or self._read(joint, 0x1001, 0, "error register"):
-            raise DriveFault(f"{self._label(joint)}: fault flags 0x{flags:04X} (0x2112) since "
-                             "before bring-up, and a release shutdown does not clear them")
-        return flags
-
     def _label(self, joint: Joint) -> str:
         return drive_label(joint, self._node_id[joint])
 
-    def _state_of(self, joint: Joint, status: int) -> DriveState:
-        try:
-            return state_of(self._drives.profile, status)
-        except FrameError as error:
-            raise DriveFault(f"{self._label(joint)}: {error}") from error
-
     def _configure(self, joint: Joint) -> tuple[Identity, DriveLimits, tuple[PdoReading, ...],
                                                  tuple[PdoReading, ...]]:
-        self._wait(self._heard[joint], joint, "no heartbeat or boot-up")
-        for attempt in range(1, RESET_ATTEMPTS + 1):  # a lossy bus may lose either frame
-            self._booted[joint].clear()
-            self._nmt(joint, NmtCommand.RESET_COMMUNICATION)
-            if self._booted[joint].wait(self._boot_timeout_s):
-                break
-            if attempt == RESET_ATTEMPTS:
-                raise CommsTimeout(f"{self._label(joint)}: no boot-up after NMT reset "
-                                   f"communication within {self._boot_timeout_s:g} s, "
-                                   f"{RESET_ATTEMPTS} times")
+        self._reset_communication(joint)
         identity = self._check_identity(joint)
         supply_mv = round(motor_of(self._motors, joint).supply_voltage_v * 1000)
         if self._roboteq:
@@ -259,9 +214,9 @@ class BringUp:
         parameters = drive_parameters(joint, self._drives, self._motors)
         for p in parameters:
             self._check_range(joint, p)
-        for p in parameters:
-            self._write(joint, p)
-        read_back = [self._read(joint, p.index, p.subindex, p.name) for p in parameters]
+        absent = [p for p in parameters if not self._write_parameter(joint, p)]
+        read_back = [p.value if p in absent else self._read(joint, p.index, p.subindex, p.name)
+                     for p in parameters]
         for p, value in zip(parameters, read_back, strict=True):
             if value != p.value:
                 unit = f" {p.unit}" if p.unit else ""
@@ -271,6 +226,54 @@ class BringUp:
                                                                      strict=True)}
         limits.setdefault("max_voltage_mv", supply_mv)  # a drive with no limit of its own
         return identity, DriveLimits(**limits), *self._pdos.check(joint)
+
+    def _reset_communication(self, joint: Joint) -> None:
+        """NMT reset communication until its boot-up comes (step 1 of the module docstring)."""
+        booted, wait_s = self._booted[joint], self._boot_timeout_s / RESET_ATTEMPTS
+        for _ in range(RESET_ATTEMPTS):  # a lossy bus may lose either frame
+            booted.clear()
+            self._nmt(joint, NmtCommand.RESET_COMMUNICATION)
+            if booted.wait(wait_s):
+                return
+        if not self._heard[joint].is_set():
+            raise CommsTimeout(f"{self._label(joint)}: no heartbeat or boot-up within "
+                               f"{self._boot_timeout_s:g} s (NMT reset communication sent "
+                               f"{RESET_ATTEMPTS} times)")
+        raise CommsTimeout(f"{self._label(joint)}: no boot-up after NMT reset communication "
+                           f"within {self._boot_timeout_s:g} s, {RESET_ATTEMPTS} times")
+
+    def _write_parameter(self, joint: Joint, p: Parameter) -> bool:
+        """``p`` written; False if the drive has no such object and needs none (0x1019)."""
+        if (p.index, p.subindex) == SYNC_OVERFLOW_OBJECT:
+            return self._write_sync_overflow(joint, p)
+        self._write(joint, p)
+        return True
+
+    def _write_sync_overflow(self, joint: Joint, p: Parameter) -> bool:
+        """0x1019, which CiA 301 lets change only while the communication cycle period 0x1006
+        is 0 (CANopenNode aborts 0x08000022 otherwise): 0x1006 read, set to 0 and restored
+        around it (a drive without 0x1006 has no period to clear). A drive without 0x1019
+        takes SYNC without a counter only: False if that is what ``p`` asks (0)."""
+        index, subindex, name = CYCLE_PERIOD_OBJECT
+        period_us = self._read_if_present(joint, index, subindex, name)
+        why = "0x1019 changes only while it is 0 (CiA 301)"
+        if period_us:
+            self._write(joint, Parameter(index, subindex, name, "µs", 0, why))
+        written = True
+        try:
+            self._write(joint, p)
+        except DriveFault as error:
+            if not _no_such_object(error):
+                raise
+            if p.value:
+                raise DriveFault(f"{self._label(joint)}: no {p.where()} {p.name} (SDO abort "
+                                 f"0x{_abort_code(error):08X} writing {p.value}): the drive "
+                                 f"takes SYNC without a counter only; set {p.setting}: 0"
+                                 ) from error
+            written = False
+        if period_us:
+            self._write(joint, Parameter(index, subindex, name, "µs", period_us, why))
+        return written
 
     def _check_supply(self, joint: Joint) -> None:
         """A Roboteq-class drive's command is a share of its supply, scaled by the
@@ -288,10 +291,6 @@ class BringUp:
         what = f"reading 0x{index:04X}:{subindex} {name}"
         data = self._sdo(joint, what, lambda: node.sdo.upload(index, subindex), segmented=True)
         return bytes(data).decode("ascii", errors="replace").rstrip("\0")
-
-    def _wait(self, event: threading.Event, joint: Joint, what: str) -> None:
-        if not event.wait(self._boot_timeout_s):
-            raise CommsTimeout(f"{self._label(joint)}: {what} within {self._boot_timeout_s:g} s")
 
     def _nmt(self, joint: Joint, command: NmtCommand) -> None:
         try:
@@ -327,14 +326,35 @@ class BringUp:
                               f"{p.value} {p.unit} is outside {low}..{high} of "
                               f"{eds_file(self._drives, joint)}")
 
-    def _read(self, joint: Joint, index: int, subindex: int, name: str) -> int:
+    def _read(self, joint: Joint, index: int, subindex: int, name: str,
+              variable: ODVariable | None = None) -> int:
+        """An integer object, decoded as the EDS declares it (or as ``variable``, for an
+        object the EDS does not have)."""
         node = self._nodes[joint]
         what = f"reading 0x{index:04X}:{subindex} {name}"
         data = self._sdo(joint, what, lambda: node.sdo.upload(index, subindex))
-        value = od_variable(node.object_dictionary, index, subindex).decode_raw(data)
+        var = od_variable(node.object_dictionary, index, subindex) if variable is None \
+            else variable
+        try:
+            value = var.decode_raw(data)
+        except ObjectDictionaryError as error:  # an answer shorter than the type
+            type_name = _TYPE_NAMES.get(var.data_type or 0, "data type")
+            raise DriveFault(f"{self._label(joint)}: {what}: the drive answered {len(data)} "
+                             f"byte(s), the EDS's {type_name} takes {len(var) // 8}") from error
         if not isinstance(value, int):
             raise DriveFault(f"{self._label(joint)}: {what}: not an integer: {value!r}")
         return value
+
+    def _read_if_present(self, joint: Joint, index: int, subindex: int, name: str,
+                         variable: ODVariable | None = None) -> int | None:
+        """:meth:`_read` of an object a drive may lack: None if it answers that it has no
+        such object or subindex."""
+        try:
+            return self._read(joint, index, subindex, name, variable)
+        except DriveFault as error:
+            if _no_such_object(error):
+                return None
+            raise
 
     def _write(self, joint: Joint, p: Parameter) -> None:
         node = self._nodes[joint]
@@ -368,7 +388,21 @@ class BringUp:
                 raise DriveFault(f"{label}: SDO error {what}: {error}") from error
             except can.CanError as error:
                 raise BusError(f"{label}: bus error {what}: {error}") from error
+            except struct.error as error:  # canopen unpacks a frame shorter than 8 bytes
+                raise DriveFault(f"{label}: SDO answer {what} shorter than CiA 301's 8 bytes: "
+                                 f"{error}") from error
         raise AssertionError("unreachable: the last attempt returns or raises")
+
+
+def _abort_code(error: DriveFault) -> int:
+    """The SDO abort code ``error`` was raised from; 0 if none."""
+    cause = error.__cause__
+    return cause.code if isinstance(cause, SdoAbortedError) else 0
+
+
+def _no_such_object(error: DriveFault) -> bool:
+    """Whether ``error`` is an SDO abort saying the drive has no such object or subindex."""
+    return _abort_code(error) in SDO_NO_OBJECT_ABORTS
 
 
 def _repeatable(error: SdoAbortedError | SdoCommunicationError, segmented: bool) -> bool:

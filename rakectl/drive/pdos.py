@@ -1,7 +1,14 @@
-"""The PDO part of the drives' bring-up (step 6 of rakectl.drive.bringup): every PDO the
-EDS declares read back; one a drive holds otherwise (another tool stored it) written back
+"""The PDO part of the drives' bring-up (step 5 of rakectl.drive.bringup): every PDO the
+EDS declares read back (COB-ID, transmission type, inhibit time and event timer where the
+EDS has them, mapping); one a drive holds otherwise (another tool stored it) written back
 to the EDS's in CiA 301's order and read again; a drive that refuses it, or keeps its
 own, refused with one line naming the object and what the drive held.
+
+Bit 30 of a COB-ID (no RTR) is the drive's own: many drives report their TPDOs' COB-IDs
+with it set (0x40000181) and refuse a COB-ID that clears it, so it is neither compared
+nor ever written otherwise than the drive reports it. A TPDO the drive has beyond the
+EDS's (0x1800 + n, up to the first it does not have) must not be valid: sent beside the
+EDS's, it would load the bus beyond the budget of docs/can-bus.md.
 
 It makes its SDO transfers through the bring-up's own (given to :class:`PdoCheck`), so
 their retries, timeouts and one-line failures are the bring-up's.
@@ -10,56 +17,71 @@ their retries, timeouts and one-line failures are the bring-up's.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
-from canopen.objectdictionary import ObjectDictionary
+from canopen.objectdictionary import ObjectDictionary, ODVariable
 
 from rakectl.drive.joints import Joint, Parameter, PdoReading, od_variable
 from rakectl.errors import ConfigError, DriveFault
 
 PDO_SLOTS = 512  # CiA 301: RPDO and TPDO communication parameters 0x1400/0x1800 + 0 … 511
 PDO_NOT_VALID = 1 << 31  # bit 31 of a PDO's COB-ID
+PDO_NO_RTR = 1 << 30  # bit 30: no RTR answered for it; the drive's own
 MORE_ENTRIES = -1  # a read-back mapping longer than the EDS's ends in this
+TIMERS = ((3, "inhibit time"), (5, "event timer"))  # communication subindices, where declared
+TPDO_BASE = 0x1800
+
+Slot = tuple[str, int, int]  # name, communication index, mapping index
+Timer = tuple[int, str, int, int]  # subindex, name, as the drive holds it, as the EDS declares
 
 
 class PdoCheck:
     """The PDOs of the drives, checked and written back over the bring-up's transfers."""
 
     def __init__(self, read: Callable[[Joint, int, int, str], int],
-                 write: Callable[[Joint, Parameter], None], label: Callable[[Joint], str],
+                 write: Callable[[Joint, Parameter], None],
+                 read_if_present: Callable[[Joint, int, int, str, ODVariable], int | None],
+                 label: Callable[[Joint], str],
                  od: Callable[[Joint], ObjectDictionary], eds: Callable[[Joint], str]) -> None:
-        """``eds``: the name of a drive's EDS file, for the messages."""
+        """``read_if_present``: a read that gives None when the drive has no such object,
+        decoding as the variable given; ``eds``: the name of a drive's EDS file."""
         self._read, self._write, self._label, self._od = read, write, label, od
-        self._eds = eds
+        self._read_if_present, self._eds = read_if_present, eds
 
     def check(self, joint: Joint) -> tuple[tuple[PdoReading, ...], tuple[PdoReading, ...]]:
         """Every PDO the EDS declares, read back. One that differs from the EDS (another
-        tool stored its own mapping, which reset communication restores) is written back
-        to the EDS's in CiA 301's order (:meth:`_remap`) and read again; DriveFault naming
-        the first object that still differs."""
+        tool stored its own, which reset communication restores) is written back to the
+        EDS's in CiA 301's order (:meth:`_remap`) and read again; DriveFault naming the
+        first object that still differs, or a TPDO beyond the EDS's that is valid. Returns
+        the PDOs as they now are (the EDS's, with the drive's bit 30) and the readings of
+        those whose COB-ID, transmission type or mapping were written back."""
         slots = self._pdo_slots(joint)
         declared = [self._declared_pdo(joint, *slot) for slot in slots]
         readings = [self._read_pdo(joint, *slot, eds)
                     for slot, eds in zip(slots, declared, strict=True)]
-        if readings == declared:
-            return tuple(readings), ()
-        for (_, comm, mapping), reading, eds in zip(slots, readings, declared, strict=True):
-            if reading != eds:
-                self._remap(joint, comm, mapping, reading, eds)
-        for (name, comm, mapping), eds in zip(slots, declared, strict=True):
-            self._expect(joint, comm, 1, f"{name} COB-ID")
-            self._expect(joint, comm, 2, f"{name} transmission type")
-            self._expect(joint, mapping, 0, f"{name} number of mapped objects")
-            for k in range(1, len(eds.mapped) + 1):
-                self._expect(joint, mapping, k, f"{name} mapped object {k}")
-        return tuple(declared), tuple(r for r, e in zip(readings, declared, strict=True)
-                                      if r != e)
+        timers = [self._read_timers(joint, *slot) for slot in slots]
+        differ = [not _same(reading, eds) or any(held != eds_value
+                                                 for _, _, held, eds_value in held_timers)
+                  for reading, eds, held_timers in zip(readings, declared, timers, strict=True)]
+        if any(differ):
+            for slot, reading, eds, held_timers, different in zip(
+                    slots, readings, declared, timers, differ, strict=True):
+                if different:
+                    self._remap(joint, slot, reading, eds, held_timers)
+            for slot, eds, held_timers in zip(slots, declared, timers, strict=True):
+                self._verify(joint, slot, eds, held_timers)
+        self._check_other_tpdos(joint, slots)
+        return (tuple(replace(eds, cob_id=eds.cob_id | reading.cob_id & PDO_NO_RTR)
+                      for eds, reading in zip(declared, readings, strict=True)),
+                tuple(reading for reading, eds in zip(readings, declared, strict=True)
+                      if not _same(reading, eds)))
 
-    def _pdo_slots(self, joint: Joint) -> list[tuple[str, int, int]]:
+    def _pdo_slots(self, joint: Joint) -> list[Slot]:
         """(name, communication index, mapping index) of each PDO the EDS declares."""
         od = self._od(joint)
         return [(f"{kind}{n + 1}", comm_base + n, map_base + n)
                 for kind, comm_base, map_base in (("RPDO", 0x1400, 0x1600),
-                                                  ("TPDO", 0x1800, 0x1A00))
+                                                  ("TPDO", TPDO_BASE, 0x1A00))
                 for n in range(PDO_SLOTS) if comm_base + n in od]
 
     def _read_pdo(self, joint: Joint, name: str, comm: int, mapping: int,
@@ -73,57 +95,120 @@ class PdoCheck:
                           self._read(joint, comm, 2, f"{name} transmission type"),
                           entries if count <= len(eds.mapped) else (*entries, MORE_ENTRIES))
 
-    def _declared_pdo(self, joint: Joint, name: str, comm: int, mapping: int) -> PdoReading:
+    def _read_timers(self, joint: Joint, name: str, comm: int, mapping: int) -> list[Timer]:
+        """The inhibit time and event timer of a PDO whose EDS declares them, as held."""
         od = self._od(joint)
+        return [(sub, what, self._read(joint, comm, sub, f"{name} {what}"),
+                 self._default(joint, comm, sub))
+                for sub, what in TIMERS if od.get_variable(comm, sub) is not None]
 
+    def _default(self, joint: Joint, index: int, subindex: int) -> int:
+        default = od_variable(self._od(joint), index, subindex).default
+        if not isinstance(default, int):
+            raise ConfigError(f"{self._eds(joint)}: 0x{index:04X}:{subindex} has no "
+                              "integer default")
+        return default
+
+    def _declared_pdo(self, joint: Joint, name: str, comm: int, mapping: int) -> PdoReading:
         def eds(index: int, subindex: int) -> int:
-            default = od_variable(od, index, subindex).default
-            if not isinstance(default, int):
-                raise ConfigError(f"{self._eds(joint)}: 0x{index:04X}:{subindex} has no "
-                                  "integer default")
-            return default
+            return self._default(joint, index, subindex)
 
         return PdoReading(name, eds(comm, 1), eds(comm, 2),
                           tuple(eds(mapping, k) for k in range(1, eds(mapping, 0) + 1)))
 
-    def _remap(self, joint: Joint, comm: int, mapping: int, held: PdoReading,
-               eds: PdoReading) -> None:
+    def _remap(self, joint: Joint, slot: Slot, held: PdoReading, eds: PdoReading,
+               timers: list[Timer]) -> None:
         """The EDS's PDO written in CiA 301's order: the COB-ID the drive holds made not
-        valid (bit 31), then the EDS's CAN-ID if it differs (still not valid), the
-        transmission type, sub 0 = 0, the entries, sub 0 = n, the COB-ID as declared. A
-        step the drive refuses is one DriveFault naming the PDO, what the drive held and
-        the step."""
-        name, why = eds.name, "the EDS's PDO mapping"
+        valid (bit 31), then the EDS's CAN-ID if it differs (still not valid), whatever of
+        the transmission type, inhibit time and event timer differs, the mapping if it
+        differs (sub 0 = 0, the entries, sub 0 = n), the COB-ID as declared; bit 30 always
+        as the drive holds it. A step the drive refuses is one DriveFault naming the PDO,
+        what the drive held and the step; one the EDS declares read-only is refused
+        before anything is written."""
+        name, comm, mapping = slot
+        no_rtr, why = held.cob_id & PDO_NO_RTR, "the EDS's PDO mapping"
         steps = [(comm, 1, "COB-ID", held.cob_id | PDO_NOT_VALID)]
-        if held.cob_id & 0x7FF != eds.cob_id & 0x7FF:
-            steps.append((comm, 1, "COB-ID", eds.cob_id | PDO_NOT_VALID))
-        steps += [(comm, 2, "transmission type", eds.transmission_type),
-                  (mapping, 0, "number of mapped objects", 0),
-                  *((mapping, k, f"mapped object {k}", entry)
-                    for k, entry in enumerate(eds.mapped, start=1)),
-                  (mapping, 0, "number of mapped objects", len(eds.mapped)),
-                  (comm, 1, "COB-ID", eds.cob_id)]
+        if (held.cob_id ^ eds.cob_id) & ~(PDO_NOT_VALID | PDO_NO_RTR):
+            steps.append((comm, 1, "COB-ID", eds.cob_id | no_rtr | PDO_NOT_VALID))
+        for sub, what, held_value, eds_value in [
+                (2, "transmission type", held.transmission_type, eds.transmission_type),
+                *timers]:
+            if held_value != eds_value:
+                self._require_writable(joint, comm, sub, f"{name} {what}", held_value)
+                steps.append((comm, sub, what, eds_value))
+        if held.mapped != eds.mapped:
+            steps += [(mapping, 0, "number of mapped objects", 0),
+                      *((mapping, k, f"mapped object {k}", entry)
+                        for k, entry in enumerate(eds.mapped, start=1)),
+                      (mapping, 0, "number of mapped objects", len(eds.mapped))]
+        steps.append((comm, 1, "COB-ID", eds.cob_id | no_rtr))
         for index, subindex, what, value in steps:
             try:
                 self._write(joint, Parameter(index, subindex, f"{name} {what}", "", value, why))
             except DriveFault as error:
                 raise DriveFault(f"{error} (writing {self._eds(joint)}'s {name} back over the "
-                                 f"drive's: {_describe(held)})") from error
+                                 f"drive's: {_describe(held, timers)})") from error
 
-    def _expect(self, joint: Joint, index: int, subindex: int, name: str) -> int:
-        """An object read back that must hold its EDS default."""
+    def _require_writable(self, joint: Joint, index: int, subindex: int, name: str,
+                          held: int) -> None:
+        if not od_variable(self._od(joint), index, subindex).writable:
+            raise DriveFault(f"{self._label(joint)}: 0x{index:04X}:{subindex} {name} is "
+                             f"{held}, {self._eds(joint)} declares "
+                             f"{self._default(joint, index, subindex)} and read-only: the "
+                             "hot path and the bus-load budget take the EDS's PDOs")
+
+    def _verify(self, joint: Joint, slot: Slot, eds: PdoReading, timers: list[Timer]) -> None:
+        """A PDO read again after the write-back: every object its EDS's."""
+        name, comm, mapping = slot
+        self._expect(joint, comm, 1, f"{name} COB-ID", ignored=PDO_NO_RTR)
+        self._expect(joint, comm, 2, f"{name} transmission type")
+        for sub, what, _, _ in timers:
+            self._expect(joint, comm, sub, f"{name} {what}")
+        self._expect(joint, mapping, 0, f"{name} number of mapped objects")
+        for k in range(1, len(eds.mapped) + 1):
+            self._expect(joint, mapping, k, f"{name} mapped object {k}")
+
+    def _expect(self, joint: Joint, index: int, subindex: int, name: str,
+                ignored: int = 0) -> int:
+        """An object read back that must hold its EDS default (but the ``ignored`` bits)."""
         value = self._read(joint, index, subindex, name)
-        declared = od_variable(self._od(joint), index, subindex).default
-        if value != declared:
+        declared = self._default(joint, index, subindex)
+        if (value ^ declared) & ~ignored:
             raise DriveFault(f"{self._label(joint)}: 0x{index:04X}:{subindex} {name} is "
                              f"0x{value:X}, {self._eds(joint)} declares 0x{declared:X}, and "
                              "the drive kept it when the EDS's mapping was written: the hot "
                              "path decodes the EDS's PDO layout")
         return value
 
+    def _check_other_tpdos(self, joint: Joint, slots: list[Slot]) -> None:
+        """Every TPDO the drive has beyond the EDS's (up to the first it does not have) must
+        not be valid: DriveFault naming the first that is."""
+        declared = {comm for _, comm, _ in slots}
+        cob_id = od_variable(self._od(joint), TPDO_BASE, 1)  # UNSIGNED32, as every COB-ID
+        for n in range(PDO_SLOTS):
+            comm, name = TPDO_BASE + n, f"TPDO{n + 1}"
+            if comm in declared:
+                continue
+            held = self._read_if_present(joint, comm, 1, f"{name} COB-ID", cob_id)
+            if held is None:
+                return
+            if not held & PDO_NOT_VALID:
+                raise DriveFault(
+                    f"{self._label(joint)}: {name} (0x{comm:04X}:1 COB-ID 0x{held:X}) is valid, "
+                    f"and {self._eds(joint)} has no such TPDO: the drive would send it beside "
+                    "the EDS's, beyond the bus-load budget (docs/can-bus.md); make it not "
+                    "valid (bit 31) and store that with the drive's own tool")
 
-def _describe(pdo: PdoReading) -> str:
-    """A PDO's parameters as a drive holds them, in one phrase."""
+
+def _same(held: PdoReading, eds: PdoReading) -> bool:
+    """Whether a PDO the drive holds is the EDS's, bit 30 of its COB-ID aside."""
+    return held == replace(eds, cob_id=eds.cob_id | held.cob_id & PDO_NO_RTR)
+
+
+def _describe(pdo: PdoReading, timers: list[Timer]) -> str:
+    """A PDO's parameters as a drive holds them (its timers where not the EDS's), in one
+    phrase."""
     mapped = ", ".join(f"0x{m:08X}" if m >= 0 else "..." for m in pdo.mapped)
-    return (f"COB-ID 0x{pdo.cob_id:X}, transmission type {pdo.transmission_type}, "
+    held = "".join(f", {what} {value}" for _, what, value, eds in timers if value != eds)
+    return (f"COB-ID 0x{pdo.cob_id:X}, transmission type {pdo.transmission_type}{held}, "
             f"mapped [{mapped}]")

@@ -13,18 +13,27 @@ writes to it and reads back, and how its status reads as a CiA 402 state.
   command is scaled by that setting (a higher supply would apply more than asked). It
   has no voltage limit of its own: the clamp's bound is that supply.
 
-Both write the heartbeats (0x1017, 0x1016:1) and the SYNC counter overflow (0x1019).
+Both write the heartbeats (0x1017, 0x1016:1) and the SYNC counter overflow (0x1019;
+bring-up clears the communication cycle period 0x1006 around it, as CiA 301 requires).
 The hot path's codecs for each profile are chosen in :class:`~rakectl.drive.client.DriveClient`
 at start-up.
+
+:class:`DriveStart` ends each drive's bring-up the profile's way: a fault the previous
+run left is cleared (a CiA 402 fault reset; a Roboteq-class release shutdown), waiting
+for the drive to act on it in its own cycle, and the status the hot path starts from is
+read.
 """
 
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
 
 from rakectl.config.service import DrivesSettings
 from rakectl.config.settings import MotorsSettings
 from rakectl.drive.joints import Joint, Parameter, motor_of
+from rakectl.errors import DriveFault, FrameError
 from rakectl.protocol import roboteq
 from rakectl.protocol.cia402 import DriveState, decode_statusword
 from rakectl.protocol.files import DriveProfile
@@ -35,6 +44,13 @@ EDS_FILES = {
                            Joint.THETA: "roboteq_class_drive.eds"},
 }
 SUPPLY_OBJECT = (0x210D, 2, "battery voltage")  # Roboteq-class, 0.1 V
+SYNC_OVERFLOW_OBJECT = (0x1019, 0)  # written only while the cycle period is 0 (CiA 301)
+CYCLE_PERIOD_OBJECT = (0x1006, 0, "communication cycle period")  # µs
+FAULT_RESET_HOLD_S = 0.010  # each controlword of a fault reset held this long: a drive
+# samples its controlword once a cycle (CiA 402 drives: 1 … 10 ms)
+FAULT_RESET_TIMEOUT_S = 0.5  # how long a drive may take to leave FAULT after the reset
+FAULT_RESET_POLL_S = 0.005  # how often its status is read meanwhile
+FAULTED = (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
 
 
 def eds_file(drives: DrivesSettings, joint: Joint) -> str:
@@ -99,3 +115,90 @@ def supply_problem(supply_dv: int, supply_v: float) -> str | None:
                 "by: it would apply more than commanded; set motors.<joint>.supply_voltage_v "
                 "to the highest the supply reaches")
     return None
+
+
+class DriveStart:
+    """The end of each drive's bring-up, the profile's way, over the bring-up's own SDO
+    transfers (``read``, ``write``; their failures are the bring-up's one-line ones)."""
+
+    def __init__(self, profile: DriveProfile, read: Callable[[Joint, int, int, str], int],
+                 write: Callable[[Joint, Parameter], None],
+                 label: Callable[[Joint], str]) -> None:
+        self._profile, self._read, self._write, self._label = profile, read, write, label
+
+    def state_of(self, joint: Joint, status: int) -> DriveState:
+        """:func:`state_of` for the drive of ``joint``: DriveFault naming it if none."""
+        try:
+            return state_of(self._profile, status)
+        except FrameError as error:
+            raise DriveFault(f"{self._label(joint)}: {error}") from error
+
+    def status(self, joint: Joint) -> int:
+        """The status the hot path starts from: the statusword 0x6041 of a CiA 402 drive; a
+        Roboteq-class drive's fault and status flags, once its power stage is switched off
+        by an emergency shutdown (0x200C), as a CiA 402 drive starts switched off."""
+        if self._profile is not DriveProfile.ROBOTEQ:
+            return self._read(joint, 0x6041, 0, "statusword")
+        self._write(joint, Parameter(0x200C, 0, "emergency shutdown", "", 1,
+                                     "bring-up: the power stage off until armed"))
+        return (self._read(joint, 0x2112, 0, "fault flags") << 16
+                | self._read(joint, 0x2111, 0, "status flags"))
+
+    def clear_old_fault(self, joint: Joint) -> int:
+        """A drive still in FAULT from the previous run (its controller's heartbeat was
+        lost when that run ended) is fault-reset here, now that reset communication has
+        cleared the cause: a rising edge of controlword bit 7 over SDO, each value held a
+        drive cycle (a Roboteq-class drive: release shutdown 0x200D), then its status read
+        until the fault is gone. Returns the code cleared (0x603F; the fault flags 0x2112),
+        0 if none; DriveFault if the fault stays ``FAULT_RESET_TIMEOUT_S``."""
+        if self._profile is DriveProfile.ROBOTEQ:
+            return self._release_old_fault(joint)
+        if self._state(joint) not in FAULTED:
+            return 0
+        code = self._read(joint, 0x603F, 0, "error code")
+        for controlword in (0x0000, 0x0080):  # bit 7 low for a cycle, then its rising edge
+            self._write(joint, Parameter(0x6040, 0, "controlword", "", controlword,
+                                         "bring-up fault reset"))
+            time.sleep(FAULT_RESET_HOLD_S)
+        cleared = _until(lambda: self._state(joint) not in FAULTED)
+        self._write(joint, Parameter(0x6040, 0, "controlword", "", 0x0000,
+                                     "bring-up fault reset: bit 7 low again"))
+        if not cleared:
+            raise DriveFault(f"{self._label(joint)}: in FAULT (0x603F = 0x{code:04X}) since "
+                             "before bring-up, and a fault reset does not clear it within "
+                             f"{FAULT_RESET_TIMEOUT_S:g} s")
+        return code
+
+    def _state(self, joint: Joint) -> DriveState:
+        return self.state_of(joint, self._read(joint, 0x6041, 0, "statusword"))
+
+    def _release_old_fault(self, joint: Joint) -> int:
+        """A Roboteq-class drive faulted (its error register 0x1001 set, or a fault flag
+        but the emergency stop's: a power stage merely switched off is no fault) is
+        released (0x200D); DriveFault if its fault stays."""
+        flags = self._read(joint, 0x2112, 0, "fault flags")
+        if not self._roboteq_faulted(joint, flags):
+            return 0
+        self._write(joint, Parameter(0x200D, 0, "release shutdown", "", 1,
+                                     "bring-up fault reset"))
+        if not _until(lambda: not self._roboteq_faulted(
+                joint, self._read(joint, 0x2112, 0, "fault flags"))):
+            raise DriveFault(f"{self._label(joint)}: fault flags 0x{flags:04X} (0x2112) since "
+                             "before bring-up, and a release shutdown does not clear them "
+                             f"within {FAULT_RESET_TIMEOUT_S:g} s")
+        return flags
+
+    def _roboteq_faulted(self, joint: Joint, flags: int) -> bool:
+        return bool(flags & ~roboteq.FAULT_EMERGENCY_STOP
+                    or self._read(joint, 0x1001, 0, "error register"))
+
+
+def _until(cleared: Callable[[], bool]) -> bool:
+    """Whether ``cleared()`` comes true within ``FAULT_RESET_TIMEOUT_S`` (asked every
+    ``FAULT_RESET_POLL_S``): a drive acts on a command in its next cycle, not at once."""
+    deadline_s = time.monotonic() + FAULT_RESET_TIMEOUT_S
+    while not cleared():
+        if time.monotonic() >= deadline_s:
+            return False
+        time.sleep(FAULT_RESET_POLL_S)
+    return True

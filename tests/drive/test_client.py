@@ -782,7 +782,7 @@ def test_a_stored_pdo_mapping_is_written_back_to_the_eds_in_cia301_order(
 
     r_drive.node.add_write_callback(record)  # type: ignore[no-untyped-call]
     r_info, _ = _announce_and_run(make_bring_up(network), fake_drives)
-    assert writes == [(0x1800, 1, 0x80000181), (0x1800, 2, 1), (0x1A00, 0, 0),
+    assert writes == [(0x1800, 1, 0x80000181), (0x1A00, 0, 0),  # its transmission type kept
                       (0x1A00, 1, 0x60640020), (0x1A00, 2, 0x606C0010),
                       (0x1A00, 3, 0x21000010), (0x1A00, 0, 3), (0x1800, 1, 0x181)]
     assert r_info.pdos[1].mapped == (0x60640020, 0x606C0010, 0x21000010)
@@ -921,13 +921,14 @@ def test_a_late_answer_taken_for_the_next_request_is_asked_again(
         _announce_and_run(make_bring_up(network), drives)
 
 
-def test_a_silent_node_times_out_naming_it(network: LoopbackNetwork,
-                                           fake_drives: tuple[FakeDrive, FakeDrive]) -> None:
-    bring_up = make_bring_up(network)
-    fake_drives[0].announce()
+def test_a_silent_node_times_out_naming_it(network: LoopbackNetwork) -> None:
+    """No θ drive on the bus: nothing answers its NMT resets, and nothing was heard."""
+    r_drive = FakeDrive(network, Joint.R, R_NODE)
     with pytest.raises(CommsTimeout, match=r"^θ drive \(node 2\): no heartbeat or boot-up "
-                                           r"within 0.05 s$"):
-        bring_up.run()
+                                           r"within 0.05 s \(NMT reset communication sent 3 "
+                                           r"times\)$"):
+        _announce_and_run(make_bring_up(network), (r_drive,))
+    assert r_drive.resets == 1
 
 
 def test_a_node_that_does_not_reset_times_out(network: LoopbackNetwork) -> None:

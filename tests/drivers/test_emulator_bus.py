@@ -246,7 +246,8 @@ def test_controller_heartbeat_loss_and_fault_reset(rig: Any) -> None:
     assert time.monotonic() - started_s >= 0.25
     ctl.send(0x70A, b"\x05")
     ctl.cycle({n: (0, DriveCommand.FAULT_RESET.value) for n in NODES})
-    frames = ctl.cycle({})
+    frames = ctl.cycle({})  # the rising edge, taken at this SYNC: acted on at the next cycle
+    frames += ctl.cycle({})
     assert emcy_codes(frames) == {1: [EmcyCode.NO_ERROR], 2: [EmcyCode.NO_ERROR]}
     assert all(node.state is DriveState.SWITCH_ON_DISABLED for node in emulator.nodes)
 

@@ -88,9 +88,13 @@ def test_canopen_master_brings_up_and_cycles_the_drives(
         assert [(v.index, v.subindex) for v in rpdo1.map] == _eds_mapping(node, 0x1600)
         assert tpdo1.cob_id == 0x180 + node.id and rpdo1.cob_id == 0x200 + node.id
 
-    # The master's default SYNC has no counter: set 0x1019 = 0 in PRE-OPERATIONAL.
-    r.sdo[0x1019].raw = 0
-    theta.sdo[0x1019].raw = 0
+    # The master's default SYNC has no counter: set 0x1019 = 0 in PRE-OPERATIONAL, with
+    # the communication cycle period 0x1006 at 0 meanwhile (CiA 301), then restored.
+    for node in (r, theta):
+        _abort(0x08000022, lambda node=node: setattr(node.sdo[0x1019], "raw", 0))
+        node.sdo[0x1006].raw = 0
+        node.sdo[0x1019].raw = 0
+        node.sdo[0x1006].raw = 1000
     network.nmt.state = "OPERATIONAL"
     assert r.nmt.wait_for_heartbeat(TIMEOUT_S) == "OPERATIONAL"
 
@@ -143,6 +147,7 @@ def test_a_canopen_master_remaps_the_pdos_in_the_cia301_order(
     r = _remote(network, R_NODE, DriveKind.DC_SERVO)
     network.nmt.state = "RESET COMMUNICATION"
     r.nmt.wait_for_bootup(TIMEOUT_S)
+    r.sdo[0x1006].raw = 0  # 0x1019 changes only while the communication cycle period is 0
     r.sdo[0x1019].raw = 0
     r.tpdo.read()
     r.rpdo.read()

@@ -315,11 +315,15 @@ def test_controller_heartbeat_loss_faults_and_reset_waits_for_its_return(drive: 
     frames = drive.at(1.250).poll()
     assert emcys(frames) == [EmcyCode.HEARTBEAT_LOST]
     assert drive.node.state is DriveState.FAULT
-    assert emcys(drive.controlword_by_sdo(0x80)) == []  # reset refused: still no heartbeat
+    assert emcys(drive.controlword_by_sdo(0x80)) == []
+    assert emcys(drive.at(1.252).poll()) == []  # reset refused: still no heartbeat
     assert drive.node.state is DriveState.FAULT
     drive.at(1.3).rx(controller_heartbeat, b"\x05")
     drive.controlword_by_sdo(0x00)
-    assert emcys(drive.controlword_by_sdo(0x80)) == [EmcyCode.NO_ERROR]
+    assert emcys(drive.controlword_by_sdo(0x80)) == []  # taken, acted on at the next cycle
+    assert drive.node.state is DriveState.FAULT
+    assert drive.node.next_deadline_s() == pytest.approx(1.302)
+    assert emcys(drive.at(1.302).poll()) == [EmcyCode.NO_ERROR]
     assert drive.node.state is DriveState.SWITCH_ON_DISABLED
 
 
@@ -330,6 +334,8 @@ def test_fault_reset_acts_on_the_rising_edge_of_bit_7(drive: Bench) -> None:
     assert drive.node.state is DriveState.FAULT
     drive.nmt(NmtCommand.START)
     drive.rpdo(0, DriveCommand.FAULT_RESET)
+    assert emcys(drive.sync()) == []  # the edge, taken at this SYNC: acted on at the next
+    assert drive.node.state is DriveState.FAULT
     frames = drive.sync()
     assert emcys(frames) == [EmcyCode.NO_ERROR]
     assert decode_emcy(next(d for i, d in frames if i == EMCY)).error_register == 0
@@ -353,10 +359,12 @@ def test_overcurrent_and_hard_stop_fault_only_when_enabled(drive: Bench) -> None
     assert steps in (499, 500)
     assert emcys(frames) == [EmcyCode.OVER_CURRENT]
     assert drive.node.output_voltage_v == 0.0
-    assert emcys(drive.controlword_by_sdo(0x80)) == []  # still at the limit: refused
+    drive.controlword_by_sdo(0x80)
+    assert emcys(drive.at(drive.now_s + 0.002).poll()) == []  # still at the limit: refused
     drive.node.sense(1.0, 0.0, 0.5, False, 0.001)
     drive.controlword_by_sdo(0x00)
-    assert emcys(drive.controlword_by_sdo(0x80)) == [EmcyCode.NO_ERROR]
+    drive.controlword_by_sdo(0x80)
+    assert emcys(drive.at(drive.now_s + 0.002).poll()) == [EmcyCode.NO_ERROR]
     drive.enable()
     frames = Bench._copy(drive.node.sense(1.6, 0.0, 0.0, True, 0.001))
     assert emcys(frames) == [EmcyCode.HARD_STOP_HIT]
@@ -432,6 +440,9 @@ def test_sync_of_the_wrong_length_sends_one_emcy_a_run_and_is_ignored(drive: Ben
 
 def test_sync_without_counter_once_0x1019_is_0(drive: Bench) -> None:
     assert drive.sdo(sdo_upload(0x1019)) == ("value", 240)
+    assert drive.sdo(sdo_upload(0x1006)) == ("value", 1000)  # communication cycle period, µs
+    assert drive.sdo(sdo_download(0x1019, 0, 0, 1)) == ("abort", SdoAbort.DEVICE_STATE)
+    assert drive.sdo(sdo_download(0x1006, 0, 0, 4)) == ("ok", 0)  # CiA 301: 0x1019 only now
     assert drive.sdo(sdo_download(0x1019, 0, 0, 1)) == ("ok", 0)
     drive.nmt(NmtCommand.START)
     assert [i for i, _ in drive.rx(codec.SYNC_COB_ID, b"")] == [TPDO1]
@@ -448,6 +459,7 @@ def test_sync_without_counter_once_0x1019_is_0(drive: Bench) -> None:
     assert drive.node.stats.lost_syncs == 1  # 10 → 2 skipped 1 (counting 1 … 10)
     drive.nmt(NmtCommand.RESET_COMMUNICATION)
     assert drive.sdo(sdo_upload(0x1019)) == ("value", 240)
+    assert drive.sdo(sdo_upload(0x1006)) == ("value", 1000)
 
 
 @pytest.mark.parametrize("value", [1, 241, 255])

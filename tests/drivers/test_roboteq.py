@@ -240,6 +240,7 @@ def test_canopen_master_brings_up_and_drives_the_roboteq_class_drives(
             (0x2104, 1), (0x2103, 1), (0x2100, 1)]
         assert [(v.index, v.subindex) for v in node.tpdo[2].map] == [(0x2112, 0), (0x2111, 0)]
         assert [(v.index, v.subindex) for v in node.rpdo[1].map] == [(0x2000, 1)]
+        node.sdo[0x1006].raw = 0  # CiA 301: 0x1019 changes only while the period is 0
         node.sdo[0x1019].raw = 0  # the master's SYNC has no counter
     r.sdo[0x3001].raw = 1000  # RWD 1 s: this master is a test, not a 1 kHz loop
     network.nmt.state = "OPERATIONAL"

@@ -1,0 +1,431 @@
+"""Bring-up (rakectl.drive.bringup) against drives that behave as real CiA 301/402 drives
+do where the standard lets them: silent until reset (producer heartbeat 0), a fault reset
+acted on in the drive's own cycle, TPDO COB-IDs with bit 30 (no RTR) set, 0x1019 writable
+only while 0x1006 is 0 or absent, a stored event timer, a TPDO beyond the EDS's, a short
+SDO answer.
+
+Tier 3 (``virtual`` bus): the emulated drives, serviced in a joined thread, varied through
+their ``DriveSpec`` (stored values, RTR); the controller's bus is opened only once the
+drives have sent their power-on boot-up, as a controller started after the drives is.
+Tier 2 (no bus, no thread): canopen ``LocalNode`` servers on the bus-less network of
+tests/drive/test_client.py, for what the emulator does not play.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import os
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import replace
+from typing import Any
+
+import can
+import canopen
+import pytest
+from can.interfaces.virtual import VirtualBus
+from canopen.objectdictionary import ODRecord, ODVariable, datatypes
+
+from drivers.dictionary import DriveSpec
+from drivers.emulator import Emulator, drive_specs
+from drivers.settings import EmulatorConfig
+from rakectl.cli.drives import report, text
+from rakectl.config.service import DrivesSettings
+from rakectl.config.settings import MotorsSettings
+from rakectl.drive import profiles
+from rakectl.drive.bringup import BringUp, run_bring_up
+from rakectl.drive.joints import Joint, load_drive_od
+from rakectl.drive.profiles import drive_parameters
+from rakectl.errors import CommsTimeout, DriveFault
+from rakectl.protocol import cia402, codec, roboteq
+from rakectl.protocol.cia402 import DriveState
+from rakectl.protocol.files import DriveProfile
+from rakectl.protocol.nmt import EmcyCode, NmtCommand, NmtState, decode_nmt
+from tests.drive.test_client import (
+    FAST,
+    R_NODE,
+    THETA_NODE,
+    FakeDrive,
+    LoopbackNetwork,
+    _announce_and_run,
+    make_bring_up,
+)
+from tests.drivers.test_emulator_bus import RecordingLog
+from tests.drivers.test_node import sdo_reply, sdo_upload
+
+DRIVES = DrivesSettings()
+MOTORS = MotorsSettings()
+BOOT_TIMEOUT_S = 1.0
+ANSWER_TIMEOUT_S = 2.0
+NODES = (R_NODE, THETA_NODE)
+NO_RTR = 1 << 30
+_channels = itertools.count()
+
+
+# =========================================================================== tier 3: the emulator
+
+
+@contextlib.contextmanager
+def drives_on_a_bus(specs: tuple[DriveSpec, DriveSpec] | None = None,
+                    config: EmulatorConfig | None = None,
+                    emulator_bus_class: type[VirtualBus] = VirtualBus
+                    ) -> Iterator[tuple[Emulator, VirtualBus]]:
+    """The emulated drives powered on (their boot-up sent), then the controller's bus
+    opened on the same virtual channel: it has heard nothing of them."""
+    channel = f"test-bring-up-{os.getpid()}-{next(_channels)}"
+    emulator_bus = emulator_bus_class(channel=channel)
+    emulator = Emulator(config or EmulatorConfig(), emulator_bus, log=RecordingLog(),
+                        specs=specs)
+    stop = threading.Event()
+    thread = threading.Thread(target=emulator.run, args=(stop.is_set, 0.002), daemon=True)
+    emulator.start()
+    controller_bus = VirtualBus(channel=channel)
+    thread.start()
+    try:
+        yield emulator, controller_bus
+    finally:
+        stop.set()
+        thread.join(5.0)
+        emulator.close()
+        controller_bus.shutdown()
+        emulator_bus.shutdown()
+
+
+def specs_with(**changes: Any) -> tuple[DriveSpec, DriveSpec]:
+    r, theta = drive_specs(EmulatorConfig())
+    return replace(r, **changes), replace(theta, **changes)
+
+
+def bring_up(bus: can.BusABC, drives: DrivesSettings = DRIVES) -> Any:
+    """The dry run's bring-up (``rakectl drives``): the drives stay PRE-OPERATIONAL."""
+    return run_bring_up(bus, drives, MOTORS, BOOT_TIMEOUT_S, start=False)
+
+
+def sdo_read(bus: can.BusABC, node_id: int, index: int, subindex: int = 0) -> int:
+    """One expedited upload by hand, once bring-up's Notifier has stopped."""
+    bus.send(can.Message(arbitration_id=0x600 + node_id, data=sdo_upload(index, subindex),
+                         is_extended_id=False))
+    deadline_s = time.monotonic() + ANSWER_TIMEOUT_S
+    while (msg := bus.recv(max(0.0, deadline_s - time.monotonic()))) is not None:
+        if msg.arbitration_id == 0x580 + node_id:
+            kind, value = sdo_reply([(msg.arbitration_id, bytes(msg.data))], 0x580 + node_id)
+            assert kind == "value", f"0x{index:04X}:{subindex}: {kind} 0x{value:08X}"
+            return value
+    raise AssertionError(f"no SDO answer for 0x{index:04X}:{subindex}")
+
+
+def test_a_drive_silent_until_reset_is_reset_first_and_brought_up() -> None:
+    """Producer heartbeat 0 (CiA 301's default) and powered before the controller: it
+    says nothing until NMT reset communication, which bring-up now sends first (it waited
+    for a heartbeat before: "no heartbeat or boot-up within 1 s")."""
+    with drives_on_a_bus(specs_with(stored=((0x1017, 0, 0),))) as (_, bus):
+        sniffer = VirtualBus(channel=bus.channel_id)
+        try:
+            assert bus.recv(0.3) is None  # silent: no heartbeat
+            infos = bring_up(bus)
+            first = sniffer.recv(0.0)
+        finally:
+            sniffer.shutdown()
+        assert first is not None and first.arbitration_id == codec.NMT_COB_ID
+        assert decode_nmt(first.data) == (NmtCommand.RESET_COMMUNICATION, R_NODE)
+        assert [i.limits.heartbeat_period_ms for i in infos] == [DRIVES.heartbeat_period_ms] * 2
+        assert [sdo_read(bus, n, 0x1017) for n in NODES] == [DRIVES.heartbeat_period_ms] * 2
+
+
+def test_a_drive_that_never_answers_is_named_after_the_resets() -> None:
+    with drives_on_a_bus(specs_with(stored=((0x1017, 0, 0),))) as (_, bus):
+        drives = replace(DRIVES, r_node_id=5)
+        started_s = time.monotonic()
+        with pytest.raises(CommsTimeout) as raised:
+            bring_up(bus, drives)
+        assert str(raised.value) == ("r drive (node 5): no heartbeat or boot-up within 1 s "
+                                     "(NMT reset communication sent 3 times)")
+        assert time.monotonic() - started_s < 2 * BOOT_TIMEOUT_S  # boot_timeout_s in all
+
+
+def _fault_both_drives(emulator: Emulator, bus: can.BusABC) -> None:
+    """A controller that brings the drives up, sends SYNCs (and so its heartbeat), and
+    dies: both drives fault, the controller's heartbeat lost (0x8130)."""
+    run_bring_up(bus, DRIVES, MOTORS, BOOT_TIMEOUT_S)
+    bus.send(can.Message(arbitration_id=0x700 + DRIVES.controller_node_id, data=b"\x05",
+                         is_extended_id=False))
+    deadline_s = time.monotonic() + ANSWER_TIMEOUT_S
+    while any(node.fault is None for node in emulator.nodes):
+        assert time.monotonic() < deadline_s, "the drives did not fault"
+        time.sleep(0.01)
+
+
+def test_a_fault_left_is_reset_in_the_drives_own_cycle() -> None:
+    """The emulated drive acts on a fault reset at its next cycle, as a real one does: the
+    reset holds 0 then 0x80 a drive cycle each and reads the statusword until it leaves
+    FAULT (it wrote 0, 0x80, 0 back to back and read FAULT at once: refused)."""
+    with drives_on_a_bus() as (emulator, bus):
+        _fault_both_drives(emulator, bus)
+        sniffer = VirtualBus(channel=bus.channel_id)
+        try:
+            infos = bring_up(bus)
+            frames = []
+            while (msg := sniffer.recv(0.0)) is not None:
+                frames.append(msg)
+        finally:
+            sniffer.shutdown()
+    assert [i.cleared_fault for i in infos] == [EmcyCode.HEARTBEAT_LOST] * 2
+    assert [i.state for i in infos] == [DriveState.SWITCH_ON_DISABLED] * 2
+    for node_id in NODES:
+        writes = [(m.timestamp, int.from_bytes(m.data[4:6], "little")) for m in frames
+                  if m.arbitration_id == 0x600 + node_id and m.data[:4] == b"\x2b\x40\x60\x00"]
+        assert [value for _, value in writes] == [0x0000, 0x0080, 0x0000]
+        (zero_s, _), (edge_s, _), (after_s, _) = writes
+        assert edge_s - zero_s >= profiles.FAULT_RESET_HOLD_S  # each held a drive cycle
+        assert after_s - edge_s >= profiles.FAULT_RESET_HOLD_S
+
+
+def test_tpdo_cob_ids_with_bit_30_are_the_drives_own() -> None:
+    """Drives whose TPDOs answer no RTR report 0x40000181 and refuse a COB-ID without bit
+    30: bring-up compares bits 0-29 and 31 only, and writes nothing (it wrote 0x181)."""
+    with drives_on_a_bus(specs_with(tpdo_rtr=False)) as (_, bus):
+        infos = bring_up(bus)
+        for info in infos:
+            assert [p.cob_id for p in info.pdos] == [
+                0x200 + info.node_id, NO_RTR | 0x180 + info.node_id,
+                NO_RTR | 0x280 + info.node_id]
+            assert info.rewritten == ()
+        assert sdo_read(bus, R_NODE, 0x1800, 1) == NO_RTR | 0x181
+    printed = text(report(infos[0], drive_parameters(Joint.R, DRIVES, MOTORS),
+                          "dc_servo_drive.eds", "cia402"))  # rakectl drives
+    assert "    TPDO1  COB-ID 0x181, no RTR, every SYNC: 0x6064:0 (32 bit)," in printed
+
+
+def test_a_remap_keeps_bit_30_as_the_drive_holds_it() -> None:
+    """TPDO2 stored with the statusword alone, by a tool that set bit 30 in CiA 301's
+    order: written back to the EDS's with bit 30 in every COB-ID written."""
+    stored = ((0x1801, 1, 1 << 31 | NO_RTR | 0x280 + R_NODE), (0x1A01, 0, 0),
+              (0x1A01, 1, 0x60410010), (0x1A01, 0, 1), (0x1801, 1, NO_RTR | 0x280 + R_NODE))
+    r, theta = specs_with(tpdo_rtr=False)
+    with drives_on_a_bus((replace(r, stored=stored), theta)) as (_, bus):
+        r_info, _ = bring_up(bus)
+        assert [(p.name, p.mapped) for p in r_info.rewritten] == [("TPDO2", (0x60410010,))]
+        assert [sdo_read(bus, R_NODE, 0x1A01, k) for k in (0, 1, 2)] == [2, 0x60410010,
+                                                                         0x10010008]
+        assert sdo_read(bus, R_NODE, 0x1801, 1) == NO_RTR | 0x281
+
+
+@pytest.mark.parametrize("overflow", [0, 240])
+def test_the_sync_counter_is_written_while_the_cycle_period_is_0(overflow: int) -> None:
+    """CiA 301 lets 0x1019 change only while 0x1006 is 0 (the emulated drive aborts
+    0x08000022 otherwise, as CANopenNode does; the EDS's 0x1006 is 1000 µs): bring-up clears
+    0x1006 around it and restores it."""
+    with drives_on_a_bus() as (_, bus):
+        infos = bring_up(bus, replace(DRIVES, sync_counter_overflow=overflow))
+        assert [i.limits.sync_counter_overflow for i in infos] == [overflow] * 2
+        assert [sdo_read(bus, n, 0x1019) for n in NODES] == [overflow] * 2
+        assert [sdo_read(bus, n, 0x1006) for n in NODES] == [1000] * 2
+
+
+def test_an_event_timer_another_tool_stored_is_written_back() -> None:
+    """TPDO2 stored with a 1 ms event timer (a status frame every millisecond, beyond the
+    bus-load budget): bring-up writes the EDS's 0 back (it did not look at it)."""
+    with drives_on_a_bus(specs_with(stored=((0x1801, 5, 1),))) as (_, bus):
+        assert sdo_read(bus, R_NODE, 0x1801, 5) == 1
+        infos = bring_up(bus)
+        assert [sdo_read(bus, n, 0x1801, 5) for n in NODES] == [0, 0]
+        assert [i.rewritten for i in infos] == [(), ()]  # the mapping itself was the EDS's
+
+
+class ShortIdentityAnswers(VirtualBus):
+    """The drives' bus edge, answering 0x1018:2 (UNSIGNED32) in 2 bytes, as some drives
+    answer an object they keep narrower."""
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if 0x581 <= msg.arbitration_id <= 0x5FF and bytes(msg.data[:4]) == b"\x43\x18\x10\x02":
+            msg = can.Message(arbitration_id=msg.arbitration_id, is_extended_id=False,
+                              data=b"\x4b\x18\x10\x02" + bytes(msg.data[4:6]) + b"\0\0")
+        super().send(msg, timeout)
+
+
+def test_a_short_sdo_answer_is_one_line_naming_both_sizes() -> None:
+    """canopen raised ObjectDictionaryError, which escaped bring-up as a traceback."""
+    with drives_on_a_bus(emulator_bus_class=ShortIdentityAnswers) as (_, bus), pytest.raises(
+            DriveFault) as raised:
+        bring_up(bus)
+    assert str(raised.value) == ("r drive (node 1): reading 0x1018:2 identity: the drive "
+                                 "answered 2 byte(s), the EDS's UNSIGNED32 takes 4")
+    assert isinstance(raised.value.__cause__, canopen.objectdictionary.ObjectDictionaryError)
+
+
+# =========================================================================== tier 2: LocalNode
+
+
+@pytest.fixture
+def network() -> LoopbackNetwork:
+    return LoopbackNetwork()
+
+
+@pytest.fixture
+def fake_drives(network: LoopbackNetwork) -> tuple[FakeDrive, FakeDrive]:
+    return (FakeDrive(network, Joint.R, R_NODE), FakeDrive(network, Joint.THETA, THETA_NODE))
+
+
+class TruncatingNetwork(LoopbackNetwork):
+    """Hands the r drive's SDO answers on cut to ``length`` bytes."""
+
+    def __init__(self, length: int) -> None:
+        super().__init__()
+        self.length = length
+
+    def notify(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if can_id == 0x580 + R_NODE:
+            data = data[:self.length]
+        super().notify(can_id, data, timestamp)
+
+
+def test_an_sdo_frame_too_short_to_decode_is_one_line() -> None:
+    """canopen unpacked it with struct and raised struct.error out of bring-up."""
+    network = TruncatingNetwork(3)
+    drives = (FakeDrive(network, Joint.R, R_NODE), FakeDrive(network, Joint.THETA, THETA_NODE))
+    with pytest.raises(DriveFault) as raised:
+        _announce_and_run(make_bring_up(network), drives)
+    assert str(raised.value).startswith("r drive (node 1): SDO answer reading 0x1018:1 "
+                                        "identity shorter than CiA 301's 8 bytes: ")
+
+
+def _without(drive: FakeDrive, index: int) -> None:
+    del drive.node.object_dictionary[index]
+
+
+@pytest.mark.parametrize("absent", [0x1019, 0x1006])
+def test_a_drive_without_0x1019_or_0x1006_takes_sync_without_a_counter(
+        network: LoopbackNetwork, absent: int) -> None:
+    """0x1019 is optional (such a drive takes SYNC without data), so is 0x1006: asked for
+    0, bring-up accepts a drive without either."""
+    drives = (FakeDrive(network, Joint.R, R_NODE), FakeDrive(network, Joint.THETA, THETA_NODE))
+    _without(drives[0], absent)
+    infos = _announce_and_run(make_bring_up(network, replace(FAST, sync_counter_overflow=0)),
+                              drives)
+    assert [i.limits.sync_counter_overflow for i in infos] == [0, 0]
+
+
+def test_a_drive_without_0x1019_is_refused_a_sync_counter(network: LoopbackNetwork) -> None:
+    drives = (FakeDrive(network, Joint.R, R_NODE), FakeDrive(network, Joint.THETA, THETA_NODE))
+    _without(drives[0], 0x1019)
+    with pytest.raises(DriveFault) as raised:
+        _announce_and_run(make_bring_up(network), drives)
+    assert str(raised.value) == (
+        "r drive (node 1): no 0x1019 SYNC counter overflow (SDO abort 0x06020000 writing "
+        "240): the drive takes SYNC without a counter only; set "
+        "drives.sync_counter_overflow: 0")
+
+
+
+
+def test_an_inhibit_time_the_eds_declares_read_only_is_refused_naming_it(
+        fake_drives: tuple[FakeDrive, FakeDrive], network: LoopbackNetwork) -> None:
+    """A TPDO2 that may not go out within 100 ms of the last (a status change seen that
+    late): the EDS declares it 0 and read-only, so bring-up refuses the drive (it did not
+    look at it)."""
+    fake_drives[0].node.set_data(0x1801, 3, (1000).to_bytes(2, "little"))
+    with pytest.raises(DriveFault) as raised:
+        _announce_and_run(make_bring_up(network), fake_drives)
+    assert str(raised.value) == (
+        "r drive (node 1): 0x1801:3 TPDO2 inhibit time is 1000, dc_servo_drive.eds declares 0 "
+        "and read-only: the hot path and the bus-load budget take the EDS's PDOs")
+
+
+def _add_tpdo3(drive: FakeDrive, cob_id: int) -> None:
+    record = ODRecord("TPDO3 communication parameter", 0x1802)
+    for subindex, name, data_type, default in ((0, "Highest sub-index supported",
+                                                datatypes.UNSIGNED8, 2),
+                                               (1, "COB-ID used by TPDO", datatypes.UNSIGNED32,
+                                                cob_id),
+                                               (2, "Transmission type", datatypes.UNSIGNED8, 255)):
+        variable = ODVariable(name, 0x1802, subindex)
+        variable.data_type, variable.access_type, variable.default = data_type, "rw", default
+        record.add_member(variable)
+    drive.node.object_dictionary.add_object(record)
+
+
+def test_a_tpdo_beyond_the_eds_s_must_not_be_valid(
+        fake_drives: tuple[FakeDrive, FakeDrive], network: LoopbackNetwork) -> None:
+    """A drive with a third TPDO, valid (many CiA 402 drives ship so): at 1 kHz it would
+    break the bus-load budget. Not valid, it passes."""
+    _add_tpdo3(fake_drives[1], 0x380 + THETA_NODE)
+    refused = make_bring_up(network)
+    with pytest.raises(DriveFault) as raised:
+        _announce_and_run(refused, fake_drives)
+    refused.close()
+    assert str(raised.value) == (
+        "θ drive (node 2): TPDO3 (0x1802:1 COB-ID 0x382) is valid, and geared_motor_drive.eds "
+        "has no such TPDO: the drive would send it beside the EDS's, beyond the bus-load "
+        "budget (docs/can-bus.md); make it not valid (bit 31) and store that with the "
+        "drive's own tool")
+    fake_drives[1].node.set_data(0x1802, 1, (1 << 31 | 0x382).to_bytes(4, "little"))
+    infos = _announce_and_run(make_bring_up(network), fake_drives)
+    assert [p.name for p in infos[1].pdos] == ["RPDO1", "TPDO1", "TPDO2"]
+
+
+def test_a_fault_reset_that_does_not_clear_names_the_timeout(
+        fake_drives: tuple[FakeDrive, FakeDrive], network: LoopbackNetwork,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(profiles, "FAULT_RESET_TIMEOUT_S", 0.05)
+    fault = cia402.encode_statusword(DriveState.FAULT)
+    fake_drives[0].node.add_read_callback(  # type: ignore[no-untyped-call]
+        lambda index, subindex, od: fault if index == 0x6041 else None)
+    with pytest.raises(DriveFault) as raised:
+        _announce_and_run(make_bring_up(network), fake_drives)
+    assert str(raised.value) == ("r drive (node 1): in FAULT (0x603F = 0x0000) since before "
+                                 "bring-up, and a fault reset does not clear it within 0.05 s")
+
+
+class SlowRoboteqDrive:
+    """A Roboteq-class LocalNode whose fault flags clear only some reads after a release
+    shutdown (its own cycle), as a drive's do, not in the SDO answer's moment."""
+
+    def __init__(self, network: canopen.Network, node_id: int, reads_to_clear: int) -> None:
+        self.node = canopen.LocalNode(node_id, load_drive_od("roboteq_class_drive.eds",
+                                                             node_id))
+        self.node.associate_network(network)
+        self.network, self.node_id = network, node_id
+        self.flags = roboteq.FAULT_COMMUNICATION  # the previous run's heartbeat lost
+        self._reads, self.reads_to_clear = reads_to_clear, -1  # -1: no release yet
+        self.node.add_read_callback(self._read)  # type: ignore[no-untyped-call]
+        self.node.add_write_callback(self._write)  # type: ignore[no-untyped-call]
+        network.subscribe(codec.NMT_COB_ID, self._on_nmt)
+
+    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if decode_nmt(data) == (NmtCommand.RESET_COMMUNICATION, self.node_id):
+            self.announce(NmtState.BOOT_UP)
+
+    def announce(self, state: NmtState) -> None:
+        self.network.send_message(0x700 + self.node_id, bytes((state,)))
+
+    def _read(self, index: int, subindex: int, od: Any) -> int | None:
+        if index == 0x2112:
+            if self.reads_to_clear == 0:
+                self.flags &= roboteq.FAULT_EMERGENCY_STOP
+            self.reads_to_clear -= 1
+            return self.flags
+        return None
+
+    def _write(self, index: int, subindex: int, od: Any, data: bytes) -> None:
+        if index == 0x200D:
+            self.reads_to_clear = self._reads
+        elif index == 0x200C:
+            self.flags |= roboteq.FAULT_EMERGENCY_STOP
+
+
+def test_a_roboteq_class_release_is_awaited_in_the_drives_cycle(
+        network: LoopbackNetwork) -> None:
+    """Release shutdown 0x200D of a drive whose communication fault flag clears a few
+    reads later: its flags are read until clear (they were read once, at once: refused)."""
+    drives = replace(FAST, profile=DriveProfile.ROBOTEQ)
+    slow = [SlowRoboteqDrive(network, node_id, 3) for node_id in NODES]
+    bring_up = BringUp(network, drives, MOTORS, boot_timeout_s=0.05)
+    for drive in slow:
+        drive.announce(NmtState.PRE_OPERATIONAL)  # a heartbeat: it is there
+    infos = bring_up.run(start=False)
+    bring_up.close()
+    assert [i.cleared_fault for i in infos] == [roboteq.FAULT_COMMUNICATION] * 2
+    assert [i.state for i in infos] == [DriveState.SWITCH_ON_DISABLED] * 2
+    assert all(drive.flags == roboteq.FAULT_EMERGENCY_STOP for drive in slow)
