@@ -58,6 +58,20 @@ def socket_path(explicit: str | Path | None = None,
 # --------------------------------------------------------------------------- client
 
 _STOP: Mapping[str, str] = types.MappingProxyType({"cmd": ApiCommand.STOP.value})
+CHECK_STATUS = "check `rakectl status`"  # what to do once the daemon's answer is missing
+
+
+class DaemonSilent(DaemonUnreachable):
+    """The daemon took the connection or the request and did not answer in time: it may be
+    alive, frozen or overloaded."""
+
+
+class Refused(CommandRejected):
+    """An error reply: the daemon's sentence, and its state when the reply carries one."""
+
+    def __init__(self, error: str, state: str | None = None) -> None:
+        super().__init__(error)
+        self.state = state
 
 
 class Client:
@@ -92,12 +106,13 @@ class Client:
             raise
         except TimeoutError as exc:
             self.close()
-            raise DaemonUnreachable(f"the rakectl daemon at {self.path} did not answer within "
-                                    f"{self._timeout_s:g} s") from exc
+            raise DaemonSilent(f"the rakectl daemon at {self.path} did not answer within "
+                               f"{self._timeout_s:g} s (busy, frozen or stuck): "
+                               f"{CHECK_STATUS}") from exc
         except OSError as exc:
             self.close()
             raise DaemonUnreachable(f"lost the connection to the rakectl daemon at {self.path}: "
-                                    f"{exc.strerror or exc}") from exc
+                                    f"{exc.strerror or exc}: {CHECK_STATUS}") from exc
 
     def hold(self, request: Mapping[str, Any], duration_s: float, *,
              period_s: float = DEAD_MAN_PERIOD_S, clock: Callable[[], float] = time.monotonic,
@@ -129,7 +144,9 @@ class Client:
             chunk = self._sock.recv(65536)
             if not chunk:
                 raise DaemonUnreachable(f"the rakectl daemon at {self.path} closed the "
-                                        "connection without answering")
+                                        "connection without answering (it ended or restarted; "
+                                        f"a daemon that starts again starts disarmed): "
+                                        f"{CHECK_STATUS}")
             self._inbuf += chunk
             if len(self._inbuf) > MAX_REPLY_BYTES:
                 raise ApiError(f"the reply of the daemon at {self.path} is over "
@@ -155,8 +172,10 @@ def _connect(path: Path, timeout_s: float) -> socket.socket:
         sock.connect(str(path))
     except OSError as exc:
         sock.close()
-        raise DaemonUnreachable(f"cannot reach the rakectl daemon at {path}: "
-                                f"{_why(exc, timeout_s)}") from exc
+        unreachable = DaemonSilent if isinstance(exc, TimeoutError | BlockingIOError) \
+            else DaemonUnreachable
+        raise unreachable(f"cannot reach the rakectl daemon at {path}: "
+                          f"{_why(exc, timeout_s)}") from exc
     return sock
 
 
@@ -181,5 +200,7 @@ def _check_reply(line: bytes, path: Path) -> dict[str, Any]:
     if not isinstance(reply, dict) or not isinstance(reply.get("ok"), bool):
         raise ApiError(f"unusable reply from the rakectl daemon at {path}: {show(reply)}")
     if not reply["ok"]:
-        raise CommandRejected(str(reply.get("error") or "the daemon refused without a reason"))
+        state = reply.get("state")
+        raise Refused(str(reply.get("error") or "the daemon refused without a reason"),
+                      state if isinstance(state, str) else None)
     return reply

@@ -2,23 +2,39 @@
 
 Each prints a short human answer, or with ``--json`` the daemon's reply as
 one JSON object on the last line of stdout. Errors are one line (the CLI
-chooses the exit status).
+chooses the exit status); a bad option value is a ConfigError, said before
+anything is sent. The commands that move the rake (jog, excavate) stop it on
+SIGINT (Ctrl-C), SIGTERM or SIGHUP (the terminal closed), say where the tip is
+and return 128 + the signal's number; a jog without ``--duration`` ends on
+Ctrl-C as asked (0).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
+import signal
 import sys
+import threading
 import time
-from collections.abc import Callable
+import types
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, TextIO
 
-from rakectl.api.client import Client, call, socket_path
+from rakectl.api.client import CHECK_STATUS, Client, DaemonSilent, Refused, call, socket_path
+from rakectl.api.replies import (
+    excavation_outcome,
+    lane_text,
+    next_step,
+    pose_text,
+    progress_text,
+)
 from rakectl.api.schema import COMMANDS, DEAD_MAN_PERIOD_S, ApiCommand
-from rakectl.errors import ApiError
+from rakectl.config.settings import JogSettings
+from rakectl.errors import ApiError, CommandRejected, ConfigError, DaemonUnreachable
 
 POLL_S = 0.2
 CLEAR_TO_END = "\x1b[K"  # ANSI: erase from the cursor to the end of the line
@@ -28,6 +44,13 @@ CHECKS = (("weight_check", "weight check: lifting the tip and lowering it back")
 RESET_TIMEOUT_S = 2.0  # the daemon gives the drives 1 s to clear
 DUMP_TIMEOUT_S = 30.0
 MAX_JOG_S = 600.0  # a dump is written in the loop's slack, a few hundred ms
+STATE_TIMEOUT_S = 1.0  # the status asked after a refusal, for the next step
+MAX_RESUMES = 3  # connections opened again in a row to the daemon raking a lane
+STATUS: Mapping[str, str] = types.MappingProxyType({"cmd": ApiCommand.STATUS.value})
+STOP: Mapping[str, str] = types.MappingProxyType({"cmd": ApiCommand.STOP.value})
+# the signals that stop a motion command, as the operator knows them
+STOP_SIGNALS = {signal.SIGINT: "Ctrl-C (SIGINT)", signal.SIGTERM: "SIGTERM",
+                signal.SIGHUP: "SIGHUP (the terminal closed)"}
 Ops = Callable[[argparse.Namespace], int]
 
 
@@ -37,6 +60,74 @@ def _path(args: argparse.Namespace) -> Path:
 
 def _print(args: argparse.Namespace, reply: dict[str, Any], text: str) -> None:
     print(json.dumps(reply) if args.json else text)
+
+
+def _say(text: str) -> None:
+    """A line on stderr, if it is still there (a closed terminal's is not)."""
+    with contextlib.suppress(OSError):
+        print(text, file=sys.stderr, flush=True)
+
+
+class StopSignals:
+    """SIGINT, SIGTERM and SIGHUP recorded, not raised, while an operator's command moves
+    the rake: its loop sees the signal between two requests (no reply is left unread in
+    the middle of one), stops the motion and ends. Installed from the main thread only
+    (elsewhere nothing is recorded), and not over a signal ignored (``nohup``, a shell's
+    background job); the previous handlers come back on exit."""
+
+    SLICE_S = 0.05  # how soon a sleep ends once a signal has come
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._previous: dict[signal.Signals, Any] = {}
+
+    def __enter__(self) -> StopSignals:
+        if threading.current_thread() is threading.main_thread():
+            for signum in STOP_SIGNALS:
+                if signal.getsignal(signum) is not signal.SIG_IGN:
+                    self._previous[signum] = signal.signal(signum, self._record)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
+
+    def _record(self, signum: int, frame: types.FrameType | None) -> None:
+        if self.signum is None:
+            self.signum = signum
+
+    def sleep(self, duration_s: float) -> None:
+        """Sleep ``duration_s``, or until a signal has come."""
+        end_s = time.monotonic() + duration_s
+        while self.signum is None and (left_s := end_s - time.monotonic()) > 0:
+            time.sleep(min(left_s, self.SLICE_S))
+
+
+def _stopped_by_signal(args: argparse.Namespace, what: str, signum: int,
+                       describe: Callable[[dict[str, Any], bool], str]) -> int:
+    """Stop the motion on a connection of its own (the command's may hold a reply not read
+    yet), say on stderr what the status says then (``describe``, told whether the stop was
+    carried out) and return 128 + the signal's number."""
+    path, name = _path(args), STOP_SIGNALS.get(signal.Signals(signum), f"signal {signum}")
+    try:
+        call(path, STOP)
+        stopped = True
+    except CommandRejected:  # nothing left to stop (a fault, an e-stop): the status says
+        stopped = False
+    except DaemonUnreachable as lost:
+        _say(f"{what}: {name}: the stop did not reach the daemon ({lost}); the rake may "
+             "still be moving: `rakectl stop`, or `rakectl estop`")
+        return 128 + signum
+    try:
+        reply = call(path, STATUS)
+    except ApiError as error:
+        _say(f"{what}: {name}: stopped; no status after it ({error})")
+        return 128 + signum
+    if args.json:
+        with contextlib.suppress(OSError):
+            print(json.dumps(reply), flush=True)
+    _say(f"{what}: {name}: {describe(reply, stopped)}")
+    return 128 + signum
 
 
 def simple(cmd: str) -> Ops:
@@ -50,6 +141,26 @@ def simple(cmd: str) -> Ops:
     return op
 
 
+def with_next_step(op: Ops) -> Ops:
+    """``op``, whose refusals end with the next step when the daemon's state calls for one:
+    the state from the refusal, else from a status asked at once."""
+
+    def run(args: argparse.Namespace) -> int:
+        try:
+            return op(args)
+        except CommandRejected as refused:
+            state = refused.state if isinstance(refused, Refused) else None
+            if state is None:
+                with contextlib.suppress(ApiError):
+                    state = call(_path(args), STATUS, STATE_TIMEOUT_S).get("state")
+            step = next_step(str(refused), state if isinstance(state, str) else None)
+            if not step:
+                raise
+            raise CommandRejected(f"{refused}; next: {step}") from refused
+
+    return run
+
+
 def arm(args: argparse.Namespace) -> int:
     """Arm; the first time after start-up, wait for the checks, printing each as it starts
     and its verdict (a check that faults is named in the final line too)."""
@@ -60,7 +171,7 @@ def arm(args: argparse.Namespace) -> int:
         started: set[str] = set()
         with Client(path) as client:
             while True:
-                reply = client.request({"cmd": "status"})
+                reply = client.request(STATUS)
                 for name, what in CHECKS:
                     check = reply.get(name) or {}
                     if check.get("message") == "running" and name not in started:
@@ -86,7 +197,7 @@ def reset(args: argparse.Namespace) -> int:
     with Client(path) as client:
         while reply.get("state") in ("fault", "estop") and time.monotonic() < deadline:
             time.sleep(POLL_S / 2)
-            reply = client.request({"cmd": "status"})
+            reply = client.request(STATUS)
     ok = reply.get("state") == "disarmed"
     _print(args, reply, f"reset: {reply.get('state')}"
            + ("" if ok else f" ({reply.get('fault') or 'the drives did not clear'})"))
@@ -94,14 +205,14 @@ def reset(args: argparse.Namespace) -> int:
 
 
 def status(args: argparse.Namespace) -> int:
-    reply = call(_path(args), {"cmd": "status"})
+    reply = call(_path(args), STATUS)
     if args.json:
         print(json.dumps(reply))
         return 0
-    tip, force, timing = reply["tip"], reply["force"], reply.get("timing", {})
+    force, timing = reply["force"], reply.get("timing", {})
     lines = [
         f"state      {reply['state']}" + (f" ({reply['fault']})" if reply.get("fault") else ""),
-        f"tip        reach {tip['reach_m']:.3f} m, depth {1e3 * tip['depth_m']:.1f} mm",
+        f"tip        {pose_text(reply)}",
         f"force      F̂ {force['f_hat_n']:.1f} N (max {force['f_hat_max_n']:.1f} N), clamp "
         f"worst case {force['clamp_worst_case_n']:.1f} N of {force['clamp_limit_n']:.1f} N",
         "drives     " + ", ".join(f"{d['state']}" for d in reply["drives"]),
@@ -116,7 +227,7 @@ def status(args: argparse.Namespace) -> int:
     if reply.get("timing_check", "ok") != "ok":
         lines.append(f"arming     {reply['timing_check']}")
     if reply.get("excavation"):
-        lines.append(_progress_text(reply))
+        lines.append(progress_text(reply))
     print("\n".join(lines))
     return 0
 
@@ -131,7 +242,7 @@ def dump(args: argparse.Namespace) -> int:
     written, deadline = reply["path"], time.monotonic() + DUMP_TIMEOUT_S
     with Client(path) as client:
         while True:
-            dumps = client.request({"cmd": "status"}).get("dumps", {})
+            dumps = client.request(STATUS).get("dumps", {})
             failed = [f for f in dumps.get("failed", []) if written in f]
             if failed:
                 print(f"dump: {failed[-1]}", file=sys.stderr)
@@ -147,69 +258,98 @@ def dump(args: argparse.Namespace) -> int:
     return 0
 
 
-def jog(args: argparse.Namespace) -> int:
-    """Send the jog every 0.1 s (the daemon's dead-man) while this command runs: for
-    ``--duration`` seconds, or until Ctrl-C without it; then stop."""
+# jog's flags by the API argument each gives, and the daemon's default cap on each
+# (jog.*: a faster request is accepted and moved at the cap)
+JOG_FLAGS = {"reach_m_per_s": "--reach", "height_m_per_s": "--height", "r_m_per_s": "--r",
+             "theta_rad_per_s": "--theta"}
+_JOG = JogSettings()
+JOG_CAPS = {"reach_m_per_s": ("max_tip_speed_m_per_s", _JOG.max_tip_speed_m_per_s, "m/s"),
+            "height_m_per_s": ("max_tip_speed_m_per_s", _JOG.max_tip_speed_m_per_s, "m/s"),
+            "r_m_per_s": ("max_r_speed_m_per_s", _JOG.max_r_speed_m_per_s, "m/s"),
+            "theta_rad_per_s": ("max_theta_speed_rad_per_s", _JOG.max_theta_speed_rad_per_s,
+                                "rad/s")}
+
+
+def check_jog(args: argparse.Namespace) -> dict[str, Any]:
+    """jog's request from its flags, each checked against the API's bounds and named by its
+    flag (ConfigError: nothing is sent)."""
     speeds = {"--reach": args.reach, "--height": args.height, "--r": args.r,
               "--theta": args.theta}
     for flag, value in speeds.items():
         if not math.isfinite(value):
-            raise ApiError(f"jog: {flag} must be a finite speed, got {value}")
+            raise ConfigError(f"jog: {flag} must be a finite speed, got {value}")
     other = ("--r", "--theta") if args.space == "task" else ("--reach", "--height")
     given = [flag for flag in other if speeds[flag]]
     if given:
-        raise ApiError(f"jog: {' and '.join(given)} {'does' if len(given) == 1 else 'do'} "
-                       f"not apply in {args.space} space "
-                       f"(task: --reach/--height; joint: --r/--theta)")
+        raise ConfigError(f"jog: {' and '.join(given)} {'does' if len(given) == 1 else 'do'} "
+                          f"not apply in {args.space} space "
+                          f"(task: --reach/--height; joint: --r/--theta)")
     if args.duration is not None and not 0.0 < args.duration <= MAX_JOG_S:
-        raise ApiError(f"jog: --duration must be in (0, {MAX_JOG_S:g}] s, got {args.duration}")
+        raise ConfigError(f"jog: --duration must be in (0, {MAX_JOG_S:g}] s, "
+                          f"got {args.duration}")
     if args.space == "task":
         request = {"cmd": "jog", "space": "task", "reach_m_per_s": args.reach,
                    "height_m_per_s": args.height}
     else:
         request = {"cmd": "jog", "space": "joint", "r_m_per_s": args.r,
                    "theta_rad_per_s": args.theta}
+    for arg in COMMANDS[ApiCommand.JOG].args:
+        value = request.get(arg.name)
+        problem = arg.bounds.violation(value) if isinstance(value, float) else None
+        if problem:
+            raise ConfigError(f"jog: {JOG_FLAGS[arg.name]} {problem} ({arg.unit})")
+    return request
+
+
+def jog_caps(request: Mapping[str, Any]) -> list[str]:
+    """A line for each speed above the daemon's default cap on it, naming the cap."""
+    lines = []
+    for name, (setting, cap, unit) in JOG_CAPS.items():
+        value = request.get(name)
+        if isinstance(value, float) and abs(value) > cap:
+            lines.append(f"jog: {JOG_FLAGS[name]} {value:g} {unit} is faster than "
+                         f"jog.{setting}, the daemon's cap ({cap:g} {unit} unless configured "
+                         "otherwise): it moves at the cap")
+    return lines
+
+
+def jog(args: argparse.Namespace) -> int:
+    """Send the jog every 0.1 s (the daemon's dead-man) while this command runs: for
+    ``--duration`` seconds, or until Ctrl-C without it; then stop, on a connection of its
+    own. SIGTERM, SIGHUP, or Ctrl-C before ``--duration`` is over, stop it too and return
+    128 + the signal's number."""
+    request = check_jog(args)
+    for line in jog_caps(request):
+        _say(line)
+    path = _path(args)
     started = time.monotonic()
     end = started + (args.duration if args.duration is not None else math.inf)
-    with Client(_path(args)) as client:
-        moving, refused = False, None
+    with StopSignals() as signals:
+        moving = False
         try:
-            while time.monotonic() < end:
-                client.request(request)
-                if not moving and args.duration is None:  # said once the daemon took it
-                    print("jog: moving while this runs; Ctrl-C stops", file=sys.stderr)
-                moving = True
-                time.sleep(DEAD_MAN_PERIOD_S)
-        except KeyboardInterrupt:
-            pass
-        except ApiError as error:  # the daemon's reason, not that of a stop after it
-            refused = error
+            with Client(path) as client:
+                while time.monotonic() < end and signals.signum is None:
+                    client.request(request)
+                    if not moving and args.duration is None:  # said once the daemon took it
+                        _say("jog: moving while this runs; Ctrl-C stops")
+                    moving = True
+                    signals.sleep(DEAD_MAN_PERIOD_S)
+        except ApiError:  # the daemon's reason, not that of a stop after it
+            if moving:
+                with contextlib.suppress(ApiError):
+                    call(path, STOP)
+            raise
+        jogged_s = time.monotonic() - started
+        signum = signals.signum
+        if signum is not None and (signum != signal.SIGINT or args.duration is not None):
+            return _stopped_by_signal(args, "jog", signum, lambda reply, stopped: (
+                f"{'stopped' if stopped else 'the daemon is ' + str(reply.get('state'))} "
+                f"after {jogged_s:.1f} s; tip at {pose_text(reply)}"))
         if moving:
-            try:
-                client.request({"cmd": "stop"})
-            except ApiError:
-                if refused is None:
-                    raise
-        if refused is not None:
-            raise refused
-        reply = client.request({"cmd": "status"})
-    _print(args, reply, f"jogged {time.monotonic() - started:.1f} s; tip at reach "
-           f"{reply['tip']['reach_m']:.3f} m, depth {1e3 * reply['tip']['depth_m']:.1f} mm")
+            call(path, STOP)
+        reply = call(path, STATUS)
+    _print(args, reply, f"jogged {jogged_s:.1f} s; tip at {pose_text(reply)}")
     return 0
-
-
-def _progress_text(reply: dict[str, Any]) -> str:
-    ex = reply["excavation"]
-    found = ex.get("object_found")
-    text = (f"excavate   cycle {ex['cycle']}, depth {1e3 * ex['depth_m']:.0f}/"
-            f"{1e3 * ex['target_depth_m']:.0f} mm, {ex['phase']}, "
-            f"F̂ max {reply['force']['f_hat_max_n']:.1f} N")
-    if found:
-        text += (f", OBJECT FOUND at reach {found['reach_m']:.3f} m, depth "
-                 f"{1e3 * found['depth_m']:.0f} mm")
-    elif ex.get("stopped_by_force"):
-        text += ", STOPPED BY THE FORCE LIMIT (lane not finished)"
-    return text
 
 
 def _bar(share: float, width: int = 24) -> str:
@@ -225,26 +365,106 @@ def progress_line(text: str, tty: bool, finished: bool) -> str:
     return "\r" + text + CLEAR_TO_END + ("\n" if finished else "")
 
 
-def follow_excavation(path: Path, out: TextIO, timeout_s: float = 3600.0) -> dict[str, Any]:
-    """Poll until the excavation ends; a progress bar on a terminal, lines elsewhere."""
+class _LaneDaemon:
+    """The status of the daemon raking the lane, on one connection. A connection lost to
+    the same daemon (its pid) is opened again, up to MAX_RESUMES times in a row; a daemon
+    lost, silent or restarted raises DaemonUnreachable saying whether the lane can still
+    be running."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.pid: Any = None  # the daemon's, from its first status
+        self._client: Client | None = None
+        self._resumes = 0
+
+    def __enter__(self) -> _LaneDaemon:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+
+    def status(self) -> dict[str, Any]:
+        try:
+            if self._client is None:
+                self._client = Client(self.path)
+            reply = self._client.request(STATUS)
+            self._resumes = 0
+        except DaemonUnreachable as lost:
+            self.close()
+            reply = self._again(lost)
+        self.pid = reply.get("pid", self.pid)
+        return reply
+
+    def _again(self, lost: DaemonUnreachable) -> dict[str, Any]:
+        self._resumes += 1
+        try:
+            reply = call(self.path, STATUS)
+        except DaemonSilent:
+            queued = _leave_stop(self.path)
+            raise DaemonUnreachable(
+                f"excavate: the daemon at {self.path} stopped answering while it raked the "
+                "lane: while it is frozen its drives stop on their command watchdog, but the "
+                "lane may go on if it resumes" + ("; a stop waits for it there" if queued
+                                                  else "") + f"; {CHECK_STATUS}") from lost
+        except DaemonUnreachable:
+            raise DaemonUnreachable(
+                f"excavate: lost the daemon at {self.path} while it raked the lane (the "
+                "connection failed and it takes no new one): the lane cannot go on without "
+                "it (its drives stop on their command watchdog; a daemon that starts again "
+                f"starts disarmed); {CHECK_STATUS}") from lost
+        if self.pid is not None and reply.get("pid") != self.pid:
+            raise DaemonUnreachable(
+                f"excavate: the daemon at {self.path} restarted while it raked the lane (pid "
+                f"{self.pid}, now pid {reply.get('pid')}, {reply.get('state')}): the lane is "
+                f"not resumed; {CHECK_STATUS}") from lost
+        if self._resumes > MAX_RESUMES:
+            raise DaemonUnreachable(f"excavate: following the lane, the connection to the "
+                                    f"daemon failed {self._resumes} times in a row ({lost})")
+        return reply
+
+
+def _leave_stop(path: Path) -> bool:
+    """Send stop to a daemon that does not answer: it carries it out when it reads it (the
+    server answers what a closed connection sent). True if it went out."""
+    try:
+        client = Client(path, STATE_TIMEOUT_S)
+    except DaemonUnreachable:
+        return False
+    with client, contextlib.suppress(ApiError):
+        client.request(STOP)
+    return True
+
+
+def follow_excavation(path: Path, out: TextIO, timeout_s: float = 3600.0,
+                      signals: StopSignals | None = None) -> dict[str, Any]:
+    """Poll until the excavation ends, or a signal came (``signals``; the last status is
+    then returned as it is); a progress bar on a terminal, lines elsewhere."""
     tty, last_line, started = out.isatty(), 0.0, time.monotonic()
-    with Client(path) as client:
+    sleep = time.sleep if signals is None else signals.sleep
+    with _LaneDaemon(path) as daemon:
         while True:
-            reply = client.request({"cmd": "status"})
+            reply = daemon.status()
             ex = reply.get("excavation") or {}
             finished = reply["state"] != "excavate"
+            interrupted = signals is not None and signals.signum is not None
             now = time.monotonic()
-            if tty or now - last_line >= 2.0 or finished:
+            if tty or now - last_line >= 2.0 or finished or interrupted:
                 share = ex.get("depth_m", 0.0) / max(ex.get("target_depth_m", 1.0), 1e-9)
-                line = f"{_bar(share)} {_progress_text(reply)}" if ex else reply["state"]
-                out.write(progress_line(line, tty, finished))
-                out.flush()
+                line = f"{_bar(share)} {progress_text(reply)}" if ex else reply["state"]
+                with contextlib.suppress(OSError):  # a closed terminal: the lane goes first
+                    out.write(progress_line(line, tty, finished or interrupted))
+                    out.flush()
                 last_line = now
-            if finished:
+            if finished or interrupted:
                 return reply
             if now - started > timeout_s:
                 raise TimeoutError(f"excavation still running after {timeout_s:g} s")
-            time.sleep(POLL_S)
+            sleep(POLL_S)
 
 
 # excavate's flags by the API argument each gives
@@ -255,18 +475,21 @@ EXCAVATE_FLAGS = {"reach_far_m": "--reach-far", "reach_near_m": "--reach-near",
 
 def check_excavate(request: dict[str, Any]) -> None:
     """The API's bounds on an excavate request, said with the flags that gave each value
-    (the daemon checks them again, naming its arguments)."""
+    (ConfigError: nothing is sent; the daemon checks them again, naming its arguments)."""
     for arg in COMMANDS[ApiCommand.EXCAVATE].args:
         value = request.get(arg.name)
         problem = arg.bounds.violation(value) if value is not None else None
         if problem:
-            raise ApiError(f"excavate: {EXCAVATE_FLAGS[arg.name]} {problem}")
+            raise ConfigError(f"excavate: {EXCAVATE_FLAGS[arg.name]} {problem}")
     if not request["reach_far_m"] > request["reach_near_m"]:
-        raise ApiError(f"excavate: --reach-far must be > --reach-near "
-                       f"({request['reach_near_m']:g}), got {request['reach_far_m']:g}")
+        raise ConfigError(f"excavate: --reach-far must be > --reach-near "
+                          f"({request['reach_near_m']:g}), got {request['reach_far_m']:g}")
 
 
 def excavate(args: argparse.Namespace) -> int:
+    """Start the lane and follow it to its end: 0 once it completed or found an object, 1
+    otherwise, with one line saying how it ended; SIGINT, SIGTERM and SIGHUP stop it
+    (128 + the signal's number)."""
     request: dict[str, Any] = {"cmd": "excavate", "reach_far_m": args.reach_far,
                                "reach_near_m": args.reach_near, "target_depth_m": args.depth}
     if args.step is not None:
@@ -274,37 +497,71 @@ def excavate(args: argparse.Namespace) -> int:
     if args.speed is not None:
         request["stroke_speed_m_per_s"] = args.speed
     check_excavate(request)  # before the daemon is asked
-    call(_path(args), request)
+    path = _path(args)
     if args.no_wait:
+        call(path, request)
         print("excavate: started")
         return 0
-    reply = follow_excavation(_path(args), sys.stderr)
-    excavation = reply.get("excavation") or {}
-    _print(args, reply, _progress_text(reply) if excavation else reply["state"])
-    return 0 if reply["state"] == "hold" and not excavation.get("stopped_by_force") else 1
+    with StopSignals() as signals:  # from before the request: a lane never left unfollowed
+        call(path, request)
+        reply = follow_excavation(path, sys.stderr, signals=signals)
+        if signals.signum is not None:
+            return _stopped_by_signal(args, "excavate", signals.signum, _after_stop)
+    completed, line = excavation_outcome(reply)
+    _print(args, reply, line)
+    return 0 if completed else 1
+
+
+def _after_stop(reply: dict[str, Any], stopped: bool) -> str:
+    """What the status says after excavate's own stop (``stopped``: carried out)."""
+    ex = reply.get("excavation") or {}
+    if stopped and reply.get("state") == "hold" and not ex.get("done"):
+        return f"lane stopped ({lane_text(reply)}, not finished); tip at {pose_text(reply)}"
+    return excavation_outcome(reply)[1].removeprefix("excavate: ") + f"; tip at {pose_text(reply)}"
+
+
+SIGNALS_HELP = ("SIGTERM and SIGHUP (the terminal closed) stop it too, say where the tip is "
+                "and exit 128 + the signal's number (143, 129)")
 
 
 def add_parsers(sub: Any, parent: argparse.ArgumentParser) -> dict[str, Ops]:
     """Sub-commands for the operator; returns their functions by name."""
     ops: dict[str, Ops] = {}
-    sub.add_parser("arm", parents=[parent], help="enable the drives and hold the pose (the "
-                   "first time, after the weight and tine-mount checks)")
-    ops["arm"] = arm
-    sub.add_parser("reset", parents=[parent], help="clear a fault or e-stop once its cause "
-                   "is gone (exit status 1 if it stays)")
+    text = "enable the drives and hold the pose (the first time, after the weight and " \
+           "tine-mount checks)"
+    sub.add_parser("arm", parents=[parent], help=text, description=f"Arm: {text}; exit "
+                   "status 1 if a check faults.")
+    ops["arm"] = with_next_step(arm)
+    text = "clear a fault or e-stop once its cause is gone (exit status 1 if it stays)"
+    sub.add_parser("reset", parents=[parent], help=text, description=f"Reset: {text}; then "
+                   "rakectl arm.")
     ops["reset"] = reset
-    for name, help_text in (("disarm", "stop and disable the drives"),
-                            ("stop", "stop jogging or excavating, hold the pose"),
-                            ("estop", "emergency stop (latched until reset)"),
-                            ("shutdown", "end the daemon (tests, bench set-ups)")):
-        sub.add_parser(name, parents=[parent], help=help_text)
+    for name, help_text, description in (
+            ("disarm", "stop and disable the drives", "Disarm: stop any motion and disable "
+             "the drives (0 V)."),
+            ("stop", "stop jogging or excavating, hold the pose", "Stop the jog or the lane "
+             "and hold the pose; the drives stay enabled."),
+            ("estop", "emergency stop (latched until reset)", "Emergency stop: quick-stop both "
+             "drives now; latched until rakectl reset."),
+            ("shutdown", "end the daemon (tests, bench set-ups)", "End the daemon (tests and "
+             "bench set-ups; under systemd: systemctl stop rakectl).")):
+        sub.add_parser(name, parents=[parent], help=help_text, description=description)
         ops[name] = simple(name)
-    sub.add_parser("status", parents=[parent], help="state, pose, forces, timing")
+    sub.add_parser("status", parents=[parent], help="state, pose, forces, timing",
+                   description="The daemon's state, the tip's pose, the forces, the loop's "
+                   "timing and the lane in progress (changes nothing).")
     ops["status"] = status
-    p = sub.add_parser("dump", parents=[parent], help="write the flight recorder to a file")
+    p = sub.add_parser("dump", parents=[parent], help="write the flight recorder to a file",
+                       description="Write the flight recorder's last seconds to a file on "
+                       "the daemon's machine and wait until it is written.")
     p.add_argument("--path", type=Path, help="file on the daemon's machine")
     ops["dump"] = dump
-    p = sub.add_parser("jog", parents=[parent], help="move while this command runs (dead-man)")
+    p = sub.add_parser("jog", parents=[parent], help="move while this command runs (dead-man)",
+                       description="Move the tip (task space) or the joints (joint space) "
+                       "while this command runs: the daemon stops when its requests stop "
+                       "(dead-man). Without --duration, Ctrl-C ends it (exit status 0); "
+                       "with it, Ctrl-C before the end stops it and exits 130. "
+                       f"{SIGNALS_HELP}.")
     p.add_argument("--space", choices=("task", "joint"), default="task")
     p.add_argument("--reach", type=float, default=0.0, help="tip m/s, + away from the robot")
     p.add_argument("--height", type=float, default=0.0, help="tip m/s, + up")
@@ -312,15 +569,21 @@ def add_parsers(sub: Any, parent: argparse.ArgumentParser) -> dict[str, Ops]:
     p.add_argument("--theta", type=float, default=0.0, help="joint θ rad/s, + lowers the rake")
     p.add_argument("--duration", type=float, default=None,
                    help="seconds to keep moving (default: until Ctrl-C)")
-    ops["jog"] = jog
+    ops["jog"] = with_next_step(jog)
     p = sub.add_parser("excavate", parents=[parent], help=(
-        "rake a lane deeper and deeper (exit status 0 once it holds at the target depth or "
-        "at an object found; 1 on a force-limit stop, fault or e-stop)"))
+        "rake a lane deeper and deeper (exit status 0 once it holds at the target depth, at "
+        "the descent limit or at an object found; 1 when it ends otherwise)"),
+        description="Rake a lane deeper each cycle and follow it to its end. Exit status 0 "
+        "once it holds at the target depth, at the descent limit or at an object found; "
+        "1, with a line saying how, when it ends otherwise: stopped (rakectl stop), by the "
+        "force limit, a fault or an e-stop; 3 if the daemon is lost. Ctrl-C stops the lane "
+        f"and exits 130; {SIGNALS_HELP}.")
     p.add_argument("--reach-far", type=float, required=True, help="stroke start, m")
     p.add_argument("--reach-near", type=float, required=True, help="stroke end, m")
     p.add_argument("--depth", type=float, required=True, help="target depth, m")
     p.add_argument("--step", type=float, help="depth added per cycle, m")
     p.add_argument("--speed", type=float, help="stroke speed, m/s")
-    p.add_argument("--no-wait", action="store_true", help="return once started")
-    ops["excavate"] = excavate
+    p.add_argument("--no-wait", action="store_true", help="return once started (the lane is "
+                   "then not followed, nor stopped on a signal)")
+    ops["excavate"] = with_next_step(excavate)
     return ops

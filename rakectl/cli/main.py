@@ -1,20 +1,25 @@
 """The ``rakectl`` command line: the composition root for offline work.
 
-Errors are one line on stderr and a non-zero exit status: 2 for bad usage,
-configuration or input file (a bus trace to replay), 1 for any other failure.
+Errors are one line on stderr and a non-zero exit status (:data:`EXIT_STATUSES`): 2 for
+bad usage, a bad option value, configuration or input file (a bus trace to replay), 3
+when the daemon cannot be reached or is lost, 1 for any other failure (the daemon
+refused or failed).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import select
+import signal
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from rakectl.cli.usage import Parser
-from rakectl.errors import ConfigError, RakeError, TraceError
+from rakectl.errors import ConfigError, DaemonUnreachable, RakeError, TraceError
 
 if TYPE_CHECKING:
     from rakectl.sim.scenario import Scenario
@@ -23,6 +28,27 @@ if TYPE_CHECKING:
 PASS_THROUGH = ("emulator", "fuzz")  # sub-commands whose options their own parser reads
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
+EXIT_UNREACHABLE = 3
+EXIT_SIGNAL = 128  # + the signal's number
+DESCRIPTION = """\
+The control of a demining robot's rake. `rakectl run` is the 1 kHz control daemon (the
+service); the operator's commands (status, arm, jog, excavate, stop, estop, reset,
+disarm, dump, survey) talk to it over its command socket (--socket, else
+$RAKECTL_SOCKET, else the service's). The others are for set-up, the emulated bench
+and offline work."""
+EXIT_STATUSES = f"""\
+exit status:
+  0        done as asked (excavate: the lane reached its depth, held at the descent
+           limit, or found an object; jog: its --duration, or Ctrl-C without one)
+  {EXIT_FAILURE}        the daemon refused or failed, or the command did not complete: a lane
+           stopped (rakectl stop, the force limit), a fault, an e-stop, a check
+           before arming that failed
+  {EXIT_USAGE}        bad usage or a bad option value, configuration or input file: nothing
+           was sent
+  {EXIT_UNREACHABLE}        the daemon cannot be reached, or was lost while the command followed
+           it: check rakectl status
+  {EXIT_SIGNAL}+N    ended by signal N: 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP (jog and excavate
+           stop the rake first), 141 when the reader of its output went away"""
 
 
 def _add_simulate(sub: argparse._SubParsersAction[Parser]) -> None:
@@ -42,7 +68,8 @@ def _build_parser() -> tuple[Parser, dict[str, Callable[[argparse.Namespace], in
     from rakectl.api import survey as cli_survey
     from rakectl.cli import bench as cli_bench
 
-    parser = Parser(prog="rakectl", description=__doc__.splitlines()[0] if __doc__ else None)
+    parser = Parser(prog="rakectl", description=DESCRIPTION, epilog=EXIT_STATUSES,
+                    formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
     _add_simulate(sub)
     run = sub.add_parser("run", help="the 1 kHz control daemon (the service)")
@@ -254,17 +281,43 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command in PASS_THROUGH:  # these parse their own options
             args.rest = extra
         elif extra:
-            parser.error(f"unrecognized arguments: {' '.join(extra)}")
-        return {**commands, **ops}[args.command](args)
+            parser.error(f"{args.command}: unrecognized arguments: {' '.join(extra)}")
+        status = {**commands, **ops}[args.command](args)
+        sys.stdout.flush()  # a reader gone is found here, not at the interpreter's exit
+        return status
     except (ConfigError, TraceError) as exc:
         print(f"rakectl: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except DaemonUnreachable as exc:
+        print(f"rakectl: error: {exc}", file=sys.stderr)
+        return EXIT_UNREACHABLE
+    except BrokenPipeError as exc:
+        if _stdout_gone():  # `rakectl status | head -1`: quiet, as other Unix tools
+            return EXIT_SIGNAL + signal.SIGPIPE
+        print(f"rakectl: error: {exc}", file=sys.stderr)
+        return EXIT_FAILURE
     except (RakeError, OSError) as exc:  # OSError: TimeoutError and socket errors included
         print(f"rakectl: error: {exc}", file=sys.stderr)
         return EXIT_FAILURE
     except KeyboardInterrupt:
         print("rakectl: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_SIGNAL + signal.SIGINT
+
+
+def _stdout_gone() -> bool:
+    """Whether stdout is a pipe whose reader has gone; if so, stdout then points at
+    /dev/null, so that the interpreter's exit does not write to it again."""
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        gone = any(events & select.POLLERR for _, events in poller.poll(0))
+    except (OSError, ValueError):  # no stdout, or not a file
+        return False
+    if gone:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    return gone
 
 
 if __name__ == "__main__":

@@ -8,9 +8,10 @@ from rakectl.errors import ConfigError
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse, but a usage error raises :class:`ConfigError` naming the command (the
-    caller prints it as one line, exit status 2) instead of printing the whole usage and
-    exiting from library code."""
+    """argparse, but a usage error raises :class:`ConfigError` naming the sub-command (the
+    caller prints it as one line after ``rakectl: error:``, exit status 2) instead of
+    printing the whole usage and exiting from library code."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        raise ConfigError(f"{self.prog}: {message}")
+        command = self.prog.removeprefix("rakectl").strip()  # the CLI prints "rakectl: "
+        raise ConfigError(f"{command}: {message}" if command else message)

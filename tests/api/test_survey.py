@@ -164,16 +164,16 @@ def test_a_mark_the_status_cannot_give_is_refused(reply: dict[str, Any], error_m
         survey.mark_from_status(reply, error_m)
 
 
-@pytest.mark.parametrize(("error_mm", "expected"), [
-    ("2", "cannot reach the rakectl daemon"),
-    ("-1", "survey: --error-mm must be within 0–50 mm, got -1"),  # before the daemon is asked
-    ("nan", "survey: --error-mm must be within 0–50 mm, got nan")])
+@pytest.mark.parametrize(("error_mm", "status", "expected"), [
+    ("2", 3, "cannot reach the rakectl daemon"),  # the daemon cannot be reached
+    ("-1", 1, "survey: --error-mm must be within 0–50 mm, got -1"),  # before it is asked
+    ("nan", 1, "survey: --error-mm must be within 0–50 mm, got nan")])
 def test_marking_without_a_daemon_or_with_a_bad_error_writes_nothing(
-        tmp_path: Path, error_mm: str, expected: str) -> None:
+        tmp_path: Path, error_mm: str, status: int, expected: str) -> None:
     marks = tmp_path / "survey.yaml"
     done = run_rakectl("survey", "mark", "--socket", str(tmp_path / "none.sock"),
                        "--file", str(marks), "--error-mm", error_mm)
-    assert done.returncode == 1 and done.stderr.startswith(f"rakectl: error: {expected}")
+    assert done.returncode == status and done.stderr.startswith(f"rakectl: error: {expected}")
     assert len(done.stderr.strip().splitlines()) == 1
     assert not marks.exists()
 

@@ -104,8 +104,9 @@ def test_pass_through_commands_read_their_own_options(command: str) -> None:
 
 @pytest.mark.parametrize(("argv", "expected"), [
     (("status", "--bogus"), "unrecognized arguments: --bogus"),
-    (("fuzz", "--bogus"), "rakectl fuzz: unrecognized arguments: --bogus"),
-    (("fuzz", "--scenarios", "x"), "rakectl fuzz: argument --scenarios: invalid int value"),
+    (("fuzz", "--bogus"), "rakectl: error: fuzz: unrecognized arguments: --bogus"),
+    (("fuzz", "--scenarios", "x"),
+     "rakectl: error: fuzz: argument --scenarios: invalid int value"),
     (("emulator", "--interface", "foo"),
      "python -m drivers: error: argument --interface: invalid choice: 'foo'"),
 ])
@@ -130,16 +131,17 @@ def test_unknown_options_elsewhere_are_one_line_errors(argv: tuple[str, ...],
 def test_jog_arguments_are_checked_before_anything_is_sent(tmp_path: Path,
                                                            args: tuple[str, ...],
                                                            expected: str) -> None:
-    """No daemon listens on this socket: a checked argument fails first, in one line."""
+    """No daemon listens on this socket: a checked argument fails first, in one line, as
+    argparse's own usage errors do (exit status 2)."""
     done = run_rakectl("jog", "--socket", str(tmp_path / "none.sock"), *args)
-    assert done.returncode != 0
+    assert done.returncode == 2
     assert done.stderr.startswith(f"rakectl: error: {expected}")
     assert len(done.stderr.strip().splitlines()) == 1
 
 
 def test_a_jog_without_a_daemon_is_one_line_and_never_says_moving(tmp_path: Path) -> None:
     done = run_rakectl("jog", "--socket", str(tmp_path / "none.sock"), "--height", "-0.01")
-    assert done.returncode != 0
+    assert done.returncode == 3  # the daemon cannot be reached
     assert done.stderr.startswith("rakectl: error: cannot reach the rakectl daemon")
     assert len(done.stderr.strip().splitlines()) == 1
 
@@ -160,7 +162,7 @@ def test_excavate_arguments_are_checked_before_anything_is_sent(
         tmp_path: Path, args: tuple[str, ...], expected: str) -> None:
     """The API's bounds, named by the flag that gave the value; no daemon listens here."""
     done = run_rakectl("excavate", "--socket", str(tmp_path / "none.sock"), *args)
-    assert done.returncode != 0
+    assert done.returncode == 2
     assert done.stderr.strip() == f"rakectl: error: {expected}"
 
 
