@@ -127,7 +127,11 @@ _SPECS = (
             "file in the daemon's state directory."),)),
     CommandSpec(ApiCommand.JOG, "Move at the given velocities while the requests keep coming: "
                 f"repeat it every {DEAD_MAN_PERIOD_S:g} s (dead-man); the daemon stops "
-                "when they stop. Absent velocities are 0.", (
+                "when they stop. Absent velocities are 0. The jog belongs to the connection "
+                "that started it: another connection's jog is refused while that one is open, "
+                "and once the jog has ended (a stop, the force limit, the dead-man) its "
+                "connection's next jog is refused, naming why; a new connection starts a new "
+                "jog.", (
         Arg("space", ArgKind.STRING, "task: tip velocities; joint: joint velocities.",
             required=True, choices=JogSpace),
         _jog_arg("reach_m_per_s", "m/s", JOG_SPEED_LIMIT_M_PER_S, JogSpace.TASK,

@@ -64,6 +64,7 @@ class FrameDecoder(DriveSupervision):
     def _on_tpdo1(self, j: int, data: bytearray) -> None:
         if len(data) != TPDO1_SIZE:
             self.stats.frames_bad_length += 1
+            self.stats.tpdo1_bad_length[j] = len(data)  # named if the feedback goes stale
             return
         counts, rpm, current_ma = decode_tpdo1(data)
         fb = self.feedback
@@ -77,7 +78,9 @@ class FrameDecoder(DriveSupervision):
             fb.current_theta_a = current_ma / self._units_per_amp
         fb.sync_counter[j] = self._sync_counter
         self._fresh[j] += 1
-        self.stats.tpdo_received[j] += 1
+        stats = self.stats
+        stats.tpdo_received[j] += 1
+        stats.tpdo1_bad_length[j] = 0
 
     def _on_tpdo2(self, j: int, data: bytearray) -> None:
         if len(data) != self._tpdo2_size:

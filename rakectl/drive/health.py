@@ -16,6 +16,7 @@ from rakectl.config.service import DrivesSettings
 from rakectl.drive.joints import JOINTS, drive_label, node_ids
 from rakectl.drive.power import PowerRequests
 from rakectl.protocol.cia402 import DriveState
+from rakectl.protocol.codec import TPDO1_SIZE
 from rakectl.protocol.nmt import Emcy, NmtState, emcy_code
 
 
@@ -56,11 +57,27 @@ class Stats:
     """Counters of the hot path; per-drive lists are indexed by
     :class:`~rakectl.drive.joints.Joint`."""
 
-    __slots__ = ("bus_off_frames", "emcy_received", "error_frames", "frames_bad_length",
-                 "frames_invalid", "frames_own", "frames_unknown", "heartbeats_received",
-                 "receive_errors", "sdo_answers", "send_errors", "sends", "syncs", "ticks",
-                 "tpdo2_received",
-                 "tpdo_late", "tpdo_missed", "tpdo_received")
+    __slots__ = (
+        "bus_off_frames",
+        "emcy_received",
+        "error_frames",
+        "frames_bad_length",
+        "frames_invalid",
+        "frames_own",
+        "frames_unknown",
+        "heartbeats_received",
+        "receive_errors",
+        "sdo_answers",
+        "send_errors",
+        "sends",
+        "syncs",
+        "ticks",
+        "tpdo1_bad_length",
+        "tpdo2_received",
+        "tpdo_late",
+        "tpdo_missed",
+        "tpdo_received",
+    )
 
     def __init__(self) -> None:
         self.ticks = 0  # receive() calls
@@ -69,6 +86,7 @@ class Stats:
         self.tpdo_missed = [0, 0]  # SYNC cycles without a TPDO1
         self.tpdo_late = [0, 0]  # extra TPDO1s in one drain: one came a cycle late
         self.tpdo2_received = [0, 0]
+        self.tpdo1_bad_length = [0, 0]  # the length of the last TPDO1 of a wrong length, 0: none
         self.frames_bad_length = 0
         self.frames_invalid = 0  # right length, undecodable content (FrameError)
         self.frames_unknown = 0
@@ -177,7 +195,10 @@ class DriveSupervision:
                                 f"{self.stats.syncs} SYNCs sent: another node sends SYNC on "
                                 "this bus (another CANopen master)")
             if fb.stale_cycles[joint] >= limit_cycles:
-                problems.append(f"{label}: no TPDO1 for {fb.stale_cycles[joint]} cycles")
+                bad = self.stats.tpdo1_bad_length[joint]
+                problems.append(f"{label}: no TPDO1 for {fb.stale_cycles[joint]} cycles"
+                                + (f" (its last TPDO1 had {bad} bytes, {TPDO1_SIZE} expected:"
+                                   " its PDO mapping was changed)" if bad else ""))
             if now_s - self._heard_s[joint] > self._heartbeat_timeout_s:
                 problems.append(f"{label}: no heartbeat for {now_s - self._heard_s[joint]:.3f} s")
         return problems

@@ -260,3 +260,26 @@ def test_another_sync_producer_is_a_fault_named(rig: LockstepRig, other: can.Bus
     d = rig.daemon
     assert d.state is DaemonState.FAULT
     assert "another node sends SYNC on this bus (another CANopen master)" in d.fault_reason
+
+
+def test_a_tpdo1_remapped_by_another_tool_is_named_in_the_fault(rig: LockstepRig,
+                                                               other: can.BusABC) -> None:
+    """Another tool remaps the r drive's TPDO1 to 6 bytes over SDO while armed: the drive
+    sends none while the PDO is invalid (the fault: no TPDO1), then 6-byte ones. Before,
+    every reset then failed on "no TPDO1 for N cycles" while 6-byte TPDO1s arrived every
+    cycle; now it says what came."""
+    _arm(rig)
+    for index, sub, value, size in ((0x1800, 1, 0x80000181, 4), (0x1A00, 0, 0, 1),
+                                    (0x1A00, 1, 0x60640020, 4), (0x1A00, 2, 0x606C0010, 4),
+                                    (0x1A00, 0, 2, 1), (0x1800, 1, 0x00000181, 4)):
+        command_specifier = {1: 0x2F, 2: 0x2B, 4: 0x23}[size]
+        _send(other, 0x601, struct.pack("<BHB", command_specifier, index, sub)
+              + value.to_bytes(size, "little") + bytes(4 - size))
+        rig.tick()
+    _ticks(rig, 20)
+    d = rig.daemon
+    assert d.state is DaemonState.FAULT and "r drive (node 1): no TPDO1" in d.fault_reason
+    _reset(rig)
+    assert d.fault_reason.startswith("reset failed: ")
+    assert ("(its last TPDO1 had 6 bytes, 8 expected: its PDO mapping was changed)"
+            in d.fault_reason)
