@@ -19,7 +19,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from rakectl.api.operator import follow_excavation
+from rakectl.api.motion import follow_excavation
 from rakectl.config.files import config_dir
 from rakectl.errors import RakeError
 from rakectl.limits import FORCE_LIMIT_N

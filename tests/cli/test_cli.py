@@ -167,7 +167,7 @@ def test_excavate_arguments_are_checked_before_anything_is_sent(
 
 
 def test_the_progress_line_clears_what_a_longer_line_left() -> None:
-    from rakectl.api.operator import CLEAR_TO_END, progress_line
+    from rakectl.api.motion import CLEAR_TO_END, progress_line
 
     assert progress_line("cycle 2, F̂ max 21.7 N", tty=True, finished=False) == (
         "\rcycle 2, F̂ max 21.7 N" + CLEAR_TO_END)
