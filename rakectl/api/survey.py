@@ -62,12 +62,13 @@ def error_in_range(error_m: float) -> bool:
 
 def check_error(error_m: float) -> None:
     if not error_in_range(error_m):
-        raise ApiError(f"survey: --error-mm must be within 0–{MAX_ERROR_MM:g} mm, got "
+        raise ConfigError(f"survey: --error-mm must be within 0–{MAX_ERROR_MM:g} mm, got "
                        f"{error_m * 1e3:g}")
 
 
 def mark_from_status(reply: Mapping[str, Any], error_m: float) -> Mark:
-    """The mark a ``status`` reply gives, or an ApiError saying why it gives none."""
+    """The mark a ``status`` reply gives, or why it gives none (a ConfigError for the
+    operator's --error-mm, an ApiError for the daemon's state)."""
     check_error(error_m)
     state = reply.get("state")
     if state not in STILL_STATES:

@@ -160,14 +160,17 @@ def test_a_point_out_of_its_declared_bounds_is_named_and_nothing_is_printed(
 ])
 def test_a_mark_the_status_cannot_give_is_refused(reply: dict[str, Any], error_m: float,
                                                   message: str) -> None:
-    with pytest.raises(ApiError, match=message):
+    """A bad --error-mm is the operator's value (ConfigError, exit status 2); the others
+    are the daemon's state (ApiError)."""
+    bad_value = not survey.error_in_range(error_m)
+    with pytest.raises(ConfigError if bad_value else ApiError, match=message):
         survey.mark_from_status(reply, error_m)
 
 
 @pytest.mark.parametrize(("error_mm", "status", "expected"), [
     ("2", 3, "cannot reach the rakectl daemon"),  # the daemon cannot be reached
-    ("-1", 1, "survey: --error-mm must be within 0–50 mm, got -1"),  # before it is asked
-    ("nan", 1, "survey: --error-mm must be within 0–50 mm, got nan")])
+    ("-1", 2, "survey: --error-mm must be within 0–50 mm, got -1"),  # before it is asked
+    ("nan", 2, "survey: --error-mm must be within 0–50 mm, got nan")])
 def test_marking_without_a_daemon_or_with_a_bad_error_writes_nothing(
         tmp_path: Path, error_mm: str, status: int, expected: str) -> None:
     marks = tmp_path / "survey.yaml"
