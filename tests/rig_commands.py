@@ -1,12 +1,30 @@
-"""A command handed to a lock-step rig's daemon as the socket hands it over in the loop."""
+"""A lock-step rig's daemon brought up to DISARMED, and a command handed to it as the
+socket hands it over in the loop."""
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 from rakectl.api.schema import Request, decode_request
 from rakectl.bench.tick import LockstepRig
 from rakectl.daemon.handlers import make_handler
+from rakectl.daemon.states import DaemonState
+
+
+@contextlib.contextmanager
+def disarmed_rig(directory: Path) -> Iterator[LockstepRig]:
+    """The default daemon and emulated drives in lock-step, brought up to DISARMED; closed
+    on the way out."""
+    rig = LockstepRig(directory)
+    try:
+        rig.bring_up()
+        rig.until(DaemonState.DISARMED, 3000)
+        yield rig
+    finally:
+        rig.close()
 
 
 def command(rig: LockstepRig, line: bytes) -> dict[str, Any]:

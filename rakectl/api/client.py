@@ -54,7 +54,6 @@ def socket_path(explicit: str | Path | None = None,
     return default_socket_path(env)
 
 
-
 # --------------------------------------------------------------------------- client
 
 _STOP: Mapping[str, str] = types.MappingProxyType({"cmd": ApiCommand.STOP.value})

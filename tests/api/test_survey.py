@@ -19,7 +19,7 @@ from rakectl.config.settings import Settings
 from rakectl.daemon.states import DaemonState
 from rakectl.errors import ApiError, ConfigError
 from tests.cli_run import run_rakectl
-from tests.rig_commands import command
+from tests.rig_commands import command, disarmed_rig
 from tests.scripted_daemon import ScriptedDaemon
 
 # what the mark may stand above the truth besides the declared error: the tine mount's
@@ -198,13 +198,8 @@ def test_a_survey_file_that_cannot_be_written_is_said_before_the_daemon_is_asked
 def test_a_non_finite_lift_withholds_only_the_mark_height(tmp_path: Path) -> None:
     """The status reply's tip: a force reading gone non-finite leaves the tines' height
     unknown (null: no mark can be taken) while the pose, from finite encoders, stands."""
-    rig = LockstepRig(tmp_path)
-    try:
-        rig.bring_up()
-        rig.until(DaemonState.DISARMED, 3000)
+    with disarmed_rig(tmp_path) as rig:
         rig.daemon.supervisor.f_current_n = math.nan
         tip = command(rig, b'{"cmd": "status"}')["tip"]
-    finally:
-        rig.close()
     assert tip["tines_height_max_m"] is None
     assert math.isfinite(tip["reach_m"]) and math.isfinite(tip["depth_m"])

@@ -14,18 +14,13 @@ from rakectl.bench.tick import LockstepRig
 from rakectl.daemon.states import DaemonState
 from rakectl.errors import CommandRejected
 from rakectl.protocol import codec
-from tests.rig_commands import command
+from tests.rig_commands import command, disarmed_rig
 
 
 @pytest.fixture
 def rig(tmp_path: Path) -> Iterator[LockstepRig]:
-    rig = LockstepRig(tmp_path)
-    try:
-        rig.bring_up()
-        rig.until(DaemonState.DISARMED, 3000)
+    with disarmed_rig(tmp_path) as rig:
         yield rig
-    finally:
-        rig.close()
 
 
 def _absurd_tpdo1(rig: LockstepRig) -> None:

@@ -18,18 +18,13 @@ import pytest
 from rakectl.bench.tick import LockstepRig
 from rakectl.daemon.states import DaemonState
 from rakectl.protocol.cia402 import DriveState
-from tests.rig_commands import command
+from tests.rig_commands import command, disarmed_rig
 
 
 @pytest.fixture
 def rig(tmp_path: Path) -> Iterator[LockstepRig]:
-    rig = LockstepRig(tmp_path)
-    try:
-        rig.bring_up()
-        rig.until(DaemonState.DISARMED, 3000)
+    with disarmed_rig(tmp_path) as rig:
         yield rig
-    finally:
-        rig.close()
 
 
 @pytest.fixture

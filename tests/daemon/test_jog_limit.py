@@ -8,10 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from rakectl.bench.tick import LockstepRig
 from rakectl.core.jog import LIMIT_MARGIN
 from rakectl.daemon.states import DaemonState
-from tests.rig_commands import command
+from tests.rig_commands import command, disarmed_rig
 
 
 @pytest.mark.parametrize(("line", "joint"), [
@@ -23,10 +22,7 @@ def test_a_jog_into_a_joint_limit_stops_short_of_its_end_stop(tmp_path: Path, li
     every 0.1 s. Before, the reference stopped at the limit itself and the θ drive faulted
     on its end stop, the rake then sinking under its weight. Now the arm stops within the
     margin, never at the stop, and stays armed."""
-    rig = LockstepRig(tmp_path)
-    try:
-        rig.bring_up()
-        rig.until(DaemonState.DISARMED, 3000)
+    with disarmed_rig(tmp_path) as rig:
         command(rig, b'{"cmd": "arm"}')
         rig.until(DaemonState.ARMED, 8000)
         ws = rig.daemon.workspace
@@ -43,5 +39,3 @@ def test_a_jog_into_a_joint_limit_stops_short_of_its_end_stop(tmp_path: Path, li
         d = rig.daemon
         assert d.state is DaemonState.JOG, d.fault_reason
         assert 0.0 < closest < LIMIT_MARGIN[joint]
-    finally:
-        rig.close()

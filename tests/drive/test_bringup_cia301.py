@@ -15,10 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
-import os
-import threading
 import time
-from collections.abc import Iterator
 from dataclasses import replace
 from typing import Any
 
@@ -52,7 +49,7 @@ from tests.drive.test_client import (
     _announce_and_run,
     make_bring_up,
 )
-from tests.drivers.test_emulator_bus import RecordingLog
+from tests.drivers.test_interop import emulated_drives
 from tests.drivers.test_node import sdo_reply, sdo_upload
 
 DRIVES = DrivesSettings()
@@ -67,30 +64,14 @@ _channels = itertools.count()
 # =========================================================================== tier 3: the emulator
 
 
-@contextlib.contextmanager
 def drives_on_a_bus(specs: tuple[DriveSpec, DriveSpec] | None = None,
                     config: EmulatorConfig | None = None,
                     emulator_bus_class: type[VirtualBus] = VirtualBus
-                    ) -> Iterator[tuple[Emulator, VirtualBus]]:
+                    ) -> contextlib.AbstractContextManager[tuple[Emulator, can.BusABC]]:
     """The emulated drives powered on (their boot-up sent), then the controller's bus
     opened on the same virtual channel: it has heard nothing of them."""
-    channel = f"test-bring-up-{os.getpid()}-{next(_channels)}"
-    emulator_bus = emulator_bus_class(channel=channel)
-    emulator = Emulator(config or EmulatorConfig(), emulator_bus, log=RecordingLog(),
-                        specs=specs)
-    stop = threading.Event()
-    thread = threading.Thread(target=emulator.run, args=(stop.is_set, 0.002), daemon=True)
-    emulator.start()
-    controller_bus = VirtualBus(channel=channel)
-    thread.start()
-    try:
-        yield emulator, controller_bus
-    finally:
-        stop.set()
-        thread.join(5.0)
-        emulator.close()
-        controller_bus.shutdown()
-        emulator_bus.shutdown()
+    return emulated_drives(config=config, specs=specs, bus_class=emulator_bus_class,
+                           heard_boot=False, period_s=0.002)
 
 
 def specs_with(**changes: Any) -> tuple[DriveSpec, DriveSpec]:
@@ -316,8 +297,6 @@ def test_a_drive_without_0x1019_is_refused_a_sync_counter(network: LoopbackNetwo
         "r drive (node 1): no 0x1019 SYNC counter overflow (SDO abort 0x06020000 writing "
         "240): the drive takes SYNC without a counter only; set "
         "drives.sync_counter_overflow: 0")
-
-
 
 
 def test_an_inhibit_time_the_eds_declares_read_only_is_refused_naming_it(

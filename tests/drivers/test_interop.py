@@ -24,8 +24,9 @@ from typing import Any
 import can
 import canopen
 import pytest
+from can.interfaces.virtual import VirtualBus
 
-from drivers.dictionary import DriveKind
+from drivers.dictionary import DriveKind, DriveSpec
 from drivers.emulator import Emulator
 from drivers.settings import EmulatorConfig
 from rakectl.config.service import BusSettings, DrivesSettings
@@ -225,26 +226,38 @@ def test_a_remap_out_of_order_or_beyond_the_pdo_is_refused_with_cia301_aborts(
 
 
 @contextlib.contextmanager
-def emulated_drives(receive_own: bool = False, config: EmulatorConfig | None = None
-                    ) -> Iterator[tuple[Emulator, can.BusABC]]:
-    """The emulator serviced in a thread on one virtual channel, and the controller's bus
-    on the same channel (``receive_own``: it echoes what it sends, as udp_multicast does)."""
+def emulated_drives(receive_own: bool = False, config: EmulatorConfig | None = None, *,
+                    specs: tuple[DriveSpec, DriveSpec] | None = None,
+                    bus_class: type[VirtualBus] = VirtualBus, heard_boot: bool = True,
+                    period_s: float = 0.005) -> Iterator[tuple[Emulator, can.BusABC]]:
+    """The emulator serviced in a thread (every ``period_s``) on one virtual channel (its
+    end a ``bus_class``), and the controller's bus on the same channel (``receive_own``:
+    it echoes what it sends, as udp_multicast does), opened before the drives power on
+    and send their boot-up, or with ``heard_boot`` False after: it has heard nothing of
+    them."""
     channel = f"test-interop-{os.getpid()}-{next(_channels)}"
-    emulator_bus = can.Bus(interface="virtual", channel=channel)
-    controller_bus = can.Bus(interface="virtual", channel=channel,
-                             receive_own_messages=receive_own)
-    emulator = Emulator(config or EmulatorConfig(), emulator_bus, log=RecordingLog())
+    emulator_bus = bus_class(channel=channel)
+
+    def controller() -> VirtualBus:
+        return VirtualBus(channel=channel, receive_own_messages=receive_own)
+
+    controller_bus = controller() if heard_boot else None
+    emulator = Emulator(config or EmulatorConfig(), emulator_bus, log=RecordingLog(),
+                        specs=specs)
     stop = threading.Event()
-    thread = threading.Thread(target=emulator.run, args=(stop.is_set, 0.005), daemon=True)
+    thread = threading.Thread(target=emulator.run, args=(stop.is_set, period_s), daemon=True)
     try:
         emulator.start()
+        if controller_bus is None:
+            controller_bus = controller()
         thread.start()
         yield emulator, controller_bus
     finally:
         stop.set()
         thread.join(5.0)
         emulator.close()
-        controller_bus.shutdown()
+        if controller_bus is not None:
+            controller_bus.shutdown()
         emulator_bus.shutdown()
 
 
