@@ -34,7 +34,8 @@ them), the configured weight taken off, through J⁻ᵀ
 joint creeping a few encoder counts per tick sticks and slips), and the travel through
 the same low-pass, so that each force is paired with its travel. The slope is fitted by
 least squares over the press's ticks whose force lies within ``FIT_WINDOW`` of
-``press_force_n``. Above the configured stiffness by more than
+``press_force_n`` (:mod:`rakectl.core.mount_press` fits and judges each press). Above
+the configured stiffness by more than
 ``selftest.mount_stiffer_tolerance`` (0.2: the clamp takes that stiffness as the
 stiffest contact), or below it by more than ``mount_softer_tolerance`` (0.5), either
 press fails the check, naming both values and the setting. A mount too stiff for the
@@ -82,6 +83,7 @@ from rakectl.config.settings import ClampSettings, anvil_side_reach_m, press_dep
 from rakectl.core import kinematics
 from rakectl.core.envelope import unbalanced_weight_n
 from rakectl.core.motor_model import MotorParams, joint_load_band, joint_resolution
+from rakectl.core.mount_press import FIT_WINDOW, Press, PressResult
 from rakectl.core.supervision import tip_force_from_loads_n
 from rakectl.errors import KinematicsError
 
@@ -93,10 +95,6 @@ FILTER_S = 0.05  # low-pass on the force read (a joint creeping at a few counts 
 ARRIVED_M = 0.002  # a move ends once the measured tip is this close to its end
 ARRIVE_TIMEOUT_S = 3.0  # after the reference arrived
 HOLD_S = 0.3  # at the press's end
-FIT_WINDOW = (0.2, 1.0)  # of press_force_n: the ticks the slope is fitted over
-MIN_FIT_SAMPLES = 20
-MIN_SPREAD_COUNTS = 5.0  # least spread of the arm's travel, in encoder counts, for a slope
-MIN_FORCE_SPAN = 0.5  # of press_force_n: the least rise of the force over the fit's ticks
 STALL_LAG_M = 0.003  # the reference this far past the arm: the clamp holds the press
 PATH_STEP_M = 0.01  # the way to the anvil is checked against the joints' limits this often
 
@@ -121,73 +119,12 @@ class Phase(enum.Enum):
 
 
 @dataclass(frozen=True)
-class PressResult:
-    """One press's verdict: the mount's stiffness that way against the configured one."""
-
-    passed: bool
-    stiffness_n_per_m: float  # measured (a lower bound when ``at_least``); nan if none
-    expected_n_per_m: float  # configured
-    at_least: bool
-    samples: int
-    peak_force_n: float  # the press's largest force read through the currents, over free air
-    message: str  # what was measured, or why nothing was
-
-
-@dataclass(frozen=True)
 class MountResult:
     passed: bool
     down: PressResult  # pressed from above (clamp.contact_stiffness_n_per_m)
     side: PressResult  # pressed on the near side (clamp.side_contact_stiffness_n_per_m)
     ratio: float  # measured vertical over sideways stiffness, over the configured ratio; nan
     message: str
-
-
-class _Press:
-    """One press's readings: the force along the press read through the currents above its
-    free-air baseline and the arm's travel along it, low-passed alike (each force is paired
-    with its travel), summed for the least-squares slope of one against the other."""
-
-    def __init__(self, expected_n_per_m: float, sign: tuple[float, float],
-                 resolution_m: float, baseline_ticks: int, alpha: float,
-                 limit_m: float) -> None:
-        self.expected_n_per_m = expected_n_per_m
-        self.sign = sign  # the side of each joint's load band: the way the press moves it
-        self.resolution_m = resolution_m  # of the travel, from the encoders
-        self.limit_m = limit_m  # the reference's furthest travel
-        self._baseline_ticks, self._alpha = baseline_ticks, alpha
-        self.sums = [0.0] * 5  # n, Σs, ΣF, Σs², ΣsF over the fit's ticks
-        self.spread = (math.inf, -math.inf, math.inf, -math.inf)  # s and F, min and max
-        self.peak_force_n = 0.0  # above the baseline
-        self.stalled = False
-        self._baseline = [0.0, 0.0]  # ticks, Σ force read
-        self._filtered_n = self._filtered_m = math.nan
-
-    def add(self, force_n: float, travel_m: float, window: tuple[float, float]) -> None:
-        """One tick's force read along the press and the arm's travel along it."""
-        baseline = self._baseline
-        if baseline[0] < self._baseline_ticks:
-            baseline[0] += 1.0
-            baseline[1] += force_n
-            self._filtered_n = baseline[1] / baseline[0]
-            self._filtered_m = travel_m
-            return
-        alpha = self._alpha
-        self._filtered_n += alpha * (force_n - self._filtered_n)
-        self._filtered_m += alpha * (travel_m - self._filtered_m)
-        force_n = self._filtered_n - baseline[1] / baseline[0]
-        travel_m = self._filtered_m
-        self.peak_force_n = max(self.peak_force_n, force_n)
-        if not window[0] <= force_n <= window[1]:
-            return
-        sums = self.sums
-        sums[0] += 1.0
-        sums[1] += travel_m
-        sums[2] += force_n
-        sums[3] += travel_m * travel_m
-        sums[4] += travel_m * force_n
-        s_lo, s_hi, f_lo, f_hi = self.spread
-        self.spread = (min(s_lo, travel_m), max(s_hi, travel_m), min(f_lo, force_n),
-                       max(f_hi, force_n))
 
 
 class MountCheck:
@@ -231,14 +168,14 @@ class MountCheck:
         # the height held; J⁻¹ of that way gives each joint's direction, J's row its travel
         j11, j12, j21, j22 = _jacobian(workspace, reach, settings.anvil_height_m)
         det = j11 * j22 - j12 * j21
-        self.down = _Press(clamp.contact_stiffness_n_per_m,
+        self.down = Press(clamp.contact_stiffness_n_per_m,
                            (math.copysign(1.0, j12 / det), math.copysign(1.0, -j11 / det)),
                            self._resolution(j21, j22), baseline_ticks, alpha,
                            anvil_depth_m + press_depth_m(settings, clamp))
         j11, j12, j21, j22 = _jacobian(workspace, self._side_reach_m,
                                        settings.anvil_side_height_m)
         det = j11 * j22 - j12 * j21
-        self.side = _Press(clamp.side_contact_stiffness_n_per_m,
+        self.side = Press(clamp.side_contact_stiffness_n_per_m,
                            (math.copysign(1.0, j22 / det), math.copysign(1.0, -j21 / det)),
                            self._resolution(j11, j12), baseline_ticks, alpha,
                            self._side_reach_m + press_depth_m(settings, clamp, sideways=True))
@@ -255,12 +192,6 @@ class MountCheck:
         motor_r, motor_theta = self._motors
         return max(abs(along_r) * joint_resolution(motor_r),
                    abs(along_theta) * joint_resolution(motor_theta))
-
-    @property
-    def peak_force_n(self) -> float:
-        """The running press's largest force read so far (the vertical one's before)."""
-        return self.side.peak_force_n if self.phase in _SIDE_PHASES else \
-            self.down.peak_force_n
 
     def _outside_workspace(self) -> str:
         """Why the path to the anvil and around it leaves the joints' limits ("" if it does
@@ -302,7 +233,7 @@ class MountCheck:
         else:
             self._move(phase, reach_m, depth_m)
 
-    def _press(self, press: _Press, reference_m: float, measured_m: float, held: Phase,
+    def _press(self, press: Press, reference_m: float, measured_m: float, held: Phase,
                ended: Phase) -> None:
         """One tick of a press whose reference travels along ``reference_m`` (the depth
         down, the reach sideways) and whose arm is at ``measured_m`` along it."""
@@ -379,9 +310,9 @@ class MountCheck:
         near = (f"the anvil's near side (reach {self._side_reach_m:.3f} m: selftest."
                 f"anvil_reach_m − anvil_width_m/2; anvil_side_height_m "
                 f"{s.anvil_side_height_m:g} m)")
-        down = self._judge_press(self.down, top, "contact_stiffness_n_per_m", "pressed down",
+        down = self.down.judge(s, top, "contact_stiffness_n_per_m", "pressed down",
                                  press_depth_m(s, self._clamp), "below the top of", "height")
-        side = self._judge_press(self.side, near, "side_contact_stiffness_n_per_m",
+        side = self.side.judge(s, near, "side_contact_stiffness_n_per_m",
                                  "pressed sideways",
                                  press_depth_m(s, self._clamp, sideways=True), "past",
                                  "position and width")
@@ -395,65 +326,12 @@ class MountCheck:
         parts = [down.message, "sideways: " + side.message]
         return MountResult(passed, down, side, ratio, "tine-mount check: " + "; ".join(parts))
 
-    def _judge_press(self, press: _Press, anvil: str, key: str, verb: str, depth_m: float,
-                     where: str, check: str) -> PressResult:
-        """One press's verdict (its message without the check's name)."""
-        expected = press.expected_n_per_m
-        stiffer, softer = self._s.mount_stiffer_tolerance, self._s.mount_softer_tolerance
-        n, ss, sf, sss, ssf = press.sums
-        peak, force_n = press.peak_force_n, self._s.press_force_n
-        s_lo, s_hi, f_lo, f_hi = press.spread
-
-        def result(passed: bool, k: float, at_least: bool, message: str) -> PressResult:
-            return PressResult(passed, k, expected, at_least, int(n), peak, message)
-
-        if press.stalled and peak < force_n:
-            return result(False, math.nan, False,
-                          f"the press was held at {peak:.1f} N of the {force_n:g} N asked for "
-                          f"(selftest.press_force_n) on {anvil}: the clamp's bound at this "
-                          "pose; lower the press or put the anvil where the arm pushes "
-                          "harder")
-        if peak < force_n and n < MIN_FIT_SAMPLES:
-            return result(False, math.nan, False,
-                          f"the tines met nothing: {verb} to {1e3 * depth_m:.0f} mm {where} "
-                          f"{anvil}, the force read through the currents reached {peak:.1f} N "
-                          f"of the {force_n:g} N pressed for: check the anvil's {check} in "
-                          "the configuration")
-        if peak < force_n or f_hi - f_lo < MIN_FORCE_SPAN * force_n:
-            return result(False, math.nan, False,
-                          f"the press reached {peak:.1f} N of the {force_n:g} N pressed for, "
-                          f"{1e3 * depth_m:.0f} mm {where} {anvil}: too little to weigh the "
-                          f"mount (the anvil elsewhere than configured, or a mount much softer "
-                          f"than {expected:.0f} N/m)")
-        spread_m = s_hi - s_lo
-        if n >= MIN_FIT_SAMPLES and spread_m >= MIN_SPREAD_COUNTS * press.resolution_m:
-            k, at_least = (n * ssf - ss * sf) / (n * sss - ss * ss), False
-        else:  # the arm did not give measurably: at least this stiff
-            k = (f_hi - f_lo) / max(spread_m, MIN_SPREAD_COUNTS * press.resolution_m)
-            at_least = True
-        ratio = k / expected
-        passed = not at_least and 1.0 - softer <= ratio <= 1.0 + stiffer
-        bound = "at least " if at_least else ""
-        verdict = "matches" if passed else "does not match"
-        message = (f"stiffness {bound}{k:.0f} N/m measured on {anvil} {verdict} "
-                   f"{expected:.0f} N/m configured (clamp.{key}; ratio {bound}{ratio:.2f}, "
-                   f"tolerance +{stiffer:g}/−{softer:g}, {int(n)} samples)")
-        if not passed:
-            message += (": the mount is stiffer than the clamp's bound assumes: check the "
-                        "tines' springs before arming" if ratio > 1.0 else
-                        ": check the tines' mount and the anvil before arming")
-        return result(passed, k, at_least, message)
-
-
 def _jacobian(workspace: kinematics.Workspace, reach_m: float, height_m: float
               ) -> tuple[float, float, float, float]:
     r_m, theta_rad = kinematics.inverse(workspace, reach_m, height_m)
     return kinematics.jacobian(r_m, theta_rad)
 
 
-_SIDE_PHASES = frozenset({Phase.OVER, Phase.BESIDE, Phase.SIDE_PRESS, Phase.SIDE_HOLD,
-                          Phase.OFF, Phase.CLEAR, Phase.BACK, Phase.RETURN, Phase.LOWER,
-                          Phase.DONE})
 _AFTER = {Phase.RISE: Phase.ACROSS, Phase.ACROSS: Phase.DOWN, Phase.DOWN: Phase.PRESS,
           Phase.UP: Phase.OVER, Phase.OVER: Phase.BESIDE, Phase.BESIDE: Phase.SIDE_PRESS,
           Phase.OFF: Phase.CLEAR, Phase.CLEAR: Phase.BACK, Phase.BACK: Phase.RETURN,
