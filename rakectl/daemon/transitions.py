@@ -105,8 +105,7 @@ class StateChanges(SlackWork):
 
     def start_reset(self) -> None:
         """Fault-reset the drives; FAULT/ESTOP → DISARMED once no problem is left (≤ 1 s)."""
-        self.client.command(None, DriveCommand.FAULT_RESET)
-        self.client.restart_stopped_nodes()
+        self.client.reset_faults()
         self._reset_deadline = self.ticks + round(self.settings.rate_hz)
 
     def _try_reset(self) -> None:

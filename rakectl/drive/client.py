@@ -204,6 +204,7 @@ class DriveClient(FrameDecoder):
         self._tpdo2_after_emcy = [True, True]  # a TPDO2 came after the drive's last EMCY
         self._enabled_expected = False  # both drives were enabled, no other command since
         self._operational = False  # both drives started (NMT) and answering: heartbeats count
+        self._answers_forgiven = 0
         self._fault = [False, False]
 
     # ------------------------------------------------------------------- bring-up
@@ -334,15 +335,20 @@ class DriveClient(FrameDecoder):
                 self._emcy_fault[j] = False
                 self._update_fault(j)
 
-    def restart_stopped_nodes(self) -> None:
-        """At a fault reset: drives whose heartbeat says PRE-OPERATIONAL or STOPPED (an NMT
-        command from elsewhere) are started again; a rebooted one is not (it needs its
-        bring-up)."""
+    def reset_faults(self) -> None:
+        """The operator's reset: a fault reset of both drives (:meth:`command`); drives whose
+        heartbeat says PRE-OPERATIONAL or STOPPED (an NMT command from elsewhere) started
+        again, a rebooted one not (it needs its bring-up); and the extra TPDO1s counted so
+        far judged no more (:meth:`answers_beyond_syncs` counts from the start: a SYNC
+        producer gone would fault the loop again at once)."""
+        self.command(None, DriveCommand.FAULT_RESET)
         for j in JOINTS:
             state = self.feedback.nmt_state[j]
             if (self._operational and not self._rebooted[j]
                     and state in (NmtState.PRE_OPERATIONAL, NmtState.STOPPED)):
                 self.start_node(j)
+        received = self.stats.tpdo_received
+        self._answers_forgiven = max(received[0], received[1]) - self.stats.syncs
 
     def path_to_enabled(self, state: DriveState) -> list[DriveCommand]:
         """The commands that bring a drive from ``state`` to OPERATION_ENABLED

@@ -135,10 +135,13 @@ class DriveSupervision:
     _power: PowerRequests  # its lost: a Roboteq-class drive went off by itself while on
     _left_enabled: list[DriveState | None]  # the state a drive left OPERATION ENABLED for
     _nmt_fault: list[bool]  # a heartbeat not OPERATIONAL once the drives were started
+    _answers_forgiven: int  # TPDO1s beyond the SYNCs sent, counted before the last reset
     _fault: list[bool]  # any of these
 
     def drive_faults(self) -> bool:
-        """A drive is in FAULT (or its reaction), has an active EMCY, or rebooted."""
+        """A drive is in FAULT (or its reaction), has an active EMCY, rebooted, went off by
+        itself (Roboteq-class), left OPERATION ENABLED while armed, or is not NMT
+        OPERATIONAL."""
         return self._fault[0] or self._fault[1]
 
     def stale_feedback(self, limit_cycles: int) -> bool:
@@ -147,11 +150,12 @@ class DriveSupervision:
         return stale[0] >= limit_cycles or stale[1] >= limit_cycles
 
     def answers_beyond_syncs(self) -> int:
-        """How many more TPDO1s a drive answered than this controller sent SYNCs: more
-        than a few means another node sends SYNC on this bus (another master, whose
-        SYNCs double the drives' answers and the samples the force estimate counts)."""
+        """How many more TPDO1s a drive answered than this controller sent SYNCs, since the
+        last reset (``reset_faults``): more than a few means another node sends SYNC on
+        this bus (another master, whose SYNCs double the drives' answers and the samples the
+        force estimate counts)."""
         received, syncs = self.stats.tpdo_received, self.stats.syncs
-        return max(received[0], received[1]) - syncs
+        return max(received[0], received[1]) - syncs - self._answers_forgiven
 
     def heartbeat_lost(self, now_s: float) -> bool:
         """A drive's heartbeat is older than the heartbeat timeout at ``now_s`` (same clock).
@@ -189,11 +193,10 @@ class DriveSupervision:
                 flags = fb.statusword[joint]
                 problems.append(f"{label}: its power stage went off by itself (fault flags "
                                 f"0x{flags >> 16:04X}, status flags 0x{flags & 0xFFFF:04X})")
-            extra = self.stats.tpdo_received[joint] - self.stats.syncs
+            extra = self.stats.tpdo_received[joint] - self.stats.syncs - self._answers_forgiven
             if extra > FOREIGN_SYNC_ANSWERS:
-                problems.append(f"{label}: {self.stats.tpdo_received[joint]} TPDO1s for "
-                                f"{self.stats.syncs} SYNCs sent: another node sends SYNC on "
-                                "this bus (another CANopen master)")
+                problems.append(f"{label}: {extra} TPDO1s more than the SYNCs sent: another "
+                                "node sends SYNC on this bus (another CANopen master)")
             if fb.stale_cycles[joint] >= limit_cycles:
                 bad = self.stats.tpdo1_bad_length[joint]
                 problems.append(f"{label}: no TPDO1 for {fb.stale_cycles[joint]} cycles"

@@ -255,6 +255,10 @@ def test_another_sync_producer_is_a_fault_named(rig: LockstepRig, other: can.Bus
     d = rig.daemon
     assert d.state is DaemonState.FAULT
     assert "another node sends SYNC on this bus (another CANopen master)" in d.fault_reason
+    _reset(rig)  # the other producer gone: the answers counted before do not fault again
+    assert d.state is DaemonState.DISARMED, d.fault_reason
+    _ticks(rig, 100)
+    assert d.state is DaemonState.DISARMED, d.fault_reason
 
 
 def test_a_tpdo1_remapped_by_another_tool_is_named_in_the_fault(rig: LockstepRig,
