@@ -92,7 +92,9 @@ def report(info: Any, parameters: Any, eds: str, profile: str) -> dict[str, Any]
         "rewritten": [{"name": pdo.name, "cob_id": pdo.cob_id,
                        "transmission_type": pdo.transmission_type,
                        "mapped": [m for m in pdo.mapped if m >= 0],
-                       "longer": any(m < 0 for m in pdo.mapped)} for pdo in info.rewritten],
+                       "longer": any(m < 0 for m in pdo.mapped),
+                       "timers": dict(pdo.timers)} for pdo in info.rewritten],
+        "disabled": [{"name": pdo.name, "cob_id": pdo.cob_id} for pdo in info.disabled],
     }
 
 
@@ -132,6 +134,12 @@ def text(r: dict[str, Any]) -> str:
     for pdo in r["rewritten"]:
         mapped = ", ".join(f"0x{m:08X}" for m in pdo["mapped"]) + (", …" if pdo["longer"]
                                                                    else "")
+        timers = "".join(f", {what} {value}" for what, value in pdo["timers"].items())
         lines.append(f"    {pdo['name']:<6} COB-ID 0x{pdo['cob_id']:X}, transmission type "
-                     f"{pdo['transmission_type']}, mapped [{mapped}]")
+                     f"{pdo['transmission_type']}{timers}, mapped [{mapped}]")
+    if r["disabled"]:
+        lines.append("  beyond the EDS's and valid, made not valid (not stored: at every "
+                     "bring-up):")
+    for pdo in r["disabled"]:
+        lines.append(f"    {pdo['name']:<6} COB-ID 0x{pdo['cob_id']:X}")
     return "\n".join(lines)

@@ -41,8 +41,9 @@ in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.settings.Driv
    changed and saved is found here: that PDO is written back to the EDS's in
    CiA 301's order (COB-ID not valid, what differs and the EDS declares writable, sub 0
    = 0, the entries, sub 0 = n, the COB-ID valid) and read again; a drive that refuses
-   it or keeps its own is refused, naming the object and both values; so is a TPDO
-   beyond the EDS's that the drive has and holds valid (:mod:`rakectl.drive.pdos`).
+   it or keeps its own is refused, naming the object and both values. A PDO beyond
+   the EDS's that the drive has and holds valid is made not valid (bit 31 of its
+   COB-ID; a drive that refuses it is refused, naming it: :mod:`rakectl.drive.pdos`).
    The dry run (``start=False``) also reads the device name 0x1008.
 
 Then a drive still in FAULT from the previous run (it lost that run's
@@ -54,7 +55,10 @@ statusword read until it leaves FAULT (``DriveFault`` naming ``FAULT_RESET_TIMEO
 flags read the same way. Then
 the statusword 0x6041 of each (the CiA 402 state the hot path starts
 from: the TPDO2 a drive sends on entering OPERATIONAL may reach the bring-up
-Notifier instead), and NMT start for each node (OPERATIONAL). Start ticking right away: an
+Notifier instead), and NMT start for each node (OPERATIONAL). Then everything steps 3
+and 5 wrote is read again: a drive that restarted since its configuration (a brown-out,
+another node's NMT reset) and whose boot-up was lost holds its power-on values and was
+started with them; DriveFault naming the first object that differs. Start ticking right away: an
 enabled drive faults when RPDO1 or SYNC stop for 0x2003 ms, and every drive
 once the controller's heartbeat (first sent with the first SYNC) stops.
 
@@ -91,6 +95,7 @@ from rakectl.config.settings import MotorsSettings
 from rakectl.drive.canbus import BusError, TracedNetwork, TraceRecorder
 from rakectl.drive.joints import (
     JOINTS,
+    DisabledPdo,
     DriveInfo,
     DriveLimits,
     Identity,
@@ -126,6 +131,8 @@ NOTIFIER_JOIN_S = 2.0
 _T = TypeVar("_T")
 SDO_RETRIES = 3  # canopen repeats an unanswered SDO request this often at bring-up,
 # and a segmented upload that lost a segment is started again this often
+RESTARTED = ("the drive restarted during bring-up (its boot-up lost) and holds its power-on "
+             "values; bring-up again (restart the service)")
 RESET_ATTEMPTS = 3  # NMT reset communication sent this often, boot_timeout_s over all
 SDO_TOGGLE_BIT_ABORT = 0x05030000  # a segment lost or repeated
 SDO_NO_OBJECT_ABORTS = (0x06020000, 0x06090011)  # no such object, no such subindex
@@ -154,6 +161,7 @@ class BringUp:
                                                                   strict=True)}
         self._heard = {joint: threading.Event() for joint in JOINTS}  # anything from it
         self._booted = {joint: threading.Event() for joint in JOINTS}
+        self._written: dict[Joint, list[Parameter]] = {}  # by _configure, for _check_kept
         self._nodes: dict[Joint, canopen.RemoteNode] = {}
         self._node_id = dict(zip(JOINTS, node_ids(drives), strict=True))
         for joint, node_id in self._node_id.items():
@@ -194,18 +202,21 @@ class BringUp:
         if start:
             for joint in JOINTS:
                 self._nmt(joint, NmtCommand.START)
+            for joint, (*_, disabled) in zip(JOINTS, configured, strict=True):
+                self._check_kept(joint, disabled)
         r_info, theta_info = (
             DriveInfo(joint, self._node_id[joint], identity, limits, statusword,
-                      self._start.state_of(joint, statusword), code, name, pdos, rewritten)
-            for joint, (identity, limits, pdos, rewritten), name, statusword, code in zip(
-                JOINTS, configured, names, statuswords, cleared, strict=True))
+                      self._start.state_of(joint, statusword), code, name, pdos, rewritten,
+                      disabled)
+            for joint, (identity, limits, pdos, rewritten, disabled), name, statusword, code
+            in zip(JOINTS, configured, names, statuswords, cleared, strict=True))
         return r_info, theta_info
 
     def _label(self, joint: Joint) -> str:
         return drive_label(joint, self._node_id[joint])
 
     def _configure(self, joint: Joint) -> tuple[Identity, DriveLimits, tuple[PdoReading, ...],
-                                                 tuple[PdoReading, ...]]:
+                                                 tuple[PdoReading, ...], tuple[DisabledPdo, ...]]:
         self._reset_communication(joint)
         identity = self._check_identity(joint)
         supply_mv = round(motor_of(self._motors, joint).supply_voltage_v * 1000)
@@ -217,6 +228,7 @@ class BringUp:
         absent = [p for p in parameters if not self._write_parameter(joint, p)]
         read_back = [p.value if p in absent else self._read(joint, p.index, p.subindex, p.name)
                      for p in parameters]
+        self._written[joint] = [p for p in parameters if p not in absent]
         for p, value in zip(parameters, read_back, strict=True):
             if value != p.value:
                 unit = f" {p.unit}" if p.unit else ""
@@ -226,6 +238,20 @@ class BringUp:
                                                                      strict=True)}
         limits.setdefault("max_voltage_mv", supply_mv)  # a drive with no limit of its own
         return identity, DriveLimits(**limits), *self._pdos.check(joint)
+
+    def _check_kept(self, joint: Joint, disabled: tuple[DisabledPdo, ...]) -> None:
+        """Once the drives are started, everything :meth:`_configure` wrote read again: a
+        drive that restarted since (a brown-out, another node's NMT reset) and whose
+        boot-up was lost holds its power-on values, and was started with them. DriveFault
+        naming the first object that differs."""
+        for p in self._written[joint]:
+            value = self._read(joint, p.index, p.subindex, p.name)
+            if value != p.value:
+                unit = f" {p.unit}" if p.unit else ""
+                raise DriveFault(f"{self._label(joint)}: after NMT start, {p.where()} {p.name} "
+                                 f"reads {value}{unit}, {p.value}{unit} was written and read "
+                                 f"back: {RESTARTED}")
+        self._pdos.check_kept(joint, disabled, RESTARTED)
 
     def _reset_communication(self, joint: Joint) -> None:
         """NMT reset communication until its boot-up comes (step 1 of the module docstring)."""
@@ -356,9 +382,13 @@ class BringUp:
                 return None
             raise
 
-    def _write(self, joint: Joint, p: Parameter) -> None:
+    def _write(self, joint: Joint, p: Parameter, variable: ODVariable | None = None) -> None:
+        """``p`` written, encoded as the EDS declares it (or as ``variable``, for an object
+        the EDS does not have)."""
         node = self._nodes[joint]
-        data = od_variable(node.object_dictionary, p.index, p.subindex).encode_raw(p.value)
+        var = od_variable(node.object_dictionary, p.index, p.subindex) if variable is None \
+            else variable
+        data = var.encode_raw(p.value)
         what = f"writing {p.where()} {p.name} = {p.value}{' ' + p.unit if p.unit else ''}"
         self._sdo(joint, what, lambda: node.sdo.download(p.index, p.subindex, data))
 

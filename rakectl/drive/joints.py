@@ -4,7 +4,7 @@ to, identities, limits and the parameters written at bring-up (from their EDS fi
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import canopen
 from canopen.objectdictionary import ObjectDictionary, ODVariable, datatypes
@@ -94,6 +94,9 @@ class PdoReading:
     cob_id: int  # sub 1 of 0x1400 + n or 0x1800 + n
     transmission_type: int  # sub 2: 1 … 240 synchronous (every n-th SYNC), 254/255 event
     mapped: tuple[int, ...]  # the mapping's entries: index << 16 | subindex << 8 | bits
+    # (name, value) of an inhibit time or event timer the drive held otherwise than its
+    # EDS (a PDO written back); not compared
+    timers: tuple[tuple[str, int], ...] = field(default=(), compare=False)
 
     def entries(self) -> list[tuple[int, int, int]]:
         """(index, subindex, bits) of each mapped object."""
@@ -114,6 +117,17 @@ class DriveInfo:
     device_name: str = ""  # 0x1008
     pdos: tuple[PdoReading, ...] = ()  # as read back, equal to the EDS's
     rewritten: tuple[PdoReading, ...] = ()  # what the drive held of the PDOs written back
+    disabled: tuple[DisabledPdo, ...] = ()  # PDOs beyond the EDS's, found valid, made not
+
+
+@dataclass(frozen=True)
+class DisabledPdo:
+    """A PDO the drive has beyond its EDS's and held valid, made not valid at bring-up
+    (bit 31 of its COB-ID; not stored: again at every bring-up)."""
+
+    name: str  # "RPDO2", "TPDO3", ...
+    index: int  # its communication parameter, 0x1400 + n or 0x1800 + n
+    cob_id: int  # as the drive held it
 
 
 @dataclass(frozen=True)

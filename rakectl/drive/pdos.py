@@ -6,9 +6,12 @@ own, refused with one line naming the object and what the drive held.
 
 Bit 30 of a COB-ID (no RTR) is the drive's own: many drives report their TPDOs' COB-IDs
 with it set (0x40000181) and refuse a COB-ID that clears it, so it is neither compared
-nor ever written otherwise than the drive reports it. A TPDO the drive has beyond the
-EDS's (0x1800 + n, up to the first it does not have) must not be valid: sent beside the
-EDS's, it would load the bus beyond the budget of docs/can-bus.md.
+nor ever written otherwise than the drive reports it. A PDO the drive has beyond the
+EDS's (0x1400 + n or 0x1800 + n, up to the first it does not have) that is valid is made
+not valid (bit 31 written, read again; not stored, as a standard master does): a TPDO
+sent beside the EDS's would load the bus beyond the budget of docs/can-bus.md, and an
+RPDO would let frames no clamp has judged reach the drive. A drive that refuses it is
+refused, naming the PDO.
 
 It makes its SDO transfers through the bring-up's own (given to :class:`PdoCheck`), so
 their retries, timeouts and one-line failures are the bring-up's.
@@ -21,7 +24,7 @@ from dataclasses import replace
 
 from canopen.objectdictionary import ObjectDictionary, ODVariable
 
-from rakectl.drive.joints import Joint, Parameter, PdoReading, od_variable
+from rakectl.drive.joints import DisabledPdo, Joint, Parameter, PdoReading, od_variable
 from rakectl.errors import ConfigError, DriveFault
 
 PDO_SLOTS = 512  # CiA 301: RPDO and TPDO communication parameters 0x1400/0x1800 + 0 … 511
@@ -29,7 +32,7 @@ PDO_NOT_VALID = 1 << 31  # bit 31 of a PDO's COB-ID
 PDO_NO_RTR = 1 << 30  # bit 30: no RTR answered for it; the drive's own
 MORE_ENTRIES = -1  # a read-back mapping longer than the EDS's ends in this
 TIMERS = ((3, "inhibit time"), (5, "event timer"))  # communication subindices, where declared
-TPDO_BASE = 0x1800
+RPDO_BASE, TPDO_BASE = 0x1400, 0x1800
 
 Slot = tuple[str, int, int]  # name, communication index, mapping index
 Timer = tuple[int, str, int, int]  # subindex, name, as the drive holds it, as the EDS declares
@@ -39,22 +42,25 @@ class PdoCheck:
     """The PDOs of the drives, checked and written back over the bring-up's transfers."""
 
     def __init__(self, read: Callable[[Joint, int, int, str], int],
-                 write: Callable[[Joint, Parameter], None],
+                 write: Callable[[Joint, Parameter, ODVariable | None], None],
                  read_if_present: Callable[[Joint, int, int, str, ODVariable], int | None],
                  label: Callable[[Joint], str],
                  od: Callable[[Joint], ObjectDictionary], eds: Callable[[Joint], str]) -> None:
-        """``read_if_present``: a read that gives None when the drive has no such object,
+        """``write``: a write encoding as the variable given (None: the EDS's);
+        ``read_if_present``: a read that gives None when the drive has no such object,
         decoding as the variable given; ``eds``: the name of a drive's EDS file."""
         self._read, self._write, self._label, self._od = read, write, label, od
         self._read_if_present, self._eds = read_if_present, eds
 
-    def check(self, joint: Joint) -> tuple[tuple[PdoReading, ...], tuple[PdoReading, ...]]:
+    def check(self, joint: Joint) -> tuple[tuple[PdoReading, ...], tuple[PdoReading, ...],
+                                            tuple[DisabledPdo, ...]]:
         """Every PDO the EDS declares, read back. One that differs from the EDS (another
         tool stored its own, which reset communication restores) is written back to the
         EDS's in CiA 301's order (:meth:`_remap`) and read again; DriveFault naming the
-        first object that still differs, or a TPDO beyond the EDS's that is valid. Returns
-        the PDOs as they now are (the EDS's, with the drive's bit 30) and the readings of
-        those whose COB-ID, transmission type or mapping were written back."""
+        first object that still differs. Then every PDO beyond the EDS's that is valid is
+        made not valid (:meth:`_disable_other_pdos`). Returns the PDOs as they now are (the
+        EDS's, with the drive's bit 30), the readings of those written back (with the
+        timers the drive held otherwise) and the PDOs made not valid."""
         slots = self._pdo_slots(joint)
         declared = [self._declared_pdo(joint, *slot) for slot in slots]
         readings = [self._read_pdo(joint, *slot, eds)
@@ -70,11 +76,15 @@ class PdoCheck:
                     self._remap(joint, slot, reading, eds, held_timers)
             for slot, eds, held_timers in zip(slots, declared, timers, strict=True):
                 self._verify(joint, slot, eds, held_timers)
-        self._check_other_tpdos(joint, slots)
+        disabled = self._disable_other_pdos(joint, slots)
+        rewritten = tuple(
+            replace(reading, timers=tuple((what, held) for _, what, held, eds_value
+                                          in held_timers if held != eds_value))
+            for reading, held_timers, different in zip(readings, timers, differ, strict=True)
+            if different)
         return (tuple(replace(eds, cob_id=eds.cob_id | reading.cob_id & PDO_NO_RTR)
                       for eds, reading in zip(declared, readings, strict=True)),
-                tuple(reading for reading, eds in zip(readings, declared, strict=True)
-                      if not _same(reading, eds)))
+                rewritten, disabled)
 
     def _pdo_slots(self, joint: Joint) -> list[Slot]:
         """(name, communication index, mapping index) of each PDO the EDS declares."""
@@ -144,7 +154,8 @@ class PdoCheck:
         steps.append((comm, 1, "COB-ID", eds.cob_id | no_rtr))
         for index, subindex, what, value in steps:
             try:
-                self._write(joint, Parameter(index, subindex, f"{name} {what}", "", value, why))
+                self._write(joint, Parameter(index, subindex, f"{name} {what}", "", value, why),
+                            None)
             except DriveFault as error:
                 raise DriveFault(f"{error} (writing {self._eds(joint)}'s {name} back over the "
                                  f"drive's: {_describe(held, timers)})") from error
@@ -157,47 +168,92 @@ class PdoCheck:
                              f"{self._default(joint, index, subindex)} and read-only: the "
                              "hot path and the bus-load budget take the EDS's PDOs")
 
-    def _verify(self, joint: Joint, slot: Slot, eds: PdoReading, timers: list[Timer]) -> None:
-        """A PDO read again after the write-back: every object its EDS's."""
+    def check_kept(self, joint: Joint, disabled: tuple[DisabledPdo, ...], cause: str) -> None:
+        """Once the drives are started: every PDO the EDS declares still the EDS's, and
+        those made not valid still not valid; DriveFault naming the first object that is
+        not and ``cause``."""
+        od = self._od(joint)
+        for slot in self._pdo_slots(joint):
+            comm = slot[1]
+            timers = [(sub, what, 0, 0) for sub, what in TIMERS
+                      if od.get_variable(comm, sub) is not None]
+            self._verify(joint, slot, self._declared_pdo(joint, *slot), timers, cause)
+        cob_id = od_variable(od, TPDO_BASE, 1)
+        for pdo in disabled:
+            now = self._read_if_present(joint, pdo.index, 1, f"{pdo.name} COB-ID", cob_id)
+            if now is not None and not now & PDO_NOT_VALID:
+                raise DriveFault(f"{self._label(joint)}: after NMT start, 0x{pdo.index:04X}:1 "
+                                 f"{pdo.name} COB-ID is 0x{now:X}, valid again: {cause}")
+
+    def _verify(self, joint: Joint, slot: Slot, eds: PdoReading, timers: list[Timer],
+                cause: str = "") -> None:
+        """A PDO read again after the write-back (or, with ``cause``, after NMT start):
+        every object its EDS's."""
         name, comm, mapping = slot
-        self._expect(joint, comm, 1, f"{name} COB-ID", ignored=PDO_NO_RTR)
-        self._expect(joint, comm, 2, f"{name} transmission type")
+        self._expect(joint, comm, 1, f"{name} COB-ID", PDO_NO_RTR, cause)
+        self._expect(joint, comm, 2, f"{name} transmission type", 0, cause)
         for sub, what, _, _ in timers:
-            self._expect(joint, comm, sub, f"{name} {what}")
-        self._expect(joint, mapping, 0, f"{name} number of mapped objects")
+            self._expect(joint, comm, sub, f"{name} {what}", 0, cause)
+        self._expect(joint, mapping, 0, f"{name} number of mapped objects", 0, cause)
         for k in range(1, len(eds.mapped) + 1):
-            self._expect(joint, mapping, k, f"{name} mapped object {k}")
+            self._expect(joint, mapping, k, f"{name} mapped object {k}", 0, cause)
 
     def _expect(self, joint: Joint, index: int, subindex: int, name: str,
-                ignored: int = 0) -> int:
-        """An object read back that must hold its EDS default (but the ``ignored`` bits)."""
+                ignored: int = 0, cause: str = "") -> int:
+        """An object read back that must hold its EDS default (but the ``ignored`` bits);
+        ``cause``: why it would not, once the drives are started."""
         value = self._read(joint, index, subindex, name)
         declared = self._default(joint, index, subindex)
         if (value ^ declared) & ~ignored:
-            raise DriveFault(f"{self._label(joint)}: 0x{index:04X}:{subindex} {name} is "
-                             f"0x{value:X}, {self._eds(joint)} declares 0x{declared:X}, and "
-                             "the drive kept it when the EDS's mapping was written: the hot "
-                             "path decodes the EDS's PDO layout")
+            held = (f"0x{index:04X}:{subindex} {name} is 0x{value:X}, {self._eds(joint)} "
+                    f"declares 0x{declared:X}")
+            if cause:
+                raise DriveFault(f"{self._label(joint)}: after NMT start, {held}: {cause}")
+            raise DriveFault(f"{self._label(joint)}: {held}, and the drive kept it when the "
+                             "EDS's mapping was written: the hot path decodes the EDS's PDO "
+                             "layout")
         return value
 
-    def _check_other_tpdos(self, joint: Joint, slots: list[Slot]) -> None:
-        """Every TPDO the drive has beyond the EDS's (up to the first it does not have) must
-        not be valid: DriveFault naming the first that is."""
+    def _disable_other_pdos(self, joint: Joint, slots: list[Slot]) -> tuple[DisabledPdo, ...]:
+        """Every RPDO and TPDO the drive has beyond the EDS's (up to the first of each it
+        does not have) that is valid made not valid: bit 31 of its COB-ID written, the
+        other bits as held, and read again. DriveFault naming the first the drive refuses
+        or keeps valid. Returns those made not valid, as held."""
         declared = {comm for _, comm, _ in slots}
         cob_id = od_variable(self._od(joint), TPDO_BASE, 1)  # UNSIGNED32, as every COB-ID
-        for n in range(PDO_SLOTS):
-            comm, name = TPDO_BASE + n, f"TPDO{n + 1}"
-            if comm in declared:
-                continue
-            held = self._read_if_present(joint, comm, 1, f"{name} COB-ID", cob_id)
-            if held is None:
-                return
-            if not held & PDO_NOT_VALID:
-                raise DriveFault(
-                    f"{self._label(joint)}: {name} (0x{comm:04X}:1 COB-ID 0x{held:X}) is valid, "
-                    f"and {self._eds(joint)} has no such TPDO: the drive would send it beside "
-                    "the EDS's, beyond the bus-load budget (docs/can-bus.md); make it not "
-                    "valid (bit 31) and store that with the drive's own tool")
+        disabled: list[DisabledPdo] = []
+        for kind, base in (("RPDO", RPDO_BASE), ("TPDO", TPDO_BASE)):
+            for n in range(PDO_SLOTS):
+                comm, name = base + n, f"{kind}{n + 1}"
+                if comm in declared:
+                    continue
+                what = f"{name} COB-ID"
+                held = self._read_if_present(joint, comm, 1, what, cob_id)
+                if held is None:
+                    break
+                if held & PDO_NOT_VALID:
+                    continue
+                why = (f"{self._eds(joint)} has no such {kind}: "
+                       + ("sent beside the EDS's, it would break the bus-load budget "
+                          "(docs/can-bus.md)" if kind == "TPDO" else
+                          "frames no clamp judged could command the drive through it"))
+                try:
+                    self._write(joint, Parameter(comm, 1, what, "", held | PDO_NOT_VALID, why),
+                                cob_id)
+                except DriveFault as error:
+                    raise DriveFault(f"{error} (making {name}, valid and {why}, not valid: "
+                                     "make it not valid, bit 31, and store that with the "
+                                     "drive's own tool)") from error
+                now = self._read_if_present(joint, comm, 1, what, cob_id)
+                if now is None or not now & PDO_NOT_VALID:
+                    raise DriveFault(
+                        f"{self._label(joint)}: {name} (0x{comm:04X}:1 COB-ID 0x{held:X}) is "
+                        f"valid, {why}; written not valid, it reads "
+                        + ("nothing" if now is None else f"0x{now:X}")
+                        + ": make it not valid (bit 31) and store that with the drive's "
+                        "own tool")
+                disabled.append(DisabledPdo(name, comm, held))
+        return tuple(disabled)
 
 
 def _same(held: PdoReading, eds: PdoReading) -> bool:

@@ -33,7 +33,7 @@ from rakectl.config.service import DrivesSettings
 from rakectl.config.settings import MotorsSettings
 from rakectl.drive import profiles
 from rakectl.drive.bringup import BringUp, run_bring_up
-from rakectl.drive.joints import Joint, load_drive_od
+from rakectl.drive.joints import DisabledPdo, DriveInfo, Joint, PdoReading, load_drive_od
 from rakectl.drive.profiles import drive_parameters
 from rakectl.errors import CommsTimeout, DriveFault
 from rakectl.protocol import cia402, codec, roboteq
@@ -212,7 +212,81 @@ def test_an_event_timer_another_tool_stored_is_written_back() -> None:
         assert sdo_read(bus, R_NODE, 0x1801, 5) == 1
         infos = bring_up(bus)
         assert [sdo_read(bus, n, 0x1801, 5) for n in NODES] == [0, 0]
-        assert [i.rewritten for i in infos] == [(), ()]  # the mapping itself was the EDS's
+        assert [[(p.name, p.mapped == pdo_of(i, "TPDO2").mapped, p.timers)
+                 for p in i.rewritten] for i in infos] == [
+                     [("TPDO2", True, (("event timer", 1),))]] * 2
+    printed = text(report(infos[0], drive_parameters(Joint.R, DRIVES, MOTORS),
+                          "dc_servo_drive.eds", "cia402"))  # rakectl drives
+    assert "    TPDO2  COB-ID 0x281, transmission type 255, event timer 1, mapped [" in printed
+
+
+def pdo_of(info: DriveInfo, name: str) -> PdoReading:
+    return next(p for p in info.pdos if p.name == name)
+
+
+class RebootsBeforeStart(VirtualBus):
+    """The drives' bus edge, where the r drive restarts (an NMT reset node from another
+    node, as a brown-out would) once bring-up has read its statusword, the last read
+    before NMT start, and its boot-up is lost: nothing on the bus says it restarted."""
+
+    def __init__(self, channel: Any = "channel-0", **kwargs: Any) -> None:
+        super().__init__(channel, **kwargs)
+        self._other_node = VirtualBus(channel)
+        self._rebooted = False
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if msg.arbitration_id == 0x700 + R_NODE and bytes(msg.data) == b"\0" and self._rebooted:
+            return  # the boot-up, lost
+        super().send(msg, timeout)
+        if (msg.arbitration_id == 0x580 + R_NODE and bytes(msg.data[1:4]) == b"\x41\x60\0"
+                and not self._rebooted):
+            self._rebooted = True
+            self._other_node.send(can.Message(arbitration_id=0, data=bytes((0x81, R_NODE)),
+                                              is_extended_id=False))
+
+    def shutdown(self) -> None:
+        self._other_node.shutdown()
+        super().shutdown()
+
+
+def test_a_drive_that_restarts_before_nmt_start_is_refused() -> None:
+    """A drive that restarted between its configuration and NMT start, its boot-up lost,
+    holds its power-on values (no consumer heartbeat, its own watchdog time, the stored
+    PDOs): it was started with them as if configured. Everything bring-up wrote is read
+    again once the drives are started: refused, naming the first object and the cause."""
+    with drives_on_a_bus(emulator_bus_class=RebootsBeforeStart) as (_, bus), pytest.raises(
+            DriveFault) as raised:
+        run_bring_up(bus, DRIVES, MOTORS, BOOT_TIMEOUT_S)
+    assert str(raised.value) == (
+        "r drive (node 1): after NMT start, 0x2003 watchdog timeout reads 20 ms, 3 ms was "
+        "written and read back: the drive restarted during bring-up (its boot-up lost) and "
+        "holds its power-on values; bring-up again (restart the service)")
+
+
+@pytest.mark.parametrize(("index", "subindex", "value", "named"), [
+    (0x1A00, 1, 0x60410010, "0x1A00:1 TPDO1 mapped object 1 is 0x60410010, "
+     "geared_motor_drive.eds declares 0x60640020"),
+    (0x1802, 1, 0x382, "0x1802:1 TPDO3 COB-ID is 0x382, valid again")])
+def test_pdos_that_change_before_nmt_start_are_refused(
+        fake_drives: tuple[FakeDrive, FakeDrive], network: LoopbackNetwork, index: int,
+        subindex: int, value: int, named: str) -> None:
+    """The θ drive's stored PDOs come back at NMT start, as a drive that restarted unseen
+    holds them (its limits kept, so that only the PDOs' reading finds it): a mapping
+    another tool stored, or a TPDO that was made not valid."""
+    theta = fake_drives[1]
+    _add_pdo(theta, 0x1802, 0x382)
+
+    def restore_stored(can_id: int, data: bytearray, timestamp: float) -> None:
+        if decode_nmt(data) == (NmtCommand.START, THETA_NODE):
+            theta.node.set_data(index, subindex, value.to_bytes(4, "little"))
+
+    network.subscribe(codec.NMT_COB_ID, restore_stored)
+    with pytest.raises(DriveFault) as raised:
+        _announce_and_run(make_bring_up(network), fake_drives)
+    assert str(raised.value) == (
+        f"θ drive (node 2): after NMT start, {named}: the drive restarted during bring-up "
+        "(its boot-up lost) and holds its power-on values; bring-up again (restart the "
+        "service)")
 
 
 class ShortIdentityAnswers(VirtualBus):
@@ -312,36 +386,64 @@ def test_an_inhibit_time_the_eds_declares_read_only_is_refused_naming_it(
         "and read-only: the hot path and the bus-load budget take the EDS's PDOs")
 
 
-def _add_tpdo3(drive: FakeDrive, cob_id: int) -> None:
-    record = ODRecord("TPDO3 communication parameter", 0x1802)
-    for subindex, name, data_type, default in ((0, "Highest sub-index supported",
-                                                datatypes.UNSIGNED8, 2),
-                                               (1, "COB-ID used by TPDO", datatypes.UNSIGNED32,
-                                                cob_id),
-                                               (2, "Transmission type", datatypes.UNSIGNED8, 255)):
-        variable = ODVariable(name, 0x1802, subindex)
-        variable.data_type, variable.access_type, variable.default = data_type, "rw", default
+def _add_pdo(drive: FakeDrive, index: int, cob_id: int, access: str = "rw") -> None:
+    """A PDO communication parameter beyond the EDS's (0x1401 RPDO2, 0x1802 TPDO3)."""
+    kind = "RPDO" if index < 0x1800 else "TPDO"
+    record = ODRecord(f"{kind} communication parameter", index)
+    for subindex, name, data_type, default, sub_access in (
+            (0, "Highest sub-index supported", datatypes.UNSIGNED8, 2, "ro"),
+            (1, f"COB-ID used by {kind}", datatypes.UNSIGNED32, cob_id, access),
+            (2, "Transmission type", datatypes.UNSIGNED8, 255, "rw")):
+        variable = ODVariable(name, index, subindex)
+        variable.data_type, variable.access_type, variable.default = (data_type, sub_access,
+                                                                      default)
         record.add_member(variable)
     drive.node.object_dictionary.add_object(record)
 
 
-def test_a_tpdo_beyond_the_eds_s_must_not_be_valid(
+def _cob_id(drive: FakeDrive, index: int) -> int:
+    return int.from_bytes(drive.node.get_data(index, 1), "little")
+
+
+def test_pdos_beyond_the_eds_s_are_made_not_valid(
         fake_drives: tuple[FakeDrive, FakeDrive], network: LoopbackNetwork) -> None:
-    """A drive with a third TPDO, valid (many CiA 402 drives ship so): at 1 kHz it would
-    break the bus-load budget. Not valid, it passes."""
-    _add_tpdo3(fake_drives[1], 0x380 + THETA_NODE)
+    """A drive with a third TPDO and a second RPDO, valid (many CiA 402 drives ship so): at
+    1 kHz the TPDO would break the bus-load budget, and the RPDO would take frames no clamp
+    judged. Both are made not valid (bit 31; bit 30 as held), the rest of the drive as
+    before, and ``rakectl drives`` names them. They were refused before."""
+    _add_pdo(fake_drives[1], 0x1802, NO_RTR | 0x380 + THETA_NODE)
+    _add_pdo(fake_drives[1], 0x1401, 0x300 + THETA_NODE)
+    _add_pdo(fake_drives[0], 0x1802, 1 << 31 | 0x381)  # already not valid: left alone
+    infos = _announce_and_run(make_bring_up(network), fake_drives)
+    assert _cob_id(fake_drives[1], 0x1802) == 1 << 31 | NO_RTR | 0x382
+    assert _cob_id(fake_drives[1], 0x1401) == 1 << 31 | 0x302
+    assert infos[1].disabled == (DisabledPdo("RPDO2", 0x1401, 0x302),
+                                 DisabledPdo("TPDO3", 0x1802, NO_RTR | 0x382))
+    assert infos[0].disabled == ()
+    assert [p.name for p in infos[1].pdos] == ["RPDO1", "TPDO1", "TPDO2"]
+    printed = text(report(infos[1], drive_parameters(Joint.THETA, FAST, MOTORS),
+                          "geared_motor_drive.eds", "cia402"))
+    assert printed.endswith("  beyond the EDS's and valid, made not valid (not stored: at "
+                            "every bring-up):\n    RPDO2  COB-ID 0x302\n"
+                            "    TPDO3  COB-ID 0x40000382")
+
+
+def test_a_pdo_beyond_the_eds_s_that_stays_valid_is_refused(
+        fake_drives: tuple[FakeDrive, FakeDrive], network: LoopbackNetwork) -> None:
+    """A drive whose extra TPDO's COB-ID is read-only: refused, naming the PDO and what to
+    do, and nothing started."""
+    _add_pdo(fake_drives[1], 0x1802, 0x380 + THETA_NODE, access="ro")
     refused = make_bring_up(network)
     with pytest.raises(DriveFault) as raised:
         _announce_and_run(refused, fake_drives)
     refused.close()
     assert str(raised.value) == (
-        "θ drive (node 2): TPDO3 (0x1802:1 COB-ID 0x382) is valid, and geared_motor_drive.eds "
-        "has no such TPDO: the drive would send it beside the EDS's, beyond the bus-load "
-        "budget (docs/can-bus.md); make it not valid (bit 31) and store that with the "
-        "drive's own tool")
-    fake_drives[1].node.set_data(0x1802, 1, (1 << 31 | 0x382).to_bytes(4, "little"))
-    infos = _announce_and_run(make_bring_up(network), fake_drives)
-    assert [p.name for p in infos[1].pdos] == ["RPDO1", "TPDO1", "TPDO2"]
+        "θ drive (node 2): SDO abort 0x06010002 writing 0x1802:1 TPDO3 COB-ID = 2147484546: "
+        "Attempt to write a read only object (making TPDO3, valid and geared_motor_drive.eds "
+        "has no such TPDO: sent beside the EDS's, it would break the bus-load budget "
+        "(docs/can-bus.md), not valid: make it not valid, bit 31, and store that with the "
+        "drive's own tool)")
+    assert _cob_id(fake_drives[1], 0x1802) == 0x382
 
 
 def test_a_fault_reset_that_does_not_clear_names_the_timeout(

@@ -229,7 +229,7 @@ def _decode(dbc: Any, frame: can.Message) -> dict[str, Any]:
     return signals
 
 
-# The aborts a bring-up meets by design: it probes for objects a drive may lack (TPDOs
+# The aborts a bring-up meets by design: it probes for objects a drive may lack (PDOs
 # beyond the EDS's, 0x1006, 0x1019) and reads "no such object" or "no such subindex".
 PROBE_ABORTS = (0x06020000, 0x06090011)
 
