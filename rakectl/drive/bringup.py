@@ -69,26 +69,18 @@ read 15 ms")``, ``DriveFault("r drive (node 1): SDO abort 0x06090030 writing 0x2
 watchdog timeout = 3 ms: Value range of parameter exceeded")``
 (raised ``from`` the canopen error; an answer shorter than the object's type, or an SDO
 frame too short to decode, is one too), ``CommsTimeout`` when a node or an SDO
-answer does not come. A transfer that meets an answer of another kind is made
-again, twice at most: canopen empties its answer queue only before it sends, so
-the late answer to a request it had repeated is otherwise taken for the next
-request's (``Unexpected response 0x60``, or ``Node returned a value for 0x1018:01
-instead``). The power stage is NOT enabled here: that is the
+answer does not come; the transfers, and which of them are made again, are
+:mod:`rakectl.drive.sdo`'s. The power stage is NOT enabled here: that is the
 controlword sent cyclically in RPDO1 (:meth:`DriveClient.command`), and the
 daemon enables the drives only while it is armed.
 """
 
 from __future__ import annotations
 
-import struct
 import threading
-from collections.abc import Callable
-from typing import TypeVar
 
 import can
 import canopen
-from canopen.objectdictionary import ObjectDictionaryError, ODVariable, datatypes
-from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from rakectl.config.service import DrivesSettings
 from rakectl.config.settings import MotorsSettings
@@ -121,6 +113,7 @@ from rakectl.drive.profiles import (
     eds_file,
     supply_problem,
 )
+from rakectl.drive.sdo import SDO_RETRIES, DriveSdo, abort_code, no_such_object
 from rakectl.errors import CommsTimeout, ConfigError, DriveFault
 from rakectl.protocol.codec import NMT_COB_ID, FunctionCode, cob_id
 from rakectl.protocol.files import DriveProfile
@@ -128,17 +121,9 @@ from rakectl.protocol.nmt import NmtCommand, NmtState, encode_nmt
 
 NOTIFIER_POLL_S = 0.02  # bring-up Notifier's recv timeout: how fast it stops
 NOTIFIER_JOIN_S = 2.0
-_T = TypeVar("_T")
-SDO_RETRIES = 3  # canopen repeats an unanswered SDO request this often at bring-up,
-# and a segmented upload that lost a segment is started again this often
 RESTARTED = ("the drive restarted during bring-up (its boot-up lost) and holds its power-on "
              "values; bring-up again (restart the service)")
 RESET_ATTEMPTS = 3  # NMT reset communication sent this often, boot_timeout_s over all
-SDO_TOGGLE_BIT_ABORT = 0x05030000  # a segment lost or repeated
-SDO_NO_OBJECT_ABORTS = (0x06020000, 0x06090011)  # no such object, no such subindex
-SDO_LATE_ANSWER_RETRIES = 2  # a transfer that met a late answer is made again this often
-_TYPE_NAMES = {code: name for name, code in vars(datatypes).items()
-               if name.isupper() and isinstance(code, int)}
 
 
 class BringUp:
@@ -172,8 +157,10 @@ class BringUp:
             network.subscribe(cob_id(FunctionCode.HEARTBEAT, node_id), self._on_heartbeat)
             self._nodes[joint] = node
         self._roboteq = drives.profile is DriveProfile.ROBOTEQ
-        self._start = DriveStart(drives.profile, self._read, self._write, self._label)
-        self._pdos = PdoCheck(self._read, self._write, self._read_if_present, self._label,
+        self._sdo = DriveSdo(self._nodes, self._label, drives.sdo_timeout_s)
+        self._start = DriveStart(drives.profile, self._sdo.read, self._sdo.write, self._label)
+        self._pdos = PdoCheck(self._sdo.read, self._sdo.write, self._sdo.read_if_present,
+                              self._label,
                               lambda joint: self._nodes[joint].object_dictionary,
                               lambda joint: eds_file(drives, joint))
 
@@ -195,7 +182,7 @@ class BringUp:
         configured = [self._configure(joint) for joint in JOINTS]
         # the device name is a segmented transfer, the one a lossy bus breaks most easily
         # (a lost segment is a toggle-bit abort): read for the dry run only
-        names = ["" if start else self._read_text(joint, 0x1008, 0, "device name")
+        names = ["" if start else self._sdo.read_text(joint, 0x1008, 0, "device name")
                  for joint in JOINTS]
         cleared = [self._start.clear_old_fault(joint) for joint in JOINTS]
         statuswords = [self._start.status(joint) for joint in JOINTS]
@@ -226,7 +213,8 @@ class BringUp:
         for p in parameters:
             self._check_range(joint, p)
         absent = [p for p in parameters if not self._write_parameter(joint, p)]
-        read_back = [p.value if p in absent else self._read(joint, p.index, p.subindex, p.name)
+        read_back = [p.value if p in absent
+                     else self._sdo.read(joint, p.index, p.subindex, p.name)
                      for p in parameters]
         self._written[joint] = [p for p in parameters if p not in absent]
         for p, value in zip(parameters, read_back, strict=True):
@@ -245,7 +233,7 @@ class BringUp:
         boot-up was lost holds its power-on values, and was started with them. DriveFault
         naming the first object that differs."""
         for p in self._written[joint]:
-            value = self._read(joint, p.index, p.subindex, p.name)
+            value = self._sdo.read(joint, p.index, p.subindex, p.name)
             if value != p.value:
                 unit = f" {p.unit}" if p.unit else ""
                 raise DriveFault(f"{self._label(joint)}: after NMT start, {p.where()} {p.name} "
@@ -272,7 +260,7 @@ class BringUp:
         """``p`` written; False if the drive has no such object and needs none (0x1019)."""
         if (p.index, p.subindex) == SYNC_OVERFLOW_OBJECT:
             return self._write_sync_overflow(joint, p)
-        self._write(joint, p)
+        self._sdo.write(joint, p)
         return True
 
     def _write_sync_overflow(self, joint: Joint, p: Parameter) -> bool:
@@ -281,42 +269,35 @@ class BringUp:
         around it (a drive without 0x1006 has no period to clear). A drive without 0x1019
         takes SYNC without a counter only: False if that is what ``p`` asks (0)."""
         index, subindex, name = CYCLE_PERIOD_OBJECT
-        period_us = self._read_if_present(joint, index, subindex, name)
+        period_us = self._sdo.read_if_present(joint, index, subindex, name)
         why = "0x1019 changes only while it is 0 (CiA 301)"
         if period_us:
-            self._write(joint, Parameter(index, subindex, name, "µs", 0, why))
+            self._sdo.write(joint, Parameter(index, subindex, name, "µs", 0, why))
         written = True
         try:
-            self._write(joint, p)
+            self._sdo.write(joint, p)
         except DriveFault as error:
-            if not _no_such_object(error):
+            if not no_such_object(error):
                 raise
             if p.value:
                 raise DriveFault(f"{self._label(joint)}: no {p.where()} {p.name} (SDO abort "
-                                 f"0x{_abort_code(error):08X} writing {p.value}): the drive "
+                                 f"0x{abort_code(error):08X} writing {p.value}): the drive "
                                  f"takes SYNC without a counter only; set {p.setting}: 0"
                                  ) from error
             written = False
         if period_us:
-            self._write(joint, Parameter(index, subindex, name, "µs", period_us, why))
+            self._sdo.write(joint, Parameter(index, subindex, name, "µs", period_us, why))
         return written
 
     def _check_supply(self, joint: Joint) -> None:
         """A Roboteq-class drive's command is a share of its supply, scaled by the
         configured one: refused if its supply reads higher (rakectl.drive.profiles)."""
         index, subindex, name = SUPPLY_OBJECT
-        problem = supply_problem(self._read(joint, index, subindex, name),
+        problem = supply_problem(self._sdo.read(joint, index, subindex, name),
                                  motor_of(self._motors, joint).supply_voltage_v)
         if problem is not None:
             raise DriveFault(f"{self._label(joint)}: {problem}".replace(
                 "<joint>", joint.name.lower()))
-
-    def _read_text(self, joint: Joint, index: int, subindex: int, name: str) -> str:
-        """A segmented upload, started again when a segment was lost (``_repeatable``)."""
-        node = self._nodes[joint]
-        what = f"reading 0x{index:04X}:{subindex} {name}"
-        data = self._sdo(joint, what, lambda: node.sdo.upload(index, subindex), segmented=True)
-        return bytes(data).decode("ascii", errors="replace").rstrip("\0")
 
     def _nmt(self, joint: Joint, command: NmtCommand) -> None:
         try:
@@ -329,7 +310,8 @@ class BringUp:
         """0x1018 against the configured identity (``drives.<joint>_vendor_id``,
         ``_product_code``) where one is set, else against the EDS's."""
         info = self._nodes[joint].object_dictionary.device_information
-        identity = Identity(*(self._read(joint, 0x1018, sub, "identity") for sub in (1, 2, 3, 4)))
+        identity = Identity(*(self._sdo.read(joint, 0x1018, sub, "identity")
+                              for sub in (1, 2, 3, 4)))
         vendor_id, product_code = configured_identity(self._drives, joint)
         for name, option, configured, from_eds, found in (
                 ("vendor-ID", "vendor_id", vendor_id, info.vendor_number, identity.vendor_id),
@@ -351,101 +333,6 @@ class BringUp:
             raise ConfigError(f"{p.setting}: {self._label(joint)} {p.where()} {p.name} = "
                               f"{p.value} {p.unit} is outside {low}..{high} of "
                               f"{eds_file(self._drives, joint)}")
-
-    def _read(self, joint: Joint, index: int, subindex: int, name: str,
-              variable: ODVariable | None = None) -> int:
-        """An integer object, decoded as the EDS declares it (or as ``variable``, for an
-        object the EDS does not have)."""
-        node = self._nodes[joint]
-        what = f"reading 0x{index:04X}:{subindex} {name}"
-        data = self._sdo(joint, what, lambda: node.sdo.upload(index, subindex))
-        var = od_variable(node.object_dictionary, index, subindex) if variable is None \
-            else variable
-        try:
-            value = var.decode_raw(data)
-        except ObjectDictionaryError as error:  # an answer shorter than the type
-            type_name = _TYPE_NAMES.get(var.data_type or 0, "data type")
-            raise DriveFault(f"{self._label(joint)}: {what}: the drive answered {len(data)} "
-                             f"byte(s), the EDS's {type_name} takes {len(var) // 8}") from error
-        if not isinstance(value, int):
-            raise DriveFault(f"{self._label(joint)}: {what}: not an integer: {value!r}")
-        return value
-
-    def _read_if_present(self, joint: Joint, index: int, subindex: int, name: str,
-                         variable: ODVariable | None = None) -> int | None:
-        """:meth:`_read` of an object a drive may lack: None if it answers that it has no
-        such object or subindex."""
-        try:
-            return self._read(joint, index, subindex, name, variable)
-        except DriveFault as error:
-            if _no_such_object(error):
-                return None
-            raise
-
-    def _write(self, joint: Joint, p: Parameter, variable: ODVariable | None = None) -> None:
-        """``p`` written, encoded as the EDS declares it (or as ``variable``, for an object
-        the EDS does not have)."""
-        node = self._nodes[joint]
-        var = od_variable(node.object_dictionary, p.index, p.subindex) if variable is None \
-            else variable
-        data = var.encode_raw(p.value)
-        what = f"writing {p.where()} {p.name} = {p.value}{' ' + p.unit if p.unit else ''}"
-        self._sdo(joint, what, lambda: node.sdo.download(p.index, p.subindex, data))
-
-    def _sdo(self, joint: Joint, what: str, transfer: Callable[[], _T],
-             segmented: bool = False) -> _T:
-        """One transfer (an upload, or a download of a value: either may be made again), made
-        again while its failure is ``_repeatable``, up to ``SDO_RETRIES`` more times for a
-        segmented one, ``SDO_LATE_ANSWER_RETRIES`` otherwise; its failure as one line naming
-        the drive and the object."""
-        label = self._label(joint)
-        retries = SDO_RETRIES if segmented else SDO_LATE_ANSWER_RETRIES
-        for attempt in range(retries + 1):
-            try:
-                return transfer()
-            except SdoAbortedError as error:
-                if attempt < retries and _repeatable(error, segmented):
-                    continue
-                text = SdoAbortedError.CODES.get(error.code, "unknown abort code")
-                raise DriveFault(f"{label}: SDO abort 0x{error.code:08X} {what}: "
-                                 f"{text}") from error
-            except SdoCommunicationError as error:
-                if attempt < retries and _repeatable(error, segmented):
-                    continue
-                if "No SDO response" in str(error):
-                    raise CommsTimeout(f"{label}: no SDO response {what} within "
-                                       f"{self._drives.sdo_timeout_s:g} s") from error
-                raise DriveFault(f"{label}: SDO error {what}: {error}") from error
-            except can.CanError as error:
-                raise BusError(f"{label}: bus error {what}: {error}") from error
-            except struct.error as error:  # canopen unpacks a frame shorter than 8 bytes
-                raise DriveFault(f"{label}: SDO answer {what} shorter than CiA 301's 8 bytes: "
-                                 f"{error}") from error
-        raise AssertionError("unreachable: the last attempt returns or raises")
-
-
-def _abort_code(error: DriveFault) -> int:
-    """The SDO abort code ``error`` was raised from; 0 if none."""
-    cause = error.__cause__
-    return cause.code if isinstance(cause, SdoAbortedError) else 0
-
-
-def _no_such_object(error: DriveFault) -> bool:
-    """Whether ``error`` is an SDO abort saying the drive has no such object or subindex."""
-    return _abort_code(error) in SDO_NO_OBJECT_ABORTS
-
-
-def _repeatable(error: SdoAbortedError | SdoCommunicationError, segmented: bool) -> bool:
-    """Whether a failed transfer is worth making again: any transfer that met an answer of
-    another kind (canopen empties its answer queue only before it sends, so the late answer
-    to a request it had repeated is taken for the next request's); a segmented upload whose
-    segment was lost (a toggle-bit abort, no answer, a toggle mismatch). An answer of another
-    kind reads ``Unexpected response 0x60`` (a download's answer) or ``Node returned a value
-    for 0x1018:01 instead`` (an upload's answer for the object asked before)."""
-    if isinstance(error, SdoAbortedError):
-        return segmented and error.code == SDO_TOGGLE_BIT_ABORT
-    return segmented or str(error).startswith(("Unexpected response", "Node returned a value"))
-
 
 def run_bring_up(bus: can.BusABC, drives: DrivesSettings, motors: MotorsSettings,
                  boot_timeout_s: float, trace: TraceRecorder | None = None,
