@@ -436,10 +436,11 @@ def test_failed_sends_are_recorded_and_fail_again_in_the_replay(tmp_path: Path) 
 
 def test_a_trace_whose_ring_overflowed_is_replayed_up_to_its_first_lost_frame(
         tmp_path: Path) -> None:
-    """100 armed ticks with no slack to write a ring of 256 frames (5 frames a tick): the
-    trace is complete only up to the first frame the ring dropped. The replay reproduces
-    every frame sent before it, then stops there, saying so (not as a mismatch)."""
-    trace, settings, rig = _recorded_in_lockstep(tmp_path, capacity=256, undrained_ticks=100)
+    """300 armed ticks with no slack to write a ring of 1024 frames (5 frames a tick; the
+    ring holds the bring-up's frames too, written out at the first tick): the trace is
+    complete only up to the first frame the ring dropped. The replay reproduces every frame
+    sent before it, then stops there, saying so (not as a mismatch)."""
+    trace, settings, rig = _recorded_in_lockstep(tmp_path, capacity=1024, undrained_ticks=300)
     rig.close()
     entries = [json.loads(line) for line in sidecar_path(trace).read_text().splitlines()]
     end = entries[-1]
