@@ -346,8 +346,9 @@ def excavate(args: argparse.Namespace) -> int:
     check_excavate(request)  # before the daemon is asked
     path = socket_of(args)
     if args.no_wait:
-        call(path, request)
-        print("excavate: started")
+        number = call(path, request).get("lane")
+        print(f"excavate: lane {number} started" if isinstance(number, int)
+              else "excavate: started")
         return 0
     with StopSignals() as signals:  # from before the request: a lane never left unfollowed
         call(path, request)

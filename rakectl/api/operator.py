@@ -28,7 +28,13 @@ from rakectl.api.console import (
     socket_of,
 )
 from rakectl.api.motion import SIGNALS_HELP, excavate, jog
-from rakectl.api.replies import next_step, pose_text, progress_text
+from rakectl.api.replies import (
+    jog_caps_text,
+    lane_identity_text,
+    next_step,
+    pose_text,
+    progress_text,
+)
 from rakectl.errors import ApiError, CommandRejected
 
 CHECK_TIMEOUT_S = 120.0  # the weight check takes about 3 s, the press up to a minute
@@ -134,7 +140,13 @@ def status(args: argparse.Namespace) -> int:
                      f"overruns {timing.get('overruns', 0)}")
     if reply.get("timing_check", "ok") != "ok":
         lines.append(f"arming     {reply['timing_check']}")
+    caps = jog_caps_text(reply)
+    if caps:
+        lines.append(f"jog caps   {caps}")
     if reply.get("excavation"):
+        lane = lane_identity_text(reply)
+        if lane:
+            lines.append(f"lane       {lane.removeprefix('lane ')}")
         lines.append(progress_text(reply))
     print("\n".join(lines))
     return 0
@@ -191,7 +203,8 @@ def add_parsers(sub: Any, parent: argparse.ArgumentParser) -> dict[str, Ops]:
         ops[name] = simple(name)
     sub.add_parser("status", parents=[parent], help="state, pose, forces, timing",
                    description="The daemon's state, the tip's pose, the forces, the loop's "
-                   "timing and the lane in progress (changes nothing).")
+                   "timing, the fastest it jogs, and the lane in progress, with its number "
+                   "since the daemon started (changes nothing).")
     ops["status"] = status
     p = sub.add_parser("dump", parents=[parent], help="write the flight recorder to a file",
                        description="Write the flight recorder's last seconds to a file on "

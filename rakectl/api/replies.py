@@ -78,6 +78,32 @@ def lane_text(reply: Mapping[str, Any]) -> str:
             f"F̂ max {(reply.get('force') or {}).get('f_hat_max_n', math.nan):.1f} N")
 
 
+def lane_identity_text(reply: Mapping[str, Any]) -> str:
+    """Which lane the status's excavation is: its number since the daemon started, and
+    its parameters ("" from a daemon that does not say them)."""
+    lane = (reply.get("excavation") or {}).get("lane")
+    if not lane:
+        return ""
+    text = (f"lane {lane['number']}: reach {lane['reach_far_m']:.3f} → "
+            f"{lane['reach_near_m']:.3f} m, target {1e3 * lane['target_depth_m']:g} mm, ")
+    cuts = (f"step {1e3 * lane['depth_step_m']:g} mm, stroke "
+            f"{lane['stroke_speed_m_per_s']:g} m/s")
+    if lane.get("adaptive"):
+        return text + f"force-adaptive (first {cuts})"
+    return text + cuts
+
+
+def jog_caps_text(reply: Mapping[str, Any]) -> str:
+    """The fastest the daemon jogs, as the status says it ("" from a daemon that does not
+    say it)."""
+    caps = reply.get("jog")
+    if not caps:
+        return ""
+    return (f"tip {caps['max_tip_speed_m_per_s']:g} m/s, r {caps['max_r_speed_m_per_s']:g} "
+            f"m/s, θ {caps['max_theta_speed_rad_per_s']:g} rad/s (faster requests move at "
+            "these)")
+
+
 def progress_text(reply: Mapping[str, Any]) -> str:
     """The progress bar's text: the lane's phase too, and a find or a force-limit stop."""
     ex = reply["excavation"]

@@ -39,6 +39,30 @@ from rakectl.errors import ApiError, ConfigError
 STILL_STATES = ("armed", "hold")  # the pose is held: a mark taken while moving is not one
 DEFAULT_FILE = Path("survey.yaml")
 MAX_ERROR_MM = 50.0
+SURVEY_DESCRIPTION = (
+    "Survey the site's surface with the rake, for the descent limiter (descent.enforce): "
+    "the tines go down only a step below the highest soil beside them, which, where no "
+    "pass has been, is the survey's (descent.survey), so each point must stand at or "
+    "above the true surface. The rake cannot find the surface by feel, so it is found by "
+    "eye: with the daemon armed, jog the tines down over each crest and change of slope "
+    "until they just touch the soil, stop, and run rakectl survey mark; then rakectl "
+    "survey show prints the configuration's block (docs/installation.md, section 5).")
+MARK_DESCRIPTION = (
+    "Mark the surface where the tines stand now: ask the daemon for its pose and append "
+    "a point to the survey file, the highest the tines may stand there (the tip, plus the "
+    "tine mount's compression by the force read from the currents, plus "
+    "descent.mount_force_margin_n) plus --error-mm, how far the tines may have gone into "
+    "the soil before the rake came to rest. Use it while surveying a site, once a jog "
+    "has brought the tines down to just touch the soil at a crest or a change of slope "
+    "and has been stopped: refused while the rake moves (mark from "
+    f"{' or '.join(STILL_STATES)}) or without a pose; nothing is written then.")
+SHOW_DESCRIPTION = (
+    "Print the survey file's marks as the configuration's descent.survey block: sorted by "
+    "reach, the higher of two marks at one reach kept, heights rounded up to the "
+    "micrometre, and checked as the daemon checks them at load (in increasing reach, none "
+    "above --config's descent.ceiling_m). Use it once the site is marked: paste the "
+    "block into the daemon's configuration (systemctl restart rakectl loads it). Every "
+    "crest needs a mark: between two points the higher stands for the surface.")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -200,17 +224,18 @@ def show(args: argparse.Namespace) -> int:
 def add_parser(sub: Any, parent: argparse.ArgumentParser) -> dict[str, Any]:
     """``rakectl survey mark|show``; returns the command's function by name."""
     p = sub.add_parser("survey", help="mark the site's surface with the rake, and print it "
-                       "as descent.survey (the descent limiter's input)")
+                       "as descent.survey (the descent limiter's input)",
+                       description=SURVEY_DESCRIPTION)
     actions = p.add_subparsers(dest="survey_action", required=True, metavar="mark|show")
     m = actions.add_parser("mark", parents=[parent], help="mark where the tines just touch "
-                           "the soil (the rake held still)")
+                           "the soil (the rake held still)", description=MARK_DESCRIPTION)
     m.add_argument("--error-mm", type=float, required=True,
                    help="how far the tines may have gone into the soil before the jog "
                    "stopped, mm (added to the point)")
     m.add_argument("--file", type=Path, default=DEFAULT_FILE,
                    help=f"survey file to add to (default {DEFAULT_FILE})")
     s = actions.add_parser("show", help="print the marks as the configuration's "
-                           "descent.survey, checked")
+                           "descent.survey, checked", description=SHOW_DESCRIPTION)
     s.add_argument("--file", type=Path, default=DEFAULT_FILE,
                    help=f"survey file (default {DEFAULT_FILE})")
     s.add_argument("--config", type=Path, default=None,

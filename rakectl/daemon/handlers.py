@@ -15,7 +15,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from rakectl.api.schema import ApiCommand, JogSpace, Request
+from rakectl.api.schema import COMMANDS, ApiCommand, JogSpace, Request
 from rakectl.config.service import RtModeSetting
 from rakectl.config.settings import held_command_gap
 from rakectl.core import kinematics
@@ -28,6 +28,9 @@ from rakectl.daemon.timing import timing_verdict
 from rakectl.errors import CommandRejected, KinematicsError
 
 Reply = Mapping[str, Any]
+# a lane's parameters as status says them: those an excavate request gives (the configured
+# lane's where it leaves one out), and whether its strokes are force-adaptive
+LANE_FIELDS = (*(arg.name for arg in COMMANDS[ApiCommand.EXCAVATE].args), "adaptive")
 MAX_PENDING_DUMPS = 4  # operator dumps waiting for the slack (about 0.7 MB of memory each)
 
 # The commands that change what the loop sends; a replay applies them again. The others
@@ -101,6 +104,30 @@ def _tip(daemon: Daemon) -> dict[str, float | None]:
             "tines_height_max_m": _finite(lift_m - depth_m)}  # the pose stands without it
 
 
+def _jog_caps(daemon: Daemon) -> dict[str, float]:
+    """The fastest each jog moves (jog.*): a faster request is accepted and moved at it."""
+    jog = daemon.settings.jog
+    return {"max_tip_speed_m_per_s": jog.max_tip_speed_m_per_s,
+            "max_r_speed_m_per_s": jog.max_r_speed_m_per_s,
+            "max_theta_speed_rad_per_s": jog.max_theta_speed_rad_per_s}
+
+
+def _excavation(daemon: Daemon, planner: LanePlanner) -> dict[str, Any]:
+    """The lane's progress, and which lane it is: its number among the excavate requests
+    carried out since start-up, and its parameters."""
+    lane = planner.lane
+    return {
+        "lane": {"number": daemon.lanes_started,
+                 **{name: getattr(lane, name) for name in LANE_FIELDS}},
+        "phase": planner.phase.name.lower(), "cycle": planner.cycle,
+        "depth_m": planner.floor_m, "target_depth_m": lane.target_depth_m,
+        "done": planner.done, "stopped_by_force": planner.stopped_by_force,
+        "held_by_descent": planner.held_by_descent,
+        "object_found": ({"reach_m": planner.found_at[0], "depth_m": planner.found_at[1]}
+                         if planner.found_at else None),
+    }
+
+
 def status(daemon: Daemon) -> dict[str, Any]:
     fb, c, client = daemon.client.feedback, daemon.controller, daemon.client
     timing = daemon.timing.summary()
@@ -128,18 +155,11 @@ def status(daemon: Daemon) -> dict[str, Any]:
         "timing_check": _timing_verdict(daemon, timing) or "ok",
         "timing_reference": daemon.timing_reference,
         "dumps": {"pending": daemon.pending_dumps(), "failed": list(daemon.dump_failures)},
+        "jog": _jog_caps(daemon),
     }
     reply["weight_check"], reply["mount_check"] = _checks(daemon)
-    planner = daemon.planner
-    if planner is not None:
-        reply["excavation"] = {
-            "phase": planner.phase.name.lower(), "cycle": planner.cycle,
-            "depth_m": planner.floor_m, "target_depth_m": planner.lane.target_depth_m,
-            "done": planner.done, "stopped_by_force": planner.stopped_by_force,
-            "held_by_descent": planner.held_by_descent,
-            "object_found": ({"reach_m": planner.found_at[0], "depth_m": planner.found_at[1]}
-                             if planner.found_at else None),
-        }
+    if daemon.planner is not None:
+        reply["excavation"] = _excavation(daemon, daemon.planner)
     return reply
 
 
@@ -193,9 +213,10 @@ def _excavate(daemon: Daemon, request: Request) -> Reply:
     c = daemon.controller
     daemon.planner = LanePlanner(lane, daemon.dt_s, c.reach_m, c.depth_m,
                                  None if c.descent is None else c.descent.limit_at_m)
+    daemon.lanes_started += 1  # the new lane's number (status: excavation.lane.number)
     daemon.f_hat_max_n = 0.0
     daemon._transition(Event.EXCAVATE, "operator excavate")
-    return {"state": daemon.state.name.lower()}
+    return {"state": daemon.state.name.lower(), "lane": daemon.lanes_started}
 
 
 def _dump(daemon: Daemon, request: Request) -> Reply:

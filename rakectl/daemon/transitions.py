@@ -37,6 +37,9 @@ class StateChanges(SlackWork):
     _reset_deadline: int
     jog_client: int  # the connection whose requests drive the jog
     jog_ended: tuple[int, str] | None  # that connection, and why its jog ended
+    # excavate requests carried out since start-up: the number of the newest lane, which
+    # status names its lane by (one lane told from the next)
+    lanes_started: int = 0
 
     def _heartbeat_lost(self) -> bool:
         """The heartbeat check, on the wall clock; a lost heartbeat goes to the trace's

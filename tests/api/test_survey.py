@@ -203,3 +203,22 @@ def test_a_non_finite_lift_withholds_only_the_mark_height(tmp_path: Path) -> Non
         tip = command(rig, b'{"cmd": "status"}')["tip"]
     assert tip["tines_height_max_m"] is None
     assert math.isfinite(tip["reach_m"]) and math.isfinite(tip["depth_m"])
+
+
+@pytest.mark.parametrize(("action", "says"), [
+    ((), ("descent.survey", "jog the tines down", "docs/installation.md")),
+    (("mark",), ("Mark the surface", "Use it while surveying a site", "armed or hold",
+                 "--error-mm")),
+    (("show",), ("descent.survey block", "Use it once the site is marked",
+                 "descent.ceiling_m", "systemctl restart rakectl"))])
+def test_the_help_says_what_each_survey_command_does_and_when(
+        action: tuple[str, ...], says: tuple[str, ...]) -> None:
+    """`rakectl survey [mark|show] --help`: a description under the usage, what the
+    command does and when in the site's survey it is used (before, the usage went
+    straight to the options)."""
+    done = run_rakectl("survey", *action, "--help")
+    assert done.returncode == 0, done.stderr
+    description = " ".join(done.stdout.split("\n\n")[1].split())
+    assert not description.startswith(("options:", "positional arguments:")), done.stdout
+    for words in says:
+        assert words in description, (words, description)

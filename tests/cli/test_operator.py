@@ -422,6 +422,33 @@ def test_status_without_a_pose_says_so(tmp_path: Path) -> None:
     assert "tip        no pose (no joint feedback)" in done.stdout.splitlines()
 
 
+def test_status_says_the_jog_caps_and_which_lane_runs(tmp_path: Path) -> None:
+    """`rakectl status` on the daemon itself: the fastest it jogs, as configured, and
+    the lane in progress by its number since start-up and its parameters; `excavate
+    --no-wait` names the number it started (before, neither was said: two lanes alike in
+    progress could not be told apart)."""
+    settings = dataclasses.replace(Settings(), jog=JogSettings(max_tip_speed_m_per_s=0.05,
+                                                               max_theta_speed_rad_per_s=0.12))
+    lane = (*LANE, "--speed", "0.04", "--no-wait")
+    with in_process_daemon(tmp_path, settings) as daemon:
+        socket = ("--socket", str(daemon.path))
+        first = run_rakectl("excavate", *socket, *lane)
+        daemon.request("stop")
+        second = run_rakectl("excavate", *socket, *lane)
+        shown = run_rakectl("status", *socket)
+        daemon.request("stop")
+    assert (first.stdout, second.stdout) == ("excavate: lane 1 started\n",
+                                             "excavate: lane 2 started\n"), first.stderr
+    assert shown.returncode == 0, shown.stderr
+    lines = shown.stdout.splitlines()
+    assert "jog caps   tip 0.05 m/s, r 0.1 m/s, θ 0.12 rad/s (faster requests move at " \
+           "these)" in lines, lines
+    # the lock-step rig's lanes are force-adaptive (rakectl.bench.tick)
+    assert "lane       2: reach 1.250 → 1.150 m, target 5 mm, force-adaptive (first step " \
+           "5 mm, stroke 0.04 m/s)" in lines, lines
+    assert lines[-1].startswith("excavate   cycle 1, depth 0/5 mm, ")
+
+
 OPERATOR_COMMANDS = ("arm", "reset", "disarm", "stop", "estop", "shutdown", "status", "dump",
                      "jog", "excavate")
 
