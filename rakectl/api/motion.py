@@ -148,15 +148,19 @@ def check_jog(args: argparse.Namespace) -> dict[str, Any]:
     return request
 
 
-def jog_caps(request: Mapping[str, Any]) -> list[str]:
-    """A line for each speed above the daemon's default cap on it, naming the cap."""
+def jog_caps(request: Mapping[str, Any], caps: Mapping[str, Any] | None = None) -> list[str]:
+    """A line for each speed above the daemon's cap on it, naming the cap: ``caps`` as its
+    status says them (``jog``), the defaults where it does not."""
     lines = []
-    for name, (setting, cap, unit) in JOG_CAPS.items():
+    for name, (setting, default, unit) in JOG_CAPS.items():
         value = request.get(name)
+        said = caps.get(setting) if caps else None
+        cap = said if isinstance(said, (int, float)) else default
         if isinstance(value, float) and abs(value) > cap:
+            whose = "" if said is not None else " unless configured otherwise"
             lines.append(f"jog: {JOG_FLAGS[name]} {value:g} {unit} is faster than "
-                         f"jog.{setting}, the daemon's cap ({cap:g} {unit} unless configured "
-                         "otherwise): it moves at the cap")
+                         f"jog.{setting}, the daemon's cap ({cap:g} {unit}{whose}): it moves "
+                         "at the cap")
     return lines
 
 
@@ -166,8 +170,6 @@ def jog(args: argparse.Namespace) -> int:
     own. SIGTERM, SIGHUP, or Ctrl-C before ``--duration`` is over, stop it too and return
     128 + the signal's number."""
     request = check_jog(args)
-    for line in jog_caps(request):
-        say(line)
     path = socket_of(args)
     started = time.monotonic()
     end = started + (args.duration if args.duration is not None else math.inf)
@@ -176,9 +178,12 @@ def jog(args: argparse.Namespace) -> int:
         try:
             with Client(path) as client:
                 while time.monotonic() < end and signals.signum is None:
-                    client.request(request)
-                    if not moving and args.duration is None:  # said once the daemon took it
-                        say("jog: moving while this runs; Ctrl-C stops")
+                    reply = client.request(request)
+                    if not moving:  # said once the daemon took it, with the caps it says
+                        for line in jog_caps(request, reply.get("jog")):
+                            say(line)
+                        if args.duration is None:
+                            say("jog: moving while this runs; Ctrl-C stops")
                     moving = True
                     signals.sleep(DEAD_MAN_PERIOD_S)
         except ApiError:  # the daemon's reason, not that of a stop after it

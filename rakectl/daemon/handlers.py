@@ -194,7 +194,7 @@ def _jog(daemon: Daemon, request: Request) -> Reply:
     else:
         daemon.jog.command(JogFrame.JOINT, request.number("r_m_per_s") or 0.0,
                            request.number("theta_rad_per_s") or 0.0)
-    return {"state": daemon.state.name.lower()}
+    return {"state": daemon.state.name.lower(), "jog": _jog_caps(daemon)}
 
 
 def _excavate(daemon: Daemon, request: Request) -> Reply:

@@ -379,17 +379,26 @@ def test_no_daemon_is_exit_status_3(tmp_path: Path) -> None:
     assert done.stderr.startswith("rakectl: error: cannot reach the rakectl daemon at ")
 
 
-def test_a_speed_above_the_daemons_cap_is_said(tmp_path: Path) -> None:
+@pytest.mark.parametrize(("said", "flags", "expected"), [
+    (None, ("--height", "-0.25"), "jog: --height -0.25 m/s is faster than "
+     "jog.max_tip_speed_m_per_s, the daemon's cap (0.1 m/s unless configured otherwise): "
+     "it moves at the cap"),
+    ({"max_tip_speed_m_per_s": 0.02, "max_r_speed_m_per_s": 0.1,
+      "max_theta_speed_rad_per_s": 0.15}, ("--height", "-0.05"), "jog: --height -0.05 m/s "
+     "is faster than jog.max_tip_speed_m_per_s, the daemon's cap (0.02 m/s): it moves at "
+     "the cap")])
+def test_a_speed_above_the_daemons_cap_is_said(tmp_path: Path, said: dict[str, float] | None,
+                                                flags: tuple[str, str], expected: str) -> None:
+    """The cap as the daemon's reply to the jog says it (a daemon configured slower than
+    the default: a speed under the default is said too), the default from one that does
+    not say it."""
     path = tmp_path / "rakectl.sock"
-    replies = {"jog": {"state": "jog"}, "stop": {"state": "hold"},
-               "status": {"state": "hold", "tip": TIP}}
+    replies = {"jog": {"state": "jog"} | ({"jog": said} if said else {}),
+               "stop": {"state": "hold"}, "status": {"state": "hold", "tip": TIP}}
     with AnsweringDaemon(path, lambda request: replies[request["cmd"]]):
-        done = run_rakectl("jog", "--socket", str(path), "--height", "-0.25",
-                           "--duration", "0.2")
+        done = run_rakectl("jog", "--socket", str(path), *flags, "--duration", "0.2")
     assert done.returncode == 0, done.stderr
-    assert done.stderr.splitlines() == [
-        "jog: --height -0.25 m/s is faster than jog.max_tip_speed_m_per_s, the daemon's cap "
-        "(0.1 m/s unless configured otherwise): it moves at the cap"]
+    assert done.stderr.splitlines() == [expected]
 
 
 def test_status_into_a_closed_pipe_is_quiet(tmp_path: Path) -> None:
