@@ -248,7 +248,11 @@ class DriveNode(PowerStage):
             return NO_FRAMES
         out: list[Frame] = []
         if command in _NMT_TARGET:
+            before = self.nmt
             self._set_nmt(_NMT_TARGET[command])
+            if self.nmt is not before and self._heartbeat_ms:  # as CANopenNode: at once,
+                out.append((self._ids[FunctionCode.HEARTBEAT], bytes((self.nmt,))))  # and
+                self._next_heartbeat_s = now_s + self._heartbeat_ms * 0.001  # the period anew
         else:
             self._reset(command is NmtCommand.RESET_NODE, now_s, out)
         self._emit_status(out)

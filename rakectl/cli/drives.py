@@ -94,7 +94,8 @@ def report(info: Any, parameters: Any, eds: str, profile: str) -> dict[str, Any]
                        "mapped": [m for m in pdo.mapped if m >= 0],
                        "longer": any(m < 0 for m in pdo.mapped),
                        "timers": dict(pdo.timers)} for pdo in info.rewritten],
-        "disabled": [{"name": pdo.name, "cob_id": pdo.cob_id} for pdo in info.disabled],
+        "extra": [{"name": pdo.name, "cob_id": pdo.cob_id, "kept": pdo.kept}
+                  for pdo in info.extra],
     }
 
 
@@ -137,9 +138,11 @@ def text(r: dict[str, Any]) -> str:
         timers = "".join(f", {what} {value}" for what, value in pdo["timers"].items())
         lines.append(f"    {pdo['name']:<6} COB-ID 0x{pdo['cob_id']:X}, transmission type "
                      f"{pdo['transmission_type']}{timers}, mapped [{mapped}]")
-    if r["disabled"]:
+    if r["extra"]:
         lines.append("  beyond the EDS's and valid, made not valid (not stored: at every "
                      "bring-up):")
-    for pdo in r["disabled"]:
-        lines.append(f"    {pdo['name']:<6} COB-ID 0x{pdo['cob_id']:X}")
+    for pdo in r["extra"]:
+        kept = (f": kept valid by the drive ({pdo['kept']}); it takes any frame sent on "
+                f"0x{pdo['cob_id'] & 0x7FF:03X}" if pdo["kept"] else "")
+        lines.append(f"    {pdo['name']:<6} COB-ID 0x{pdo['cob_id']:X}{kept}")
     return "\n".join(lines)

@@ -149,8 +149,14 @@ class Daemon(StateChanges):
         self.event("drives_configured", drives=[
             {"node": i.node_id, "serial": i.identity.serial,
              "max_voltage_mv": i.limits.max_voltage_mv,
-             "cleared_fault": f"0x{i.cleared_fault:04X}" if i.cleared_fault else None}
+             "cleared_fault": f"0x{i.cleared_fault:04X}" if i.cleared_fault else None,
+             "pdos_made_not_valid": [p.name for p in i.extra if not p.kept]}
             for i in infos])
+        for info in infos:  # an RPDO beyond the EDS's that the drive keeps valid
+            for pdo in info.extra:
+                if pdo.kept:
+                    log.warning("drive_rpdo_kept_valid", node=info.node_id, pdo=pdo.name,
+                                can_id=f"0x{pdo.cob_id & 0x7FF:03X}", why=pdo.kept)
 
     def run(self) -> None:
         """The loop, until a stop is requested. Ends with 0 V, drives disabled, a dump."""

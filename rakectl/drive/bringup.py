@@ -55,10 +55,15 @@ statusword read until it leaves FAULT (``DriveFault`` naming ``FAULT_RESET_TIMEO
 flags read the same way. Then
 the statusword 0x6041 of each (the CiA 402 state the hot path starts
 from: the TPDO2 a drive sends on entering OPERATIONAL may reach the bring-up
-Notifier instead), and NMT start for each node (OPERATIONAL). Then everything steps 3
-and 5 wrote is read again: a drive that restarted since its configuration (a brown-out,
-another node's NMT reset) and whose boot-up was lost holds its power-on values and was
-started with them; DriveFault naming the first object that differs. Start ticking right away: an
+Notifier instead). A drive that restarted since its configuration (a brown-out, another
+node's NMT reset) holds its power-on values: so a boot-up heard since step 1 is a
+DriveFault, and everything steps 3 and 5 wrote is read again (a restart whose boot-up was
+lost), naming the first object that differs. Then NMT start for each node, sent again
+until its heartbeat says OPERATIONAL (``RESET_ATTEMPTS`` times within
+``boot_timeout_s``), and the boot-ups, the limits and a Roboteq-class drive's emergency
+shutdown checked once more: a restart since the reading. From then on a heartbeat in
+any other state is a fault of the drive client's. A failure after NMT start puts both
+nodes back in PRE-OPERATIONAL: no PDO taken from whoever sends one. Start ticking right away: an
 enabled drive faults when RPDO1 or SYNC stop for 0x2003 ms, and every drive
 once the controller's heartbeat (first sent with the first SYNC) stops.
 
@@ -77,6 +82,7 @@ daemon enables the drives only while it is armed.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 
 import can
@@ -87,9 +93,9 @@ from rakectl.config.settings import MotorsSettings
 from rakectl.drive.canbus import BusError, TracedNetwork, TraceRecorder
 from rakectl.drive.joints import (
     JOINTS,
-    DisabledPdo,
     DriveInfo,
     DriveLimits,
+    ExtraPdo,
     Identity,
     Joint,
     Parameter,
@@ -114,7 +120,7 @@ from rakectl.drive.profiles import (
     supply_problem,
 )
 from rakectl.drive.sdo import SDO_RETRIES, DriveSdo, abort_code, no_such_object
-from rakectl.errors import CommsTimeout, ConfigError, DriveFault
+from rakectl.errors import CommsTimeout, ConfigError, DriveFault, RakeError
 from rakectl.protocol.codec import NMT_COB_ID, FunctionCode, cob_id
 from rakectl.protocol.files import DriveProfile
 from rakectl.protocol.nmt import NmtCommand, NmtState, encode_nmt
@@ -146,7 +152,10 @@ class BringUp:
                                                                   strict=True)}
         self._heard = {joint: threading.Event() for joint in JOINTS}  # anything from it
         self._booted = {joint: threading.Event() for joint in JOINTS}
-        self._written: dict[Joint, list[Parameter]] = {}  # by _configure, for _check_kept
+        self._operational = {joint: threading.Event() for joint in JOINTS}  # its heartbeat
+        self._boot_ups = dict.fromkeys(JOINTS, 0)  # boot-ups heard, and at the reset's
+        self._boot_ups_at_reset = dict.fromkeys(JOINTS, 0)
+        self._written: dict[Joint, list[Parameter]] = {}  # by _configure, read again
         self._nodes: dict[Joint, canopen.RemoteNode] = {}
         self._node_id = dict(zip(JOINTS, node_ids(drives), strict=True))
         for joint, node_id in self._node_id.items():
@@ -167,8 +176,13 @@ class BringUp:
     def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
         joint = self._joint_of_node[can_id & 0x7F]
         self._heard[joint].set()
-        if len(data) == 1 and data[0] == NmtState.BOOT_UP:
+        if len(data) != 1:
+            return
+        if data[0] == NmtState.BOOT_UP:
+            self._boot_ups[joint] += 1  # before the event: a waiter then reads it counted
             self._booted[joint].set()
+        elif data[0] == NmtState.OPERATIONAL:
+            self._operational[joint].set()
 
     def close(self) -> None:
         """Unsubscribe from the network."""
@@ -187,15 +201,23 @@ class BringUp:
         cleared = [self._start.clear_old_fault(joint) for joint in JOINTS]
         statuswords = [self._start.status(joint) for joint in JOINTS]
         if start:
-            for joint in JOINTS:
-                self._nmt(joint, NmtCommand.START)
-            for joint, (*_, disabled) in zip(JOINTS, configured, strict=True):
-                self._check_kept(joint, disabled)
+            for joint, (*_, extra) in zip(JOINTS, configured, strict=True):
+                self._check_kept(joint, extra)
+            try:
+                for joint in JOINTS:
+                    self._start_node(joint)
+                for joint, statusword in zip(JOINTS, statuswords, strict=True):
+                    self._check_started(joint, statusword)
+            except RakeError:  # neither drive left taking RPDOs from whoever sends them
+                for joint in JOINTS:
+                    with contextlib.suppress(BusError):
+                        self._nmt(joint, NmtCommand.ENTER_PRE_OPERATIONAL)
+                raise
         r_info, theta_info = (
             DriveInfo(joint, self._node_id[joint], identity, limits, statusword,
                       self._start.state_of(joint, statusword), code, name, pdos, rewritten,
-                      disabled)
-            for joint, (identity, limits, pdos, rewritten, disabled), name, statusword, code
+                      extra)
+            for joint, (identity, limits, pdos, rewritten, extra), name, statusword, code
             in zip(JOINTS, configured, names, statuswords, cleared, strict=True))
         return r_info, theta_info
 
@@ -203,7 +225,7 @@ class BringUp:
         return drive_label(joint, self._node_id[joint])
 
     def _configure(self, joint: Joint) -> tuple[Identity, DriveLimits, tuple[PdoReading, ...],
-                                                 tuple[PdoReading, ...], tuple[DisabledPdo, ...]]:
+                                                 tuple[PdoReading, ...], tuple[ExtraPdo, ...]]:
         self._reset_communication(joint)
         identity = self._check_identity(joint)
         supply_mv = round(motor_of(self._motors, joint).supply_voltage_v * 1000)
@@ -227,19 +249,57 @@ class BringUp:
         limits.setdefault("max_voltage_mv", supply_mv)  # a drive with no limit of its own
         return identity, DriveLimits(**limits), *self._pdos.check(joint)
 
-    def _check_kept(self, joint: Joint, disabled: tuple[DisabledPdo, ...]) -> None:
-        """Once the drives are started, everything :meth:`_configure` wrote read again: a
-        drive that restarted since (a brown-out, another node's NMT reset) and whose
-        boot-up was lost holds its power-on values, and was started with them. DriveFault
-        naming the first object that differs."""
+    def _start_node(self, joint: Joint) -> None:
+        """NMT start until its heartbeat says OPERATIONAL (either frame may be lost):
+        ``RESET_ATTEMPTS`` times in all, ``boot_timeout_s`` over all; then CommsTimeout.
+        From then on, a heartbeat in any other state is a fault of the drive client's."""
+        operational, wait_s = self._operational[joint], self._boot_timeout_s / RESET_ATTEMPTS
+        for _ in range(RESET_ATTEMPTS):
+            operational.clear()
+            self._nmt(joint, NmtCommand.START)
+            if operational.wait(wait_s):
+                return
+        raise CommsTimeout(f"{self._label(joint)}: no OPERATIONAL heartbeat after NMT start "
+                           f"within {self._boot_timeout_s:g} s ({RESET_ATTEMPTS} times)")
+
+    def _check_kept(self, joint: Joint, extra: tuple[ExtraPdo, ...]) -> None:
+        """Before NMT start, everything :meth:`_configure` wrote read again: a drive that
+        restarted since its configuration (a brown-out, another node's NMT reset) holds
+        its power-on values. DriveFault naming a boot-up heard since the reset, else the
+        first object that differs."""
+        self._check_no_boot_up(joint)
+        self._check_parameters(joint, "before NMT start")
+        self._pdos.check_kept(joint, extra, RESTARTED)
+
+    def _check_started(self, joint: Joint, statusword: int) -> None:
+        """Once the drive says OPERATIONAL: no boot-up heard since the reset, the limits
+        read again (a restart since :meth:`_check_kept`, its boot-up lost), and a
+        Roboteq-class drive still in the emergency shutdown that keeps its power stage off
+        until armed (a restart clears it). The PDOs were read just before: each transfer
+        here delays the first SYNC and the controller's first heartbeat."""
+        self._check_no_boot_up(joint)
+        if self._roboteq:
+            state = self._start.state_of(joint, statusword)
+            now = self._start.state_of(joint, self._start.read_status(joint))
+            if now is not state:
+                raise DriveFault(f"{self._label(joint)}: after NMT start, it reads as "
+                                 f"{now.name}, {state.name} before: {RESTARTED}")
+        self._check_parameters(joint, "after NMT start")
+
+    def _check_no_boot_up(self, joint: Joint) -> None:
+        booted = self._boot_ups[joint] - self._boot_ups_at_reset[joint]
+        if booted:
+            raise DriveFault(f"{self._label(joint)}: {booted} boot-up(s) heard after its "
+                             f"configuration: {RESTARTED.replace(' (its boot-up lost)', '')}")
+
+    def _check_parameters(self, joint: Joint, when: str) -> None:
         for p in self._written[joint]:
             value = self._sdo.read(joint, p.index, p.subindex, p.name)
             if value != p.value:
                 unit = f" {p.unit}" if p.unit else ""
-                raise DriveFault(f"{self._label(joint)}: after NMT start, {p.where()} {p.name} "
-                                 f"reads {value}{unit}, {p.value}{unit} was written and read "
-                                 f"back: {RESTARTED}")
-        self._pdos.check_kept(joint, disabled, RESTARTED)
+                raise DriveFault(f"{self._label(joint)}: {when}, {p.where()} {p.name} reads "
+                                 f"{value}{unit}, {p.value}{unit} was written and read back: "
+                                 f"{RESTARTED}")
 
     def _reset_communication(self, joint: Joint) -> None:
         """NMT reset communication until its boot-up comes (step 1 of the module docstring)."""
@@ -248,6 +308,7 @@ class BringUp:
             booted.clear()
             self._nmt(joint, NmtCommand.RESET_COMMUNICATION)
             if booted.wait(wait_s):
+                self._boot_ups_at_reset[joint] = self._boot_ups[joint]
                 return
         if not self._heard[joint].is_set():
             raise CommsTimeout(f"{self._label(joint)}: no heartbeat or boot-up within "

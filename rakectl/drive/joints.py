@@ -117,17 +117,19 @@ class DriveInfo:
     device_name: str = ""  # 0x1008
     pdos: tuple[PdoReading, ...] = ()  # as read back, equal to the EDS's
     rewritten: tuple[PdoReading, ...] = ()  # what the drive held of the PDOs written back
-    disabled: tuple[DisabledPdo, ...] = ()  # PDOs beyond the EDS's, found valid, made not
+    extra: tuple[ExtraPdo, ...] = ()  # PDOs beyond the EDS's that the drive held valid
 
 
 @dataclass(frozen=True)
-class DisabledPdo:
-    """A PDO the drive has beyond its EDS's and held valid, made not valid at bring-up
-    (bit 31 of its COB-ID; not stored: again at every bring-up)."""
+class ExtraPdo:
+    """A PDO the drive has beyond its EDS's and held valid: made not valid at bring-up
+    (bit 31 of its COB-ID; not stored: again at every bring-up), or, an RPDO whose COB-ID
+    the drive keeps, left valid and named."""
 
     name: str  # "RPDO2", "TPDO3", ...
     index: int  # its communication parameter, 0x1400 + n or 0x1800 + n
     cob_id: int  # as the drive held it
+    kept: str = ""  # why the drive kept it valid (its SDO abort); "": made not valid
 
 
 @dataclass(frozen=True)

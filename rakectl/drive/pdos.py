@@ -10,8 +10,9 @@ nor ever written otherwise than the drive reports it. A PDO the drive has beyond
 EDS's (0x1400 + n or 0x1800 + n, up to the first it does not have) that is valid is made
 not valid (bit 31 written, read again; not stored, as a standard master does): a TPDO
 sent beside the EDS's would load the bus beyond the budget of docs/can-bus.md, and an
-RPDO would let frames no clamp has judged reach the drive. A drive that refuses it is
-refused, naming the PDO.
+RPDO would let frames no clamp has judged reach the drive. A drive that keeps such a TPDO
+valid is refused, naming it; an RPDO it keeps valid (a fixed COB-ID: nothing but the
+drive's own tool changes it) is named by ``rakectl drives`` and the daemon's log.
 
 It makes its SDO transfers through the bring-up's own (given to :class:`PdoCheck`), so
 their retries, timeouts and one-line failures are the bring-up's.
@@ -22,9 +23,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import replace
 
+from canopen import SdoAbortedError
 from canopen.objectdictionary import ObjectDictionary, ODVariable
 
-from rakectl.drive.joints import DisabledPdo, Joint, Parameter, PdoReading, od_variable
+from rakectl.drive.joints import ExtraPdo, Joint, Parameter, PdoReading, od_variable
+from rakectl.drive.sdo import abort_code
 from rakectl.errors import ConfigError, DriveFault
 
 PDO_SLOTS = 512  # CiA 301: RPDO and TPDO communication parameters 0x1400/0x1800 + 0 … 511
@@ -53,7 +56,7 @@ class PdoCheck:
         self._read_if_present, self._eds = read_if_present, eds
 
     def check(self, joint: Joint) -> tuple[tuple[PdoReading, ...], tuple[PdoReading, ...],
-                                            tuple[DisabledPdo, ...]]:
+                                            tuple[ExtraPdo, ...]]:
         """Every PDO the EDS declares, read back. One that differs from the EDS (another
         tool stored its own, which reset communication restores) is written back to the
         EDS's in CiA 301's order (:meth:`_remap`) and read again; DriveFault naming the
@@ -76,7 +79,7 @@ class PdoCheck:
                     self._remap(joint, slot, reading, eds, held_timers)
             for slot, eds, held_timers in zip(slots, declared, timers, strict=True):
                 self._verify(joint, slot, eds, held_timers)
-        disabled = self._disable_other_pdos(joint, slots)
+        extra = self._disable_other_pdos(joint, slots)
         rewritten = tuple(
             replace(reading, timers=tuple((what, held) for _, what, held, eds_value
                                           in held_timers if held != eds_value))
@@ -84,7 +87,7 @@ class PdoCheck:
             if different)
         return (tuple(replace(eds, cob_id=eds.cob_id | reading.cob_id & PDO_NO_RTR)
                       for eds, reading in zip(declared, readings, strict=True)),
-                rewritten, disabled)
+                rewritten, extra)
 
     def _pdo_slots(self, joint: Joint) -> list[Slot]:
         """(name, communication index, mapping index) of each PDO the EDS declares."""
@@ -168,10 +171,10 @@ class PdoCheck:
                              f"{self._default(joint, index, subindex)} and read-only: the "
                              "hot path and the bus-load budget take the EDS's PDOs")
 
-    def check_kept(self, joint: Joint, disabled: tuple[DisabledPdo, ...], cause: str) -> None:
-        """Once the drives are started: every PDO the EDS declares still the EDS's, and
-        those made not valid still not valid; DriveFault naming the first object that is
-        not and ``cause``."""
+    def check_kept(self, joint: Joint, extra: tuple[ExtraPdo, ...], cause: str) -> None:
+        """Before NMT start: every PDO the EDS declares still the EDS's, and those made not
+        valid still not valid; DriveFault naming the first object that is not and
+        ``cause``."""
         od = self._od(joint)
         for slot in self._pdo_slots(joint):
             comm = slot[1]
@@ -179,16 +182,19 @@ class PdoCheck:
                       if od.get_variable(comm, sub) is not None]
             self._verify(joint, slot, self._declared_pdo(joint, *slot), timers, cause)
         cob_id = od_variable(od, TPDO_BASE, 1)
-        for pdo in disabled:
+        for pdo in extra:
+            if pdo.kept:
+                continue
             now = self._read_if_present(joint, pdo.index, 1, f"{pdo.name} COB-ID", cob_id)
-            if now is not None and not now & PDO_NOT_VALID:
-                raise DriveFault(f"{self._label(joint)}: after NMT start, 0x{pdo.index:04X}:1 "
-                                 f"{pdo.name} COB-ID is 0x{now:X}, valid again: {cause}")
+            if now is None or not now & PDO_NOT_VALID:
+                held = "no such object" if now is None else f"0x{now:X}, valid again"
+                raise DriveFault(f"{self._label(joint)}: before NMT start, 0x{pdo.index:04X}:1 "
+                                 f"{pdo.name} COB-ID is {held}: {cause}")
 
     def _verify(self, joint: Joint, slot: Slot, eds: PdoReading, timers: list[Timer],
                 cause: str = "") -> None:
-        """A PDO read again after the write-back (or, with ``cause``, after NMT start):
-        every object its EDS's."""
+        """A PDO read again after the write-back (or, with ``cause``, just before NMT
+        start): every object its EDS's."""
         name, comm, mapping = slot
         self._expect(joint, comm, 1, f"{name} COB-ID", PDO_NO_RTR, cause)
         self._expect(joint, comm, 2, f"{name} transmission type", 0, cause)
@@ -201,27 +207,29 @@ class PdoCheck:
     def _expect(self, joint: Joint, index: int, subindex: int, name: str,
                 ignored: int = 0, cause: str = "") -> int:
         """An object read back that must hold its EDS default (but the ``ignored`` bits);
-        ``cause``: why it would not, once the drives are started."""
+        ``cause``: why it would not, just before NMT start."""
         value = self._read(joint, index, subindex, name)
         declared = self._default(joint, index, subindex)
         if (value ^ declared) & ~ignored:
             held = (f"0x{index:04X}:{subindex} {name} is 0x{value:X}, {self._eds(joint)} "
                     f"declares 0x{declared:X}")
             if cause:
-                raise DriveFault(f"{self._label(joint)}: after NMT start, {held}: {cause}")
+                raise DriveFault(f"{self._label(joint)}: before NMT start, {held}: {cause}")
             raise DriveFault(f"{self._label(joint)}: {held}, and the drive kept it when the "
                              "EDS's mapping was written: the hot path decodes the EDS's PDO "
                              "layout")
         return value
 
-    def _disable_other_pdos(self, joint: Joint, slots: list[Slot]) -> tuple[DisabledPdo, ...]:
+    def _disable_other_pdos(self, joint: Joint, slots: list[Slot]) -> tuple[ExtraPdo, ...]:
         """Every RPDO and TPDO the drive has beyond the EDS's (up to the first of each it
         does not have) that is valid made not valid: bit 31 of its COB-ID written, the
-        other bits as held, and read again. DriveFault naming the first the drive refuses
-        or keeps valid. Returns those made not valid, as held."""
+        other bits as held, and read again. A TPDO the drive keeps valid is a DriveFault
+        naming it (the bus-load budget counts the EDS's frames only); an RPDO it keeps valid
+        (a fixed COB-ID) is returned as kept, for ``rakectl drives`` and the daemon's log
+        to name. Returns them all, as held."""
         declared = {comm for _, comm, _ in slots}
         cob_id = od_variable(self._od(joint), TPDO_BASE, 1)  # UNSIGNED32, as every COB-ID
-        disabled: list[DisabledPdo] = []
+        extra: list[ExtraPdo] = []
         for kind, base in (("RPDO", RPDO_BASE), ("TPDO", TPDO_BASE)):
             for n in range(PDO_SLOTS):
                 comm, name = base + n, f"{kind}{n + 1}"
@@ -233,27 +241,34 @@ class PdoCheck:
                     break
                 if held & PDO_NOT_VALID:
                     continue
-                why = (f"{self._eds(joint)} has no such {kind}: "
-                       + ("sent beside the EDS's, it would break the bus-load budget "
-                          "(docs/can-bus.md)" if kind == "TPDO" else
-                          "frames no clamp judged could command the drive through it"))
-                try:
-                    self._write(joint, Parameter(comm, 1, what, "", held | PDO_NOT_VALID, why),
-                                cob_id)
-                except DriveFault as error:
-                    raise DriveFault(f"{error} (making {name}, valid and {why}, not valid: "
-                                     "make it not valid, bit 31, and store that with the "
-                                     "drive's own tool)") from error
-                now = self._read_if_present(joint, comm, 1, what, cob_id)
-                if now is None or not now & PDO_NOT_VALID:
+                kept = self._make_not_valid(joint, comm, what, held, cob_id)
+                if kept and kind == "TPDO":
                     raise DriveFault(
                         f"{self._label(joint)}: {name} (0x{comm:04X}:1 COB-ID 0x{held:X}) is "
-                        f"valid, {why}; written not valid, it reads "
-                        + ("nothing" if now is None else f"0x{now:X}")
-                        + ": make it not valid (bit 31) and store that with the drive's "
-                        "own tool")
-                disabled.append(DisabledPdo(name, comm, held))
-        return tuple(disabled)
+                        f"valid and {self._eds(joint)} has no such TPDO: sent beside the "
+                        f"EDS's, it would break the bus-load budget (docs/can-bus.md); the "
+                        f"drive keeps it valid ({kept}): make it not valid (bit 31) with the "
+                        "drive's own tool and store that")
+                extra.append(ExtraPdo(name, comm, held, kept))
+        return tuple(extra)
+
+    def _make_not_valid(self, joint: Joint, comm: int, what: str, held: int,
+                        cob_id: ODVariable) -> str:
+        """Bit 31 of a COB-ID written and read again: "" if it took, else why not."""
+        try:
+            self._write(joint, Parameter(comm, 1, what, "", held | PDO_NOT_VALID,
+                                         "a PDO beyond the EDS's"), cob_id)
+        except DriveFault as error:
+            code = abort_code(error)
+            if not code:
+                raise
+            return (f"SDO abort 0x{code:08X} writing 0x{held | PDO_NOT_VALID:X}: "
+                    f"{SdoAbortedError.CODES.get(code, 'unknown abort code')}")
+        now = self._read_if_present(joint, comm, 1, what, cob_id)
+        if now is None or not now & PDO_NOT_VALID:
+            return "it reads " + ("no such object" if now is None else f"0x{now:X}") + \
+                " once written not valid"
+        return ""
 
 
 def _same(held: PdoReading, eds: PdoReading) -> bool:

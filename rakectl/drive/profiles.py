@@ -137,10 +137,16 @@ class DriveStart:
         """The status the hot path starts from: the statusword 0x6041 of a CiA 402 drive; a
         Roboteq-class drive's fault and status flags, once its power stage is switched off
         by an emergency shutdown (0x200C), as a CiA 402 drive starts switched off."""
+        if self._profile is DriveProfile.ROBOTEQ:
+            self._write(joint, Parameter(0x200C, 0, "emergency shutdown", "", 1,
+                                         "bring-up: the power stage off until armed"))
+        return self.read_status(joint)
+
+    def read_status(self, joint: Joint) -> int:
+        """The status as :meth:`status` gives it, read only (a Roboteq-class drive's
+        emergency shutdown not written again)."""
         if self._profile is not DriveProfile.ROBOTEQ:
             return self._read(joint, 0x6041, 0, "statusword")
-        self._write(joint, Parameter(0x200C, 0, "emergency shutdown", "", 1,
-                                     "bring-up: the power stage off until armed"))
         return (self._read(joint, 0x2112, 0, "fault flags") << 16
                 | self._read(joint, 0x2111, 0, "status flags"))
 

@@ -33,7 +33,7 @@ from rakectl.config.service import DrivesSettings
 from rakectl.config.settings import MotorsSettings
 from rakectl.drive import profiles
 from rakectl.drive.bringup import BringUp, run_bring_up
-from rakectl.drive.joints import DisabledPdo, DriveInfo, Joint, PdoReading, load_drive_od
+from rakectl.drive.joints import DriveInfo, ExtraPdo, Joint, PdoReading, load_drive_od
 from rakectl.drive.profiles import drive_parameters
 from rakectl.errors import CommsTimeout, DriveFault
 from rakectl.protocol import cia402, codec, roboteq
@@ -224,43 +224,101 @@ def pdo_of(info: DriveInfo, name: str) -> PdoReading:
     return next(p for p in info.pdos if p.name == name)
 
 
-class RebootsBeforeStart(VirtualBus):
+def sdo_answer_to(index: int) -> tuple[int, bytes]:
+    """The r drive's answer to an expedited read of ``index``:0 (CAN-ID, its first bytes)."""
+    return 0x580 + R_NODE, b"\x4b" + index.to_bytes(2, "little") + b"\0"
+
+
+class RestartsDuringBringUp(VirtualBus):
     """The drives' bus edge, where the r drive restarts (an NMT reset node from another
-    node, as a brown-out would) once bring-up has read its statusword, the last read
-    before NMT start, and its boot-up is lost: nothing on the bus says it restarted."""
+    node, as a brown-out would) right after it sends the ``nth`` frame that starts with
+    ``after`` (CAN-ID, first bytes), and its boot-up is lost (``boot_up_lost``) or heard."""
+
+    after, nth, boot_up_lost = sdo_answer_to(0x6041), 1, True
 
     def __init__(self, channel: Any = "channel-0", **kwargs: Any) -> None:
         super().__init__(channel, **kwargs)
         self._other_node = VirtualBus(channel)
-        self._rebooted = False
+        self._answers, self.restarted = 0, False
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        if msg.arbitration_id == 0x700 + R_NODE and bytes(msg.data) == b"\0" and self._rebooted:
-            return  # the boot-up, lost
+        if (msg.arbitration_id == 0x700 + R_NODE and bytes(msg.data) == b"\0"
+                and self.restarted and self.boot_up_lost):
+            return
         super().send(msg, timeout)
-        if (msg.arbitration_id == 0x580 + R_NODE and bytes(msg.data[1:4]) == b"\x41\x60\0"
-                and not self._rebooted):
-            self._rebooted = True
-            self._other_node.send(can.Message(arbitration_id=0, data=bytes((0x81, R_NODE)),
-                                              is_extended_id=False))
+        can_id, start = self.after
+        if msg.arbitration_id == can_id and bytes(msg.data).startswith(start):
+            self._answers += 1
+            if self._answers == self.nth:
+                self.restarted = True
+                self._other_node.send(can.Message(arbitration_id=0, data=bytes((0x81, R_NODE)),
+                                                  is_extended_id=False))
 
     def shutdown(self) -> None:
         self._other_node.shutdown()
         super().shutdown()
 
 
-def test_a_drive_that_restarts_before_nmt_start_is_refused() -> None:
-    """A drive that restarted between its configuration and NMT start, its boot-up lost,
-    holds its power-on values (no consumer heartbeat, its own watchdog time, the stored
-    PDOs): it was started with them as if configured. Everything bring-up wrote is read
-    again once the drives are started: refused, naming the first object and the cause."""
-    with drives_on_a_bus(emulator_bus_class=RebootsBeforeStart) as (_, bus), pytest.raises(
-            DriveFault) as raised:
-        run_bring_up(bus, DRIVES, MOTORS, BOOT_TIMEOUT_S)
-    assert str(raised.value) == (
-        "r drive (node 1): after NMT start, 0x2003 watchdog timeout reads 20 ms, 3 ms was "
-        "written and read back: the drive restarted during bring-up (its boot-up lost) and "
-        "holds its power-on values; bring-up again (restart the service)")
+RESTARTED_TEXT = ("the drive restarted during bring-up (its boot-up lost) and holds its "
+                  "power-on values; bring-up again (restart the service)")
+
+
+STATUSWORD_READ = sdo_answer_to(0x6041)
+OPERATIONAL_HEARTBEAT = (0x700 + R_NODE, bytes((NmtState.OPERATIONAL,)))
+
+
+@pytest.mark.parametrize(("after", "boot_up_lost", "expected"), [
+    (STATUSWORD_READ, True, "r drive (node 1): before NMT start, 0x2003 watchdog timeout "
+     f"reads 20 ms, 3 ms was written and read back: {RESTARTED_TEXT}"),
+    (OPERATIONAL_HEARTBEAT, True, "r drive (node 1): after NMT start, 0x2003 watchdog "
+     f"timeout reads 20 ms, 3 ms was written and read back: {RESTARTED_TEXT}"),
+    (STATUSWORD_READ, False, "r drive (node 1): 1 boot-up(s) heard after its "
+     "configuration: the drive restarted during bring-up and holds its power-on values; "
+     "bring-up again (restart the service)")])
+def test_a_drive_that_restarts_during_bring_up_is_refused(
+        monkeypatch: pytest.MonkeyPatch, after: tuple[int, bytes], boot_up_lost: bool,
+        expected: str) -> None:
+    """A drive that restarted after its configuration holds its power-on values (its own
+    watchdog time, its power-on heartbeat times, its stored PDOs): it was started with them
+    as if configured. Restarted once its statusword was read (the old fault's check) or
+    once it said OPERATIONAL after NMT start, its boot-up lost or heard: a boot-up heard,
+    or the values read again before NMT start and once it says OPERATIONAL, refuse it, and
+    both drives are left PRE-OPERATIONAL, taking no PDO."""
+    monkeypatch.setattr(RestartsDuringBringUp, "after", after)
+    monkeypatch.setattr(RestartsDuringBringUp, "boot_up_lost", boot_up_lost)
+    with drives_on_a_bus(emulator_bus_class=RestartsDuringBringUp) as (emulator, bus):
+        with pytest.raises(DriveFault) as raised:
+            run_bring_up(bus, DRIVES, MOTORS, BOOT_TIMEOUT_S)
+        assert emulator.bus.restarted
+        deadline_s = time.monotonic() + ANSWER_TIMEOUT_S
+        while (time.monotonic() < deadline_s
+               and any(n.nmt is not NmtState.PRE_OPERATIONAL for n in emulator.nodes)):
+            time.sleep(0.01)
+        assert [n.nmt for n in emulator.nodes] == [NmtState.PRE_OPERATIONAL] * 2
+    assert str(raised.value) == expected
+
+
+def test_a_roboteq_class_drive_that_restarts_with_its_own_values_is_refused(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A Roboteq-class drive whose stored limits are the configured ones, restarted after
+    bring-up switched its power stage off (emergency shutdown 0x200C) and read its flags,
+    its boot-up lost: no value read again differs, but the restart cleared the emergency
+    shutdown, and NMT start let it drive while bring-up reported it off. Its flags are read
+    again once it says OPERATIONAL."""
+    monkeypatch.setattr(RestartsDuringBringUp, "after", sdo_answer_to(0x2111))
+    config = EmulatorConfig()
+    config = replace(config, drives=replace(config.drives, profile=DriveProfile.ROBOTEQ))
+    drives = replace(DRIVES, profile=DriveProfile.ROBOTEQ)
+    r, theta = drive_specs(config)
+    stored = tuple((p.index, p.subindex, p.value)
+                   for p in drive_parameters(Joint.R, drives, MOTORS) if p.index >= 0x2000)
+    with drives_on_a_bus((replace(r, stored=stored), theta), config=config,
+                         emulator_bus_class=RestartsDuringBringUp) as (emulator, bus), \
+            pytest.raises(DriveFault) as raised:
+        run_bring_up(bus, drives, MOTORS, BOOT_TIMEOUT_S)
+    assert emulator.bus.restarted
+    assert str(raised.value).startswith("r drive (node 1): after NMT start, it reads as ")
+    assert str(raised.value).endswith(f", SWITCH_ON_DISABLED before: {RESTARTED_TEXT}")
 
 
 @pytest.mark.parametrize(("index", "subindex", "value", "named"), [
@@ -270,21 +328,22 @@ def test_a_drive_that_restarts_before_nmt_start_is_refused() -> None:
 def test_pdos_that_change_before_nmt_start_are_refused(
         fake_drives: tuple[FakeDrive, FakeDrive], network: LoopbackNetwork, index: int,
         subindex: int, value: int, named: str) -> None:
-    """The θ drive's stored PDOs come back at NMT start, as a drive that restarted unseen
-    holds them (its limits kept, so that only the PDOs' reading finds it): a mapping
-    another tool stored, or a TPDO that was made not valid."""
+    """The θ drive's stored PDOs come back before NMT start, as a drive that restarted
+    unseen holds them (its limits kept, so that only the PDOs' reading finds it): a mapping
+    another tool stored, or a TPDO that was made not valid. Read again just before NMT
+    start."""
     theta = fake_drives[1]
     _add_pdo(theta, 0x1802, 0x382)
 
     def restore_stored(can_id: int, data: bytearray, timestamp: float) -> None:
-        if decode_nmt(data) == (NmtCommand.START, THETA_NODE):
+        if data[0] == 0x40 and bytes(data[1:4]) == b"\x41\x60\0":  # its statusword read
             theta.node.set_data(index, subindex, value.to_bytes(4, "little"))
 
-    network.subscribe(codec.NMT_COB_ID, restore_stored)
+    network.subscribe(0x600 + THETA_NODE, restore_stored)
     with pytest.raises(DriveFault) as raised:
         _announce_and_run(make_bring_up(network), fake_drives)
     assert str(raised.value) == (
-        f"θ drive (node 2): after NMT start, {named}: the drive restarted during bring-up "
+        f"θ drive (node 2): before NMT start, {named}: the drive restarted during bring-up "
         "(its boot-up lost) and holds its power-on values; bring-up again (restart the "
         "service)")
 
@@ -417,9 +476,9 @@ def test_pdos_beyond_the_eds_s_are_made_not_valid(
     infos = _announce_and_run(make_bring_up(network), fake_drives)
     assert _cob_id(fake_drives[1], 0x1802) == 1 << 31 | NO_RTR | 0x382
     assert _cob_id(fake_drives[1], 0x1401) == 1 << 31 | 0x302
-    assert infos[1].disabled == (DisabledPdo("RPDO2", 0x1401, 0x302),
-                                 DisabledPdo("TPDO3", 0x1802, NO_RTR | 0x382))
-    assert infos[0].disabled == ()
+    assert infos[1].extra == (ExtraPdo("RPDO2", 0x1401, 0x302),
+                                 ExtraPdo("TPDO3", 0x1802, NO_RTR | 0x382))
+    assert infos[0].extra == ()
     assert [p.name for p in infos[1].pdos] == ["RPDO1", "TPDO1", "TPDO2"]
     printed = text(report(infos[1], drive_parameters(Joint.THETA, FAST, MOTORS),
                           "geared_motor_drive.eds", "cia402"))
@@ -428,7 +487,7 @@ def test_pdos_beyond_the_eds_s_are_made_not_valid(
                             "    TPDO3  COB-ID 0x40000382")
 
 
-def test_a_pdo_beyond_the_eds_s_that_stays_valid_is_refused(
+def test_a_tpdo_beyond_the_eds_s_that_stays_valid_is_refused(
         fake_drives: tuple[FakeDrive, FakeDrive], network: LoopbackNetwork) -> None:
     """A drive whose extra TPDO's COB-ID is read-only: refused, naming the PDO and what to
     do, and nothing started."""
@@ -438,12 +497,27 @@ def test_a_pdo_beyond_the_eds_s_that_stays_valid_is_refused(
         _announce_and_run(refused, fake_drives)
     refused.close()
     assert str(raised.value) == (
-        "θ drive (node 2): SDO abort 0x06010002 writing 0x1802:1 TPDO3 COB-ID = 2147484546: "
-        "Attempt to write a read only object (making TPDO3, valid and geared_motor_drive.eds "
+        "θ drive (node 2): TPDO3 (0x1802:1 COB-ID 0x382) is valid and geared_motor_drive.eds "
         "has no such TPDO: sent beside the EDS's, it would break the bus-load budget "
-        "(docs/can-bus.md), not valid: make it not valid, bit 31, and store that with the "
-        "drive's own tool)")
+        "(docs/can-bus.md); the drive keeps it valid (SDO abort 0x06010002 writing "
+        "0x80000382: Attempt to write a read only object): make it not valid (bit 31) with "
+        "the drive's own tool and store that")
     assert _cob_id(fake_drives[1], 0x1802) == 0x382
+
+
+def test_an_rpdo_beyond_the_eds_s_that_stays_valid_is_named(
+        fake_drives: tuple[FakeDrive, FakeDrive], network: LoopbackNetwork) -> None:
+    """A drive whose extra RPDO's COB-ID is fixed (read-only): no tool but the drive's own
+    changes it, and it takes only frames sent on its COB-ID, so the drive is brought up and
+    ``rakectl drives`` names the RPDO and what it takes."""
+    _add_pdo(fake_drives[1], 0x1401, 0x300 + THETA_NODE, access="ro")
+    infos = _announce_and_run(make_bring_up(network), fake_drives)
+    kept = ("SDO abort 0x06010002 writing 0x80000302: Attempt to write a read only object")
+    assert infos[1].extra == (ExtraPdo("RPDO2", 0x1401, 0x302, kept),)
+    printed = text(report(infos[1], drive_parameters(Joint.THETA, FAST, MOTORS),
+                          "geared_motor_drive.eds", "cia402"))
+    assert printed.endswith(f"    RPDO2  COB-ID 0x302: kept valid by the drive ({kept}); it "
+                            "takes any frame sent on 0x302")
 
 
 def test_a_fault_reset_that_does_not_clear_names_the_timeout(

@@ -603,7 +603,8 @@ class LoopbackNetwork(canopen.Network):
 
 
 class FakeDrive:
-    """A LocalNode SDO server that answers NMT reset with a boot-up, as a drive does."""
+    """A LocalNode SDO server that answers NMT reset with a boot-up and NMT start with an
+    OPERATIONAL heartbeat, as a drive does (CANopenNode sends one on each change)."""
 
     def __init__(self, network: canopen.Network, joint: Joint, node_id: int,
                  eds_of: Joint | None = None, answers_reset: bool = True,
@@ -625,6 +626,8 @@ class FakeDrive:
             self.resets += 1
             if self.answers_reset and self.resets > self.resets_lost:
                 self.announce(NmtState.BOOT_UP)
+        elif node in (0, self.node_id) and command is NmtCommand.START:
+            self.announce(NmtState.OPERATIONAL)
 
     def announce(self, state: NmtState = NmtState.PRE_OPERATIONAL) -> None:
         self.network.send_message(cob_id(FunctionCode.HEARTBEAT, self.node_id),

@@ -166,6 +166,18 @@ def test_nmt_commands_address_the_node_or_all(drive: Bench) -> None:
     assert drive.at(0.1).poll() == [(HEARTBEAT, bytes([NmtState.STOPPED]))]
 
 
+def test_a_change_of_nmt_state_is_heartbeat_at_once(drive: Bench) -> None:
+    """As CANopenNode's producer: a heartbeat as the state changes, the period counted
+    anew from it; a command that changes nothing sends none."""
+    assert ids(drive.at(0.030).nmt(NmtCommand.START)) == [HEARTBEAT, TPDO2]  # its status
+    assert drive.node.nmt is NmtState.OPERATIONAL
+    assert drive.at(0.129).poll() == []
+    assert drive.at(0.130).poll() == [(HEARTBEAT, bytes([NmtState.OPERATIONAL]))]
+    assert drive.nmt(NmtCommand.START) == []
+    assert drive.nmt(NmtCommand.ENTER_PRE_OPERATIONAL) == [
+        (HEARTBEAT, bytes([NmtState.PRE_OPERATIONAL]))]
+
+
 def test_pdos_only_when_operational(drive: Bench) -> None:
     assert drive.sync() == []
     drive.rpdo(1000, DriveCommand.SHUTDOWN)
