@@ -99,9 +99,9 @@ def jog_caps_text(reply: Mapping[str, Any]) -> str:
     caps = reply.get("jog")
     if not caps:
         return ""
-    return (f"tip {caps['max_tip_speed_m_per_s']:g} m/s, r {caps['max_r_speed_m_per_s']:g} "
-            f"m/s, θ {caps['max_theta_speed_rad_per_s']:g} rad/s (faster requests move at "
-            "these)")
+    return (f"reach and height {caps['max_tip_speed_m_per_s']:g} m/s each, r "
+            f"{caps['max_r_speed_m_per_s']:g} m/s, θ {caps['max_theta_speed_rad_per_s']:g} "
+            "rad/s (faster requests move at these)")
 
 
 def progress_text(reply: Mapping[str, Any]) -> str:

@@ -450,8 +450,8 @@ def test_status_says_the_jog_caps_and_which_lane_runs(tmp_path: Path) -> None:
                                              "excavate: lane 2 started\n"), first.stderr
     assert shown.returncode == 0, shown.stderr
     lines = shown.stdout.splitlines()
-    assert "jog caps   tip 0.05 m/s, r 0.1 m/s, θ 0.12 rad/s (faster requests move at " \
-           "these)" in lines, lines
+    assert "jog caps   reach and height 0.05 m/s each, r 0.1 m/s, θ 0.12 rad/s (faster " \
+           "requests move at these)" in lines, lines
     # the lock-step rig's lanes are force-adaptive (rakectl.bench.tick)
     assert "lane       2: reach 1.250 → 1.150 m, target 5 mm, force-adaptive (first step " \
            "5 mm, stroke 0.04 m/s)" in lines, lines
