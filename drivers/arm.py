@@ -1,4 +1,6 @@
-"""Rigid-body dynamics of the r-θ rake arm in its vertical plane (pure model).
+"""Rigid-body dynamics of the r-θ rake arm in its vertical plane (pure model):
+:class:`ArmPlant`; the contact it is handed, the state it is put in and the drives'
+report it gives are the types of :mod:`drivers.arm_types`.
 
 With the arm's mass matrix, gravity and notation from :mod:`drivers.mechanics`
 (q = (r, θ), momenta p_r = M_r ṙ and p_θ = M_θ θ̇), the equations of motion are::
@@ -35,10 +37,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
+from drivers.arm_types import ArmState, ContactModel, Measurement
 from drivers.mechanics import ArmParams, counterweight_mass_kg, joint_masses, unbalanced_weight_n
 from drivers.motor import Bridge, MotorDrive, MotorParams, stick_slip_velocity, substeps_in
 from drivers.mount import MAX_PARTS, MAX_SLIDE_M, TineMount
@@ -46,59 +49,10 @@ from rakectl.core import kinematics
 from rakectl.core.kinematics import Workspace
 from rakectl.errors import ConfigError, NonFiniteError
 
+__all__ = ["ArmState", "ContactModel", "Measurement"]  # re-exported from drivers.arm_types
+
 DEFAULT_SUBSTEP_S = 5e-5  # set by the contact; see the module docstring
 MAX_EXPLICIT_DAMPING = 0.1  # largest allowed h·c/M of an explicitly integrated damper
-
-
-class ContactModel(Protocol):
-    """The ground as the tip feels it (implemented by the soil model).
-
-    A model that also has ``vertical_laws(reach_m, height_m, face_height_m, step_s,
-    reach_vel_m_per_s)`` and
-    ``transmitted(force_down_n)`` (Ground) lets the arm solve its compliant tine mount
-    implicitly; one without them (the tests' idealized contacts) meets a rigid mount.
-    """
-
-    def step(
-        self,
-        reach_m: float,
-        height_m: float,
-        reach_vel_m_per_s: float,
-        height_vel_m_per_s: float,
-        dt_s: float,
-    ) -> tuple[float, float]:
-        """Force ON the tip by the ground (f_reach_n, f_height_n); advance the ground by dt_s."""
-        ...
-
-
-@dataclass(frozen=True)
-class ArmState:
-    """True state of the arm and its motor currents."""
-
-    r_m: float
-    theta_rad: float
-    r_vel_m_per_s: float = 0.0
-    theta_vel_rad_per_s: float = 0.0
-    current_r_a: float = 0.0
-    current_theta_a: float = 0.0
-
-
-@dataclass(frozen=True)
-class Measurement:
-    """What the drives report at the end of a step.
-
-    Positions are encoder counts converted back to joint units (incremental
-    encoders zeroed at joint position 0, so the error is in (−1, 0] count);
-    velocities are the difference of the last two such samples over the step;
-    currents carry seeded Gaussian noise.
-    """
-
-    r_m: float
-    theta_rad: float
-    r_vel_m_per_s: float
-    theta_vel_rad_per_s: float
-    current_r_a: float
-    current_theta_a: float
 
 
 @dataclass(frozen=True, slots=True)

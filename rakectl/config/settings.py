@@ -1,6 +1,11 @@
-"""Every option of the controller's configuration, declared once (pure): the control
-sections here, the service's (bus, drives, daemon, weight check) in
-:mod:`rakectl.config.service`, under the root :class:`Settings`.
+"""The root of the controller's configuration, :class:`Settings`, and the constraints
+between its options (pure). Every option is declared once, in its section's module: the
+motion (impedance, estimator, lane, jog) in :mod:`rakectl.config.motion`, the arm
+(joint loops, geometry, motors) in :mod:`rakectl.config.machine`, the voltage clamp and
+force supervision in :mod:`rakectl.config.safety`, the descent budget in
+:mod:`rakectl.config.descent`, the service's (bus, drives, daemon, weight check) in
+:mod:`rakectl.config.service`. The control sections and the declaration functions are
+re-exported here.
 
 See :mod:`rakectl.config.declare` for how; names carry their units (``_m``, ``_s``,
 ``_n_per_m`` …). The emulator's options are in drivers.settings.
@@ -13,6 +18,14 @@ from dataclasses import dataclass
 
 from rakectl.config.declare import Bounds, has_default, section, setting
 from rakectl.config.descent import DescentSettings, descent_checks
+from rakectl.config.machine import (
+    GeometrySettings,
+    JointControlSettings,
+    JointLoopSettings,
+    MotorsSettings,
+)
+from rakectl.config.motion import EstimatorSettings, ImpedanceSettings, JogSettings, LaneSettings
+from rakectl.config.safety import ClampSettings, SupervisionSettings
 from rakectl.config.service import (
     BusSettings,
     DaemonSettings,
@@ -20,272 +33,19 @@ from rakectl.config.service import (
     SelfTestSettings,
 )
 from rakectl.core.kinematics import Workspace, inverse
-from rakectl.core.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, MotorParams
 from rakectl.errors import KinematicsError
 from rakectl.limits import FORCE_LIMIT_N
 
-__all__ = ["Bounds", "has_default", "section", "setting"]  # re-exported declaration functions
+# re-exported: the declaration functions (rakectl.config.declare) and the control
+# sections (rakectl.config.motion, rakectl.config.machine, rakectl.config.safety)
+__all__ = [
+    "Bounds", "ClampSettings", "EstimatorSettings", "GeometrySettings", "ImpedanceSettings",
+    "JogSettings", "JointControlSettings", "JointLoopSettings", "LaneSettings",
+    "MotorsSettings", "SupervisionSettings", "has_default", "section", "setting",
+]
 
 
-# --------------------------------------------------------------------------- sections
-
-
-@dataclass(frozen=True)
-class ImpedanceSettings:
-    """Desired impedance M_d ẍ_c + B_d ẋ_c + K_d x_c = F_d − F̂ on the vertical axis."""
-
-    mass_kg: float = setting(0.39, "Desired mass M_d.", unit="kg", gt=0, le=1e4)
-    damping_ns_per_m: float = setting(
-        1.33e4, "Desired damping B_d.", unit="N·s/m", gt=0, le=1e8
-    )
-    stiffness_n_per_m: float = setting(
-        1.0e4, "Desired stiffness K_d.", unit="N/m", gt=0, le=1e8
-    )
-
-
-@dataclass(frozen=True)
-class EstimatorSettings:
-    """Force estimate F̂ = K_e (x(t) − x(t − α)) from delayed measured positions."""
-
-    environment_stiffness_n_per_m: float = setting(
-        2.0e5, "Assumed soil stiffness K_e.", unit="N/m", gt=0, le=1e9
-    )
-    delay_s: float = setting(
-        0.01, "Delay α of the undeformed-soil estimate x_e = x(t − α); 0 = free space.",
-        unit="s", ge=0, le=1.0,
-    )
-    max_delay_s: float = setting(
-        0.5, "Longest α the position history can serve (sizes the ring).", unit="s", gt=0, le=5.0
-    )
-
-
-@dataclass(frozen=True)
-class LaneSettings:
-    """Raking a lane (paper Fig. 3): contact strokes toward the robot, deeper each cycle."""
-
-    reach_far_m: float = setting(1.3, "Where each contact stroke starts.", unit="m", gt=0,
-                                 le=10)
-    reach_near_m: float = setting(0.8, "Where each contact stroke ends.", unit="m", gt=0,
-                                  le=10)
-    depth_step_m: float = setting(0.01, "Depth added after each cycle.", unit="m", gt=0,
-                                  le=0.1)
-    target_depth_m: float = setting(0.05, "Depth of the last stroke below ground level 0.",
-                                    unit="m", gt=0, le=0.5)
-    clearance_m: float = setting(0.03, "Height of the tip above ground on the return.",
-                                 unit="m", ge=0.005, le=0.5)
-    stroke_speed_m_per_s: float = setting(0.05, "Tip speed along a contact stroke.",
-                                          unit="m/s", gt=0, le=1)
-    plunge_speed_m_per_s: float = setting(0.007, "Descent speed into the soil.", unit="m/s",
-                                          gt=0, le=1)
-    travel_speed_m_per_s: float = setting(0.15, "Tip speed in free space.", unit="m/s", gt=0,
-                                          le=2)
-    stall_error_m: float = setting(
-        0.02, "A contact stroke whose tip lags its reference by more than this has met a rigid "
-        "object (a stone, a mine): stop, lift clear, report where.", unit="m", gt=0.002, le=0.5)
-    accel_m_per_s2: float = setting(0.5, "Tip acceleration limit of the reference; it stops "
-                                    "at every corner of the path.", unit="m/s²", gt=0, le=20)
-    adaptive: bool = setting(
-        False, "Force-adaptive stroke speed (rakectl.core.governor): the first contact stroke "
-        "starts at stroke_speed_m_per_s; the speed then follows the larger force estimate (F̂ or "
-        "the current-based one) toward force_target_share × supervision.caution_force_n, keeps the "
-        "tip's lag under half of stall_error_m, and stays within min_stroke_speed_m_per_s … "
-        "max_stroke_speed_m_per_s.")
-    min_stroke_speed_m_per_s: float = setting(
-        0.03, "Adaptive: slowest stroke (supervision's caution level still holds the motion). "
-        "Slower than ~3× the emulated drag's smoothing speed (0.01 m/s), a tine that the "
-        "drag has lifted is let go and drops.", unit="m/s", gt=0, le=1)
-    max_stroke_speed_m_per_s: float = setting(
-        0.15, "Adaptive: fastest stroke. The clamp's budget toward the robot shrinks with the "
-        "tip's speed (at 1.2 m with the 5 kN/m mount: 35 N at rest, 27 N at 0.1 m/s, 18 N at "
-        "0.15 m/s, none from 0.23 m/s): faster, a stroke at depth is cut until it rides up out "
-        "of its cut.", unit="m/s",
-        gt=0, le=1)
-    max_plunge_speed_m_per_s: float = setting(
-        0.02, "Adaptive: fastest plunge. Each plunge starts at plunge_speed_m_per_s and "
-        "follows the stroke's force set point up to this, never slower than "
-        "plunge_speed_m_per_s (in steady state F̂ = K_e·v·α: 2000 N per m/s with the "
-        "paper's values).", unit="m/s", gt=0, le=1)
-    force_target_share: float = setting(
-        0.8, "Adaptive: the stroke's force set point as a share of "
-        "supervision.caution_force_n.", gt=0, lt=1)
-    max_depth_step_m: float = setting(
-        0.04, "Adaptive: deepest cut. Per 20 mm of reach, each cut is the one the last stroke "
-        "took there (from the floor the tip left) times that stroke's margin there (force set "
-        "point / its peak estimate, and the same for the lag), at most doubled, at least "
-        "depth_step_m below what was done; deeper far from the robot, never descending toward "
-        "it. Strokes start where the lane is not yet at target_depth_m.", unit="m", gt=0,
-        le=0.1)
-    governor_gain_per_s: float = setting(
-        2.0, "Adaptive: with no force the speed limit rises by this share of "
-        "max_stroke_speed_m_per_s per second; above the set point it falls 8× faster.",
-        unit="1/s", gt=0, le=100)
-
-    def __post_init__(self) -> None:
-        from rakectl.errors import ConfigError
-
-        if self.min_stroke_speed_m_per_s > self.max_stroke_speed_m_per_s:
-            raise ConfigError("min_stroke_speed_m_per_s must be <= max_stroke_speed_m_per_s "
-                              f"({self.max_stroke_speed_m_per_s:g})")
-        if self.adaptive and self.max_plunge_speed_m_per_s < self.plunge_speed_m_per_s:
-            raise ConfigError(f"max_plunge_speed_m_per_s ({self.max_plunge_speed_m_per_s:g}) "
-                              f"must be >= plunge_speed_m_per_s ({self.plunge_speed_m_per_s:g}) "
-                              "on an adaptive lane")
-        if self.adaptive and self.max_depth_step_m < self.depth_step_m:
-            raise ConfigError(f"max_depth_step_m ({self.max_depth_step_m:g}) must be >= "
-                              f"depth_step_m ({self.depth_step_m:g}) on an adaptive lane")
-
-
-@dataclass(frozen=True)
-class JogSettings:
-    """Operator jogging: speed and acceleration limits and the dead-man."""
-
-    max_tip_speed_m_per_s: float = setting(0.1, "Largest tip speed in task-space jog.",
-                                           unit="m/s", gt=0, le=1)
-    max_r_speed_m_per_s: float = setting(0.1, "Largest r speed in joint-space jog.",
-                                         unit="m/s", gt=0, le=1)
-    max_theta_speed_rad_per_s: float = setting(0.15, "Largest θ speed in joint-space jog.",
-                                               unit="rad/s", gt=0, le=2)
-    accel_per_s: float = setting(4.0, "Largest change of the jog speed per second, as a share "
-                                 "of the largest speed (4: full speed in 0.25 s).", unit="1/s",
-                                 gt=0, le=100)
-    deadman_s: float = setting(0.3, "Silence from the operator after which jogging stops "
-                               "(clients send every 0.1 s).", unit="s", ge=0.05, le=5)
-    contact_depth_m: float = setting(-0.005, "Jog references deeper than this are treated as "
-                                     "contact (α > 0).", unit="m", ge=-0.5, le=0.5)
-    max_lag_m: float = setting(
-        0.02, "The jog reference waits while it is this far from the measured tip and a step "
-        "would take it further (a tip blocked by something rigid, or held back by the clamp): "
-        "the joint loops are never asked to push on through it.", unit="m", gt=0, le=0.5)
-
-
-@dataclass(frozen=True)
-class JointLoopSettings:
-    """Gains of one joint position loop (PID with velocity feed-forward); per joint unit."""
-
-    kp_v_per_unit: float = setting(2000.0, "Proportional gain.", unit="V/(m or rad)", ge=0,
-                                   le=1e7)
-    ki_v_per_unit_s: float = setting(1000.0, "Integral gain.", unit="V/((m or rad)·s)", ge=0,
-                                     le=1e9)
-    kd_v_s_per_unit: float = setting(40.0, "Derivative gain on the measured velocity.",
-                                     unit="V·s/(m or rad)", ge=0, le=1e5)
-    kff_v_s_per_unit: float = setting(16.0, "Velocity feed-forward (back-EMF).",
-                                      unit="V·s/(m or rad)", ge=0, le=1e5)
-
-
-@dataclass(frozen=True)
-class JointControlSettings:
-    """Joint position loops: the physical counterpart of the paper's P(s)."""
-
-    r: JointLoopSettings = section(JointLoopSettings)
-    theta: JointLoopSettings = section(
-        JointLoopSettings,
-        JointLoopSettings(kp_v_per_unit=1200.0, ki_v_per_unit_s=600.0, kd_v_s_per_unit=40.0,
-                          kff_v_s_per_unit=7.0),
-    )
-    voltage_limit_v: float = setting(24.0, "Largest voltage the loops command.", unit="V",
-                                     gt=0, le=60)
-
-
-@dataclass(frozen=True)
-class GeometrySettings:
-    """Geometry and joint limits of the r-θ rake."""
-
-    pivot_height_m: float = setting(0.6, "Height of the θ pivot above the ground.", unit="m",
-                                    gt=0, le=5)
-    r_min_m: float = setting(0.35, "Shortest rake length.", unit="m", ge=0.01, le=10)
-    r_max_m: float = setting(1.6, "Longest rake length.", unit="m", gt=0.01, le=10)
-    theta_min_rad: float = setting(-0.2, "Lowest joint angle (θ below horizontal).",
-                                   unit="rad", gt=-1.5, lt=1.5)
-    theta_max_rad: float = setting(1.3, "Highest joint angle (θ below horizontal).",
-                                   unit="rad", gt=-1.5, lt=1.5)
-
-
-@dataclass(frozen=True)
-class MotorsSettings:
-    """The controller's model of its motors and transmissions (counts → joint units, clamp)."""
-
-    r: MotorParams = section(MotorParams, R_MOTOR_DEFAULT,
-                             "Motor, lead screw and drive of the sliding joint r.")
-    theta: MotorParams = section(MotorParams, THETA_MOTOR_DEFAULT,
-                                 "Motor, gearhead and drive of the rotary joint θ.")
-
-
-@dataclass(frozen=True)
-class ClampSettings:
-    """The voltage clamp: the last stage before a voltage is encoded (see rakectl.core.clamp)."""
-
-    force_limit_n: float = setting(
-        FORCE_LIMIT_N, "Largest force the tip may put on anything it meets, in any direction "
-        "(the ground, a buried object's top, side or edge). May be lowered, never raised above "
-        "90 N (pressure-fused mines).", unit="N", gt=0, le=FORCE_LIMIT_N)
-    model_margin: float = setting(
-        0.2, "Share of force_limit_n kept back for model error (masses, friction, k_t, η).",
-        ge=0.05, lt=1)
-    velocity_margin_counts: float = setting(
-        1.0, "Uncertainty of a measured joint velocity, in encoder counts per control period "
-        "(a difference of two positions each quantized within one count is off by < 1).",
-        ge=0, le=1000)
-    velocity_margin_share: float = setting(
-        0.1, "Further velocity uncertainty as a share of the measured velocity.", ge=0, le=1)
-    rake_mass_kg: float = setting(4.0, "The controller's model of the rake and carriage mass.",
-                                  unit="kg", gt=0, le=100)
-    rake_length_m: float = setting(1.6, "The controller's model of the rake's length (its "
-                                   "centre of mass is at r − length/2).", unit="m", gt=0, le=10)
-    gravity_m_per_s2: float = setting(9.81, "Gravity.", unit="m/s²", gt=9, lt=10.5)
-    platform_inertia_kgm2: float = setting(
-        0.3, "The controller's model of the rotating platform's inertia about the pivot (for "
-        "the tip's apparent mass).", unit="kg·m²", ge=0, le=1e3)
-    counterweight_kg: float = setting(
-        8.0, "The controller's model of the counterweight linked to the carriage (0: none).",
-        unit="kg", ge=0, le=1e3)
-    counterbalance_share: float = setting(
-        0.5, "The controller's model of the share of the rake's weight the counterweight "
-        "balances. A hardware requirement: with the θ gear's efficiency band (η = 0.68) an "
-        "unbalanced rake cannot be lifted at full reach within the every-direction budget, "
-        "and a fully balanced one presses down only through that band.",
-        ge=0, le=1.5)
-    contact_stiffness_n_per_m: float = setting(
-        5.0e3, "Stiffest vertical contact the tines can meet: their compliant mount's stiffness, "
-        "in series with anything they press (a stone, a mine's plate). A hardware requirement "
-        "(90 N at 18 mm), pushed up and pulled down alike: a rigid tine on a rigid plate would "
-        "make any descent speed an impact above 90 N, and a lift into an object's bottom the "
-        "same.", unit="N/m", gt=0, le=1e9)
-    contact_damping_ns_per_m: float = setting(
-        7.5, "Damping in parallel with that stiffness (the mount's).", unit="N·s/m", ge=0,
-        le=1e6)
-    side_contact_stiffness_n_per_m: float = setting(
-        5.0e3, "Stiffest horizontal contact the tines can meet: their mount's horizontal "
-        "stiffness (a hardware requirement, as the vertical one). A tine rigid sideways meets "
-        "a stone's side at 0.1 m/s with several hundred newtons; a mount softer sideways than "
-        "vertically stores energy a rounded edge turns into a vertical push √(k_v/k_h) times "
-        "larger, so the clamp's side budgets shrink by that factor.", unit="N/m", gt=0, le=1e9)
-    side_contact_damping_ns_per_m: float = setting(
-        7.5, "Damping in parallel with the horizontal stiffness (the mount's).", unit="N·s/m",
-        ge=0, le=1e6)
-    reaction_latency_s: float = setting(
-        0.004, "Longest time from a velocity measurement until the voltage chosen from it "
-        "stops acting: the drives hold a command until the next one arrives or, when none "
-        "does (a stalled or dead controller, a lost command), until their command watchdog "
-        "(drives.watchdog_timeout_ms) ends it, and the measurement is up to one loop period "
-        "old. So at least drives.watchdog_timeout_ms plus one period (the robot: 3 + 1 ms).",
-        unit="s", ge=0, le=0.1)
-
-
-@dataclass(frozen=True)
-class SupervisionSettings:
-    """Force supervision on two estimates: the delayed-position F̂ and the motor currents."""
-
-    caution_force_n: float = setting(
-        55.0, "Above this estimated vertical force the motion holds still (no advance).",
-        unit="N", gt=0, lt=FORCE_LIMIT_N)
-    hard_force_n: float = setting(
-        75.0, "Above this the motion stops and the tip backs off upward; must stay below 90 N.",
-        unit="N", gt=0, lt=FORCE_LIMIT_N)
-    back_off_m: float = setting(0.01, "How far the tip backs off upward on the hard level.",
-                                unit="m", gt=0, le=0.1)
-    current_filter_s: float = setting(
-        0.02, "Time constant of the low-pass on the current-based force estimate.", unit="s",
-        gt=0, le=1)
+# --------------------------------------------------------------------------- root
 
 
 @dataclass(frozen=True)

@@ -2,9 +2,10 @@
 :class:`~rakectl.drive.client.DriveClient` fills in on its hot path (:class:`Feedback`,
 :class:`Stats`) and :class:`DriveSupervision`, its supervision checks and their wording.
 
-Kept apart from rakectl.drive.client, which stays the bus-facing part (set-up,
-receive, send, SYNC, commands): the checks only read the per-drive fault flags and
-heartbeat times its receive path keeps.
+Kept apart from the bus-facing part (rakectl.drive.client: set-up, receive, reset;
+rakectl.drive.decode: the frames received; rakectl.drive.send: send, SYNC, commands):
+the checks only read the per-drive fault flags and heartbeat times its receive path
+keeps.
 """
 
 from __future__ import annotations
