@@ -56,7 +56,6 @@ from rakectl.drive.health import FOREIGN_SYNC_ANSWERS, state_name
 from rakectl.drive.joints import Joint
 from rakectl.errors import CommsTimeout, NonFiniteError
 from rakectl.protocol.cia402 import DriveState
-from rakectl.protocol.nmt import NmtState
 
 RECORDER_COLUMNS = (
     "t_s", "state", "reach_ref_m", "depth_ref_m", "reach_m", "depth_m", "x_ref_m", "f_hat_n",
@@ -64,7 +63,6 @@ RECORDER_COLUMNS = (
     "clamp_worst_case_n", "r_m", "theta_rad", "current_r_a", "current_theta_a",
     "f_current_n", "force_level", "latency_us", "exec_us",
 )
-NMT_RETRY_TICKS = 300  # in INIT, NMT start is repeated this often to a drive not OPERATIONAL
 SEND_FAILURE_STREAK = 3  # ticks in a row with a failed send: fault
 HEARTBEAT_CHECK_TICKS = 10
 DESCENT_QUIET_TICKS = 2000  # a descent-limit event again only after 2 s without a hold
@@ -215,16 +213,18 @@ class Daemon(StateChanges):
         self._record(voltages)
 
     def _check_ready(self) -> None:
-        fb = self.client.feedback
+        """READY once both drives' feedback is fresh and finite; a drive problem before it
+        (a heartbeat not OPERATIONAL: a restart unseen since bring-up) is a fault."""
+        client, fb = self.client, self.client.feedback
+        if client.drive_faults():
+            limit = self.settings.drives.feedback_timeout_cycles
+            self.fault("; ".join(client.describe_problems(self.heartbeat_clock(), limit))
+                       or "drive problem")
+            return
         fresh = fb.stale_cycles[0] == 0 and fb.stale_cycles[1] == 0
         if fresh and math.isfinite(fb.r_m) and math.isfinite(fb.theta_rad):
-            self.client.operational()
             self._transition(Event.READY)
             self.notifier.ready("disarmed: drives configured, feedback valid")
-        elif self.ticks % NMT_RETRY_TICKS == 0:
-            for joint in (Joint.R, Joint.THETA):
-                if fb.nmt_state[joint] is not NmtState.OPERATIONAL:
-                    self.client.start_node(joint)  # the bring-up's NMT start may be lost
 
     def _supervise(self, armed: bool) -> str:
         """Why the loop must fault now, or "" (cheap: strings only when something is wrong).

@@ -194,12 +194,15 @@ class DriveClient(FrameSender):
 
     def started(self, statuswords: tuple[int, int]) -> None:
         """Take up where a bring-up left the drives: each drive's statusword read at its
-        end (per :class:`Joint`); heartbeat times start now. :meth:`bring_up` calls it; a
-        replay (rakectl.daemon.replay) calls it with the statuswords its run recorded."""
+        end (per :class:`Joint`); heartbeat times start now, and a heartbeat in any NMT
+        state but OPERATIONAL is a fault from now on (bring-up heard both say OPERATIONAL).
+        :meth:`bring_up` calls it; a replay (rakectl.daemon.replay) calls it with the
+        statuswords its run recorded."""
         self._heard_s = [self.clock(), self.clock()]
         self._rebooted = [False, False]
         self._left_enabled = [None, None]
         self._nmt_fault = [False, False]
+        self._operational = True  # bring-up heard each drive say OPERATIONAL
         for joint in JOINTS:
             statusword = statuswords[joint]
             state = state_of(self._drives.profile, statusword)
@@ -274,11 +277,6 @@ class DriveClient(FrameSender):
         carries would enable a drive in QUICK STOP ACTIVE again, CiA 402 transition 16)."""
         self._enabled_expected = True
 
-    def operational(self) -> None:
-        """Both drives were started and answer: from now on a heartbeat in any NMT state
-        but OPERATIONAL is a fault, until one says OPERATIONAL again."""
-        self._operational = True
-
     def clear_contradicted_emcy(self) -> None:
         """During a fault reset: an EMCY flag a later TPDO2 contradicts (the drive not in
         FAULT, its error register 0) is cleared: its NO_ERROR EMCY was lost, or the drive
@@ -291,16 +289,18 @@ class DriveClient(FrameSender):
                 self._update_fault(j)
 
     def reset_faults(self) -> None:
-        """The operator's reset: a fault reset of both drives (:meth:`command`); drives whose
-        heartbeat says PRE-OPERATIONAL or STOPPED (an NMT command from elsewhere) started
-        again, a rebooted one not (it needs its bring-up); and the extra TPDO1s counted so
-        far judged no more (:meth:`answers_beyond_syncs` counts from the start: a SYNC
-        producer gone would fault the loop again at once)."""
+        """The operator's reset: a fault reset of both drives (:meth:`command`); a drive
+        whose heartbeat says STOPPED (an NMT command from elsewhere: a stopped node keeps
+        its values) started again. Not one that says PRE-OPERATIONAL: that is also what a
+        drive that restarted with its boot-up lost says, holding its power-on values (its
+        own watchdog time, its stored PDOs), so it needs its bring-up, as a rebooted one
+        does. And the extra TPDO1s counted so far judged no more
+        (:meth:`answers_beyond_syncs` counts from the start: a SYNC producer gone would
+        fault the loop again at once)."""
         self.command(None, DriveCommand.FAULT_RESET)
         for j in JOINTS:
-            state = self.feedback.nmt_state[j]
             if (self._operational and not self._rebooted[j]
-                    and state in (NmtState.PRE_OPERATIONAL, NmtState.STOPPED)):
+                    and self.feedback.nmt_state[j] is NmtState.STOPPED):
                 self.start_node(j)
         received = self.stats.tpdo_received
         self._answers_forgiven = max(received[0], received[1]) - self.stats.syncs

@@ -118,6 +118,13 @@ class Stats:
 FOREIGN_SYNC_ANSWERS = 10
 
 
+NMT_CAUSES = {  # why a started drive's heartbeat says a state, and what undoes it
+    NmtState.STOPPED: "(an NMT command from another master; reset starts it again)",
+    NmtState.PRE_OPERATIONAL: "(an NMT command from another master, or a restart whose "
+                              "boot-up was lost, with its power-on values: restart the "
+                              "service, whose bring-up configures it again)"}
+
+
 class DriveSupervision:
     """The supervision of :class:`~rakectl.drive.client.DriveClient`, a base of it: cheap
     checks run each tick and, off the hot path, their wording.
@@ -181,8 +188,8 @@ class DriveSupervision:
                                 "drive itself)")
             if self._nmt_fault[joint]:
                 problems.append(f"{label}: its heartbeat says NMT "
-                                f"{state_name(fb.nmt_state[joint])}, not OPERATIONAL (an NMT "
-                                "command from another master, or the drive's own)")
+                                f"{state_name(fb.nmt_state[joint])}, not OPERATIONAL "
+                                + _nmt_cause(fb.nmt_state[joint]))
             emcy = fb.last_emcy[joint]
             if self._emcy_fault[joint] and emcy is not None:
                 known = emcy_code(emcy.code)
@@ -211,3 +218,7 @@ class DriveSupervision:
 def state_name(state: enum.Enum | None) -> str:
     """A drive's CiA 402 or NMT state as its standard name (QUICK STOP ACTIVE), for a message."""
     return "unknown" if state is None else state.name.replace("_", " ")
+
+
+def _nmt_cause(state: NmtState | None) -> str:
+    return "(the drive's own)" if state is None else NMT_CAUSES.get(state, "(the drive's own)")

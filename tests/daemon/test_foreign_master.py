@@ -18,6 +18,7 @@ import pytest
 from rakectl.bench.tick import LockstepRig
 from rakectl.daemon.states import DaemonState
 from rakectl.protocol.cia402 import DriveState
+from rakectl.protocol.nmt import NmtState
 from tests.rig_commands import command, disarmed_rig
 
 
@@ -85,23 +86,71 @@ def test_a_drive_taken_out_of_operation_enabled_while_armed_is_a_fault(
 
 
 @pytest.mark.parametrize("armed", [False, True])
-def test_a_foreign_nmt_command_is_a_fault_named_and_a_reset_restarts_the_drives(
+def test_a_foreign_nmt_stop_is_a_fault_named_and_a_reset_restarts_the_drives(
         rig: LockstepRig, other: can.BusABC, armed: bool) -> None:
-    """NMT 'enter PRE-OPERATIONAL' to all nodes from another master. Before, disarmed,
-    nothing faulted and every arm and reset was refused until a restart ("feedback is
-    stale"); armed, no reset recovered. Now the heartbeat's state is the fault's reason
-    (a drive sends one as its state changes), and a reset starts the drives again."""
+    """NMT 'stop' to all nodes from another master: the heartbeat's state is the fault's
+    reason (a drive sends one as its state changes), and a reset starts the drives again
+    (a stopped node keeps its values)."""
+    if armed:
+        _arm(rig)
+    _send(other, 0x000, bytes([0x02, 0]))
+    _ticks(rig, 300)
+    d = rig.daemon
+    assert d.state is DaemonState.FAULT
+    assert ("r drive (node 1): its heartbeat says NMT STOPPED, not OPERATIONAL (an NMT "
+            "command from another master; reset starts it again)" in d.fault_reason)
+    _reset(rig)
+    assert d.state is DaemonState.DISARMED, d.fault_reason
+    _arm(rig)
+
+
+PRE_OPERATIONAL_FAULT = (
+    "r drive (node 1): its heartbeat says NMT PRE OPERATIONAL, not OPERATIONAL (an NMT "
+    "command from another master, or a restart whose boot-up was lost, with its power-on "
+    "values: restart the service, whose bring-up configures it again)")
+
+
+@pytest.mark.parametrize("armed", [False, True])
+def test_a_foreign_enter_pre_operational_is_a_fault_a_reset_does_not_undo(
+        rig: LockstepRig, other: can.BusABC, armed: bool) -> None:
+    """NMT 'enter PRE-OPERATIONAL' to all nodes from another master. Before e50cc6c,
+    disarmed, nothing faulted and every arm and reset was refused, unexplained, until a
+    restart. It is a fault naming the state, and, since a drive that restarted with its
+    boot-up lost says the same while holding its power-on values, a reset does not start
+    it again: it names the service's restart (whose bring-up configures the drives)."""
     if armed:
         _arm(rig)
     _send(other, 0x000, bytes([0x80, 0]))
     _ticks(rig, 300)
     d = rig.daemon
     assert d.state is DaemonState.FAULT
-    assert ("r drive (node 1): its heartbeat says NMT PRE OPERATIONAL, not OPERATIONAL"
-            in d.fault_reason)
+    assert PRE_OPERATIONAL_FAULT in d.fault_reason
     _reset(rig)
-    assert d.state is DaemonState.DISARMED, d.fault_reason
-    _arm(rig)
+    assert d.state is DaemonState.FAULT and PRE_OPERATIONAL_FAULT in d.fault_reason
+    assert [n.nmt for n in rig.emulator.nodes] == [NmtState.PRE_OPERATIONAL] * 2
+
+
+def test_a_drive_restarted_unseen_after_bring_up_is_never_started_by_the_daemon(
+        tmp_path: Path) -> None:
+    """The r drive restarts (reset node) with its boot-up lost once bring-up has returned,
+    before the loop has fresh feedback: it holds its power-on watchdog (20 ms, not 3 ms).
+    Before, the loop took its PRE-OPERATIONAL heartbeat for a lost NMT start and started
+    it again, reached DISARMED and armed with it. It is a fault, and a reset leaves it
+    PRE-OPERATIONAL."""
+    rig = LockstepRig(tmp_path)
+    try:
+        rig.bring_up()
+        r = rig.emulator.nodes[0]
+        r._reset(True, rig.now_s, [])  # NMT reset node; its boot-up (the frames out) lost
+        assert r.watchdog_timeout_s == pytest.approx(0.020)
+        rig.until(DaemonState.FAULT, 3000)
+        d = rig.daemon
+        assert d.state is DaemonState.FAULT and PRE_OPERATIONAL_FAULT in d.fault_reason
+        _reset(rig)
+        assert d.state is DaemonState.FAULT
+        assert r.nmt is NmtState.PRE_OPERATIONAL
+    finally:
+        rig.close()
 
 
 def test_an_emcy_warning_the_drives_never_clear_does_not_block_a_reset(
