@@ -5,13 +5,13 @@ before the loop): a ``canopen.Network`` on the injected bus whose listeners are 
 *temporary* ``can.Notifier``, stopped and joined before bring-up returns: no
 thread survives it. :class:`BringUp` does the work through the network alone,
 so a test can run it on a bus-less network without any thread. For each drive
-in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.settings.DrivesSettings`:
+in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.service.DrivesSettings`:
 
 1. NMT reset communication, and wait for its boot-up (the node is then
    PRE-OPERATIONAL with the stored values of its communication objects). Nothing is
    awaited before it: a drive already booted whose producer heartbeat 0x1017 is 0 (CiA
-   301's default) says nothing until it is reset. Sent ``RESET_ATTEMPTS`` times in all,
-   ``boot_timeout_s`` / ``RESET_ATTEMPTS`` apart, while no boot-up comes (either frame
+   301's default) says nothing until it is reset. Sent ``nmt_link.ATTEMPTS`` times in all,
+   ``boot_timeout_s`` / ``nmt_link.ATTEMPTS`` apart, while no boot-up comes (either frame
    may be lost, or the drive still be powering up: the boot-up it sends at power-on
    counts too); then :class:`~rakectl.errors.CommsTimeout` naming the node and whether
    anything at all was heard from it;
@@ -59,7 +59,7 @@ Notifier instead). A drive that restarted since its configuration (a brown-out, 
 node's NMT reset) holds its power-on values: so a boot-up heard since step 1 is a
 DriveFault, and everything steps 3 and 5 wrote is read again (a restart whose boot-up was
 lost), naming the first object that differs. Then NMT start for each node, sent again
-until its heartbeat says OPERATIONAL (``RESET_ATTEMPTS`` times within
+until its heartbeat says OPERATIONAL (``nmt_link.ATTEMPTS`` times within
 ``boot_timeout_s``), and the boot-ups, the limits and a Roboteq-class drive's emergency
 shutdown checked once more: a restart since the reading. From then on a heartbeat in
 any other state is a fault of the drive client's. A failure after NMT start puts both
@@ -83,7 +83,6 @@ daemon enables the drives only while it is armed.
 from __future__ import annotations
 
 import contextlib
-import threading
 
 import can
 import canopen
@@ -109,6 +108,7 @@ from rakectl.drive.joints import (
     od_variable,
     own_ids,
 )
+from rakectl.drive.nmt_link import NmtLink
 from rakectl.drive.pdos import PdoCheck
 from rakectl.drive.profiles import (
     CYCLE_PERIOD_OBJECT,
@@ -120,26 +120,20 @@ from rakectl.drive.profiles import (
     supply_problem,
 )
 from rakectl.drive.sdo import SDO_RETRIES, DriveSdo, abort_code, no_such_object
-from rakectl.errors import CommsTimeout, ConfigError, DriveFault, RakeError
-from rakectl.protocol.codec import NMT_COB_ID, FunctionCode, cob_id
+from rakectl.errors import ConfigError, DriveFault, RakeError
 from rakectl.protocol.files import DriveProfile
-from rakectl.protocol.nmt import NmtCommand, NmtState, encode_nmt
+from rakectl.protocol.nmt import NmtCommand
 
 NOTIFIER_POLL_S = 0.02  # bring-up Notifier's recv timeout: how fast it stops
 NOTIFIER_JOIN_S = 2.0
 RESTARTED = ("the drive restarted during bring-up (its boot-up lost) and holds its power-on "
              "values; bring-up again (restart the service)")
-RESET_ATTEMPTS = 3  # NMT reset communication sent this often, boot_timeout_s over all
 
 
 class BringUp:
-    """The bring-up sequence of the module docstring, over any ``canopen.Network``.
-
-    Subscribes to the drives' heartbeats on construction: a boot-up that arrives after
-    an NMT reset communication is awaited, and a drive never heard at all is named so
-    when it times out. It sends through ``network.send_message`` and waits on
-    events that the network's callbacks set, so it works with a Notifier thread
-    and with a network that delivers synchronously.
+    """The bring-up sequence of the module docstring, over any ``canopen.Network``: its
+    NMT side (heartbeats, boot-ups, NMT commands) is :class:`NmtLink`'s, its SDO
+    transfers :class:`DriveSdo`'s. Subscribes to the drives' heartbeats on construction.
     """
 
     def __init__(self, network: canopen.Network, drives: DrivesSettings,
@@ -147,14 +141,6 @@ class BringUp:
         self._network = network
         self._drives = drives
         self._motors = motors
-        self._boot_timeout_s = boot_timeout_s
-        self._joint_of_node = {node: joint for joint, node in zip(JOINTS, node_ids(drives),
-                                                                  strict=True)}
-        self._heard = {joint: threading.Event() for joint in JOINTS}  # anything from it
-        self._booted = {joint: threading.Event() for joint in JOINTS}
-        self._operational = {joint: threading.Event() for joint in JOINTS}  # its heartbeat
-        self._boot_ups = dict.fromkeys(JOINTS, 0)  # boot-ups heard, and at the reset's
-        self._boot_ups_at_reset = dict.fromkeys(JOINTS, 0)
         self._written: dict[Joint, list[Parameter]] = {}  # by _configure, read again
         self._nodes: dict[Joint, canopen.RemoteNode] = {}
         self._node_id = dict(zip(JOINTS, node_ids(drives), strict=True))
@@ -163,8 +149,8 @@ class BringUp:
             node.sdo.RESPONSE_TIMEOUT = drives.sdo_timeout_s
             node.sdo.MAX_RETRIES = SDO_RETRIES  # a lossy bus loses the odd request
             network.add_node(node)
-            network.subscribe(cob_id(FunctionCode.HEARTBEAT, node_id), self._on_heartbeat)
             self._nodes[joint] = node
+        self._nmt = NmtLink(network, self._node_id, self._label, boot_timeout_s)
         self._roboteq = drives.profile is DriveProfile.ROBOTEQ
         self._sdo = DriveSdo(self._nodes, self._label, drives.sdo_timeout_s)
         self._start = DriveStart(drives.profile, self._sdo.read, self._sdo.write, self._label)
@@ -173,21 +159,10 @@ class BringUp:
                               lambda joint: self._nodes[joint].object_dictionary,
                               lambda joint: eds_file(drives, joint))
 
-    def _on_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        joint = self._joint_of_node[can_id & 0x7F]
-        self._heard[joint].set()
-        if len(data) != 1:
-            return
-        if data[0] == NmtState.BOOT_UP:
-            self._boot_ups[joint] += 1  # before the event: a waiter then reads it counted
-            self._booted[joint].set()
-        elif data[0] == NmtState.OPERATIONAL:
-            self._operational[joint].set()
-
     def close(self) -> None:
         """Unsubscribe from the network."""
+        self._nmt.close()
         for node_id in self._node_id.values():
-            self._network.unsubscribe(cob_id(FunctionCode.HEARTBEAT, node_id), self._on_heartbeat)
             del self._network[node_id]
 
     def run(self, start: bool = True) -> tuple[DriveInfo, DriveInfo]:
@@ -205,13 +180,13 @@ class BringUp:
                 self._check_kept(joint, extra)
             try:
                 for joint in JOINTS:
-                    self._start_node(joint)
+                    self._nmt.start(joint)
                 for joint, statusword in zip(JOINTS, statuswords, strict=True):
                     self._check_started(joint, statusword)
             except RakeError:  # neither drive left taking RPDOs from whoever sends them
                 for joint in JOINTS:
                     with contextlib.suppress(BusError):
-                        self._nmt(joint, NmtCommand.ENTER_PRE_OPERATIONAL)
+                        self._nmt.send(joint, NmtCommand.ENTER_PRE_OPERATIONAL)
                 raise
         r_info, theta_info = (
             DriveInfo(joint, self._node_id[joint], identity, limits, statusword,
@@ -226,7 +201,7 @@ class BringUp:
 
     def _configure(self, joint: Joint) -> tuple[Identity, DriveLimits, tuple[PdoReading, ...],
                                                  tuple[PdoReading, ...], tuple[ExtraPdo, ...]]:
-        self._reset_communication(joint)
+        self._nmt.reset_communication(joint)
         identity = self._check_identity(joint)
         supply_mv = round(motor_of(self._motors, joint).supply_voltage_v * 1000)
         if self._roboteq:
@@ -248,19 +223,6 @@ class BringUp:
                                                                      strict=True)}
         limits.setdefault("max_voltage_mv", supply_mv)  # a drive with no limit of its own
         return identity, DriveLimits(**limits), *self._pdos.check(joint)
-
-    def _start_node(self, joint: Joint) -> None:
-        """NMT start until its heartbeat says OPERATIONAL (either frame may be lost):
-        ``RESET_ATTEMPTS`` times in all, ``boot_timeout_s`` over all; then CommsTimeout.
-        From then on, a heartbeat in any other state is a fault of the drive client's."""
-        operational, wait_s = self._operational[joint], self._boot_timeout_s / RESET_ATTEMPTS
-        for _ in range(RESET_ATTEMPTS):
-            operational.clear()
-            self._nmt(joint, NmtCommand.START)
-            if operational.wait(wait_s):
-                return
-        raise CommsTimeout(f"{self._label(joint)}: no OPERATIONAL heartbeat after NMT start "
-                           f"within {self._boot_timeout_s:g} s ({RESET_ATTEMPTS} times)")
 
     def _check_kept(self, joint: Joint, extra: tuple[ExtraPdo, ...]) -> None:
         """Before NMT start, everything :meth:`_configure` wrote read again: a drive that
@@ -287,7 +249,7 @@ class BringUp:
         self._check_parameters(joint, "after NMT start")
 
     def _check_no_boot_up(self, joint: Joint) -> None:
-        booted = self._boot_ups[joint] - self._boot_ups_at_reset[joint]
+        booted = self._nmt.boot_ups_since_reset(joint)
         if booted:
             raise DriveFault(f"{self._label(joint)}: {booted} boot-up(s) heard after its "
                              f"configuration: {RESTARTED.replace(' (its boot-up lost)', '')}")
@@ -300,22 +262,6 @@ class BringUp:
                 raise DriveFault(f"{self._label(joint)}: {when}, {p.where()} {p.name} reads "
                                  f"{value}{unit}, {p.value}{unit} was written and read back: "
                                  f"{RESTARTED}")
-
-    def _reset_communication(self, joint: Joint) -> None:
-        """NMT reset communication until its boot-up comes (step 1 of the module docstring)."""
-        booted, wait_s = self._booted[joint], self._boot_timeout_s / RESET_ATTEMPTS
-        for _ in range(RESET_ATTEMPTS):  # a lossy bus may lose either frame
-            booted.clear()
-            self._nmt(joint, NmtCommand.RESET_COMMUNICATION)
-            if booted.wait(wait_s):
-                self._boot_ups_at_reset[joint] = self._boot_ups[joint]
-                return
-        if not self._heard[joint].is_set():
-            raise CommsTimeout(f"{self._label(joint)}: no heartbeat or boot-up within "
-                               f"{self._boot_timeout_s:g} s (NMT reset communication sent "
-                               f"{RESET_ATTEMPTS} times)")
-        raise CommsTimeout(f"{self._label(joint)}: no boot-up after NMT reset communication "
-                           f"within {self._boot_timeout_s:g} s, {RESET_ATTEMPTS} times")
 
     def _write_parameter(self, joint: Joint, p: Parameter) -> bool:
         """``p`` written; False if the drive has no such object and needs none (0x1019)."""
@@ -359,13 +305,6 @@ class BringUp:
         if problem is not None:
             raise DriveFault(f"{self._label(joint)}: {problem}".replace(
                 "<joint>", joint.name.lower()))
-
-    def _nmt(self, joint: Joint, command: NmtCommand) -> None:
-        try:
-            self._network.send_message(NMT_COB_ID, encode_nmt(command, self._node_id[joint]))
-        except can.CanError as error:
-            raise BusError(f"{self._label(joint)}: cannot send NMT {command.name}: "
-                           f"{error}") from error
 
     def _check_identity(self, joint: Joint) -> Identity:
         """0x1018 against the configured identity (``drives.<joint>_vendor_id``,
