@@ -31,7 +31,8 @@ def add_parsers(sub: argparse._SubParsersAction[Any]) -> None:
     view.add_argument("--emulator-config", type=Path, help="an emulator's YAML: its buried "
                       "objects are drawn")
     view.add_argument("--lane", type=float, nargs=2, metavar=("NEAR_M", "FAR_M"),
-                      help="the lane's reach, for the depth reached")
+                      help="the lane's reach, for the depth reached (default: the lane the "
+                      "daemon's status names)")
     view.add_argument("--record", type=Path, help="also write what is served to this MCAP")
     view.add_argument("--seconds", type=float, help="stop after this long (default: until "
                       "interrupted)")

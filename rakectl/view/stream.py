@@ -28,14 +28,17 @@ def _f(value: Any) -> float:
 
 def log_status(pub: Publisher, reply: Mapping[str, Any], time_ns: int,
                objects: Iterable[Box] = (), lane_m: tuple[float, float] | None = None) -> None:
-    """One status reply (rakectl.daemon.handlers.status) as the topics at ``time_ns``."""
+    """One status reply (rakectl.daemon.handlers.status) as the topics at ``time_ns``;
+    without ``lane_m``, the lane's reach span is the status's (``excavation.lane``)."""
     joints, tip = reply.get("joints", {}), reply.get("tip", {})
     force, volts = reply.get("force", {}), reply.get("voltages", {})
     r_m, theta_rad = _f(joints.get("r_m")), _f(joints.get("theta_rad"))
     reach_m, depth_m = _f(tip.get("reach_m")), _f(tip.get("depth_m"))
     pub.rake(time_ns, -depth_m + r_m * math.sin(theta_rad), reach_m, -depth_m)
     ex = reply.get("excavation") or {}
-    found = ex.get("object_found")
+    found, lane = ex.get("object_found"), ex.get("lane") or {}
+    if lane_m is None and "reach_near_m" in lane:  # the lane as the daemon says it
+        lane_m = (_f(lane["reach_near_m"]), _f(lane.get("reach_far_m")))
     pub.ground(time_ns, lane_m, ex.get("depth_m"), objects,
                (found["reach_m"], found["depth_m"]) if found else None)
     pub.json("/force", time_ns, {
@@ -47,7 +50,8 @@ def log_status(pub: Publisher, reply: Mapping[str, Any], time_ns: int,
         "requested_r_v", "requested_theta_v", "applied_r_v", "applied_theta_v")})
     pub.json("/state", time_ns, {
         "state": reply.get("state", ""), "level": force.get("level"),
-        "fault": reply.get("fault"), "phase": ex.get("phase"), "cycle": ex.get("cycle")})
+        "fault": reply.get("fault"), "phase": ex.get("phase"), "cycle": ex.get("cycle"),
+        "lane": lane.get("number")})
     latency = (reply.get("timing") or {}).get("latency_ns") or {}
     pub.json("/timing", time_ns, {
         "latency_p50_us": _f(latency.get("p50")) * 1e-3,

@@ -72,7 +72,7 @@ JSON_SCHEMAS: dict[str, dict[str, Any]] = {
     "/state": {"type": "object", "properties": {
         "state": {"type": "string"}, "level": {"type": ["string", "null"]},
         "fault": {"type": ["string", "null"]}, "phase": {"type": ["string", "null"]},
-        "cycle": {"type": ["integer", "null"]}}},
+        "cycle": {"type": ["integer", "null"]}, "lane": {"type": ["integer", "null"]}}},
     "/timing": {"type": "object", "properties": _number(
         "latency_p50_us", "latency_p99_us", "latency_max_us", "late_ticks", "ticks")},
     "/truth": {"type": "object", "properties": {

@@ -121,6 +121,22 @@ def test_a_status_reply_is_every_topic_with_its_values(tmp_path: Path) -> None:
     assert [t for _, t, _ in topics["/state"]] == [5 * 10**9, 6 * 10**9]
 
 
+def test_the_lane_a_status_names_is_drawn_without_lane(tmp_path: Path) -> None:
+    """A status whose excavation names its lane (its number, its reach span): the depth
+    reached is drawn over that span without ``--lane``, and /state says the lane's number;
+    ``--lane`` still rules where given."""
+    lane = {"number": 3, "reach_far_m": 1.21, "reach_near_m": 0.93}
+    status = STATUS | {"excavation": STATUS["excavation"] | {"lane": lane}}
+    with recording(tmp_path / "s.mcap") as pub:
+        log_status(pub, status, 5 * 10**9)
+        log_status(pub, status, 6 * 10**9, lane_m=(0.95, 1.3))
+    topics = _read(tmp_path / "s.mcap")
+    first, second = (data for _, _, data in topics["/ground"])
+    assert struct.pack("<d", 0.93) in first and struct.pack("<d", 1.21) in first
+    assert struct.pack("<d", 1.3) in second and struct.pack("<d", 1.21) not in second
+    assert [json.loads(d)["lane"] for _, _, d in topics["/state"]] == [3, 3]
+
+
 def test_a_status_with_missing_or_non_finite_values_is_logged_as_nulls(tmp_path: Path
                                                                        ) -> None:
     with recording(tmp_path / "s.mcap") as pub:
