@@ -171,8 +171,10 @@ class DaemonSettings:
                             "under systemd, else the current directory.")
     recorder_s: float = setting(4.0, "History kept by the flight recorder.", unit="s", ge=2,
                                 le=60)
-    boot_timeout_s: float = setting(3.0, "How long bring-up waits for each drive's boot-up.",
-                                    unit="s", gt=0, le=60)
+    boot_timeout_s: float = setting(3.0, "How long bring-up waits for each drive's boot-up "
+                                    "and, after NMT start, for its heartbeat to say "
+                                    "OPERATIONAL; and the loop for both drives' first "
+                                    "valid feedback.", unit="s", gt=0, le=60)
     enable_timeout_s: float = setting(0.5, "How long arming waits for both drives to report "
                                       "OPERATION ENABLED.", unit="s", gt=0, le=10)
     overrun_fault_streak: int = setting(

@@ -122,6 +122,11 @@ def cross_checks(s: Settings) -> list[tuple[str, str]]:
     if d.heartbeat_timeout_ms <= d.heartbeat_period_ms:
         errors.append(("drives.heartbeat_timeout_ms",
                        f"must be > drives.heartbeat_period_ms ({d.heartbeat_period_ms})"))
+    if s.daemon.boot_timeout_s < 2e-3 * d.heartbeat_period_ms:
+        errors.append(("daemon.boot_timeout_s",
+                       f"must be >= 2 drives.heartbeat_period_ms ({d.heartbeat_period_ms} ms): "
+                       "bring-up waits that long for a drive's heartbeat to say OPERATIONAL, "
+                       "and a drive may send it only once a period"))
     if not errors:  # the press is checked against a valid geometry
         errors.extend(_press_checks(s))
     errors.extend(descent_checks(s.descent, s.clamp.force_limit_n, s.clamp.model_margin))

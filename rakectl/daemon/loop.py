@@ -223,8 +223,7 @@ class Daemon(StateChanges):
             return
         fresh = fb.stale_cycles[0] == 0 and fb.stale_cycles[1] == 0
         if fresh and math.isfinite(fb.r_m) and math.isfinite(fb.theta_rad):
-            self._transition(Event.READY)
-            self.notifier.ready("disarmed: drives configured, feedback valid")
+            self._transition(Event.READY, "drives configured, feedback valid")
 
     def _supervise(self, armed: bool) -> str:
         """Why the loop must fault now, or "" (cheap: strings only when something is wrong).

@@ -63,7 +63,11 @@ class StateChanges(SlackWork):
             self.client.command(None, DriveCommand.QUICK_STOP if new is DaemonState.ESTOP
                                 else DriveCommand.DISABLE_VOLTAGE)
         self.event("state", old=old.name, new=new.name, reason=reason)
-        self.notifier.status(f"{new.name.lower()}{': ' + reason if reason else ''}")
+        status = f"{new.name.lower()}{': ' + reason if reason else ''}"
+        if old is DaemonState.INIT:  # systemd's READY=1 however INIT ends: a fault in
+            self.notifier.ready(status)  # INIT is a start too, which a reset may clear
+        else:
+            self.notifier.status(status)
         return True
 
     def fault(self, reason: str) -> None:

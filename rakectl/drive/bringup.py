@@ -43,7 +43,9 @@ in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.service.Drive
    = 0, the entries, sub 0 = n, the COB-ID valid) and read again; a drive that refuses
    it or keeps its own is refused, naming the object and both values. A PDO beyond
    the EDS's that the drive has and holds valid is made not valid (bit 31 of its
-   COB-ID; a drive that refuses it is refused, naming it: :mod:`rakectl.drive.pdos`).
+   COB-ID): a drive that keeps such a TPDO valid, or such an RPDO mapping what it acts
+   on, is refused; an RPDO it keeps that maps nothing of that is named
+   (:mod:`rakectl.drive.pdos`).
    The dry run (``start=False``) also reads the device name 0x1008.
 
 Then a drive still in FAULT from the previous run (it lost that run's
@@ -126,6 +128,9 @@ from rakectl.protocol.nmt import NmtCommand
 
 NOTIFIER_POLL_S = 0.02  # bring-up Notifier's recv timeout: how fast it stops
 NOTIFIER_JOIN_S = 2.0
+CONFIGURE_ATTEMPTS = 3  # a drive configured again from its reset after a boot-up
+Configured = tuple[Identity, DriveLimits, tuple[PdoReading, ...], tuple[PdoReading, ...],
+                   tuple[ExtraPdo, ...]]  # the identity, limits, PDOs, written back, extra
 RESTARTED = ("the drive restarted during bring-up (its boot-up lost) and holds its power-on "
              "values; bring-up again (restart the service)")
 
@@ -181,8 +186,9 @@ class BringUp:
             try:
                 for joint in JOINTS:
                     self._nmt.start(joint)
-                for joint, statusword in zip(JOINTS, statuswords, strict=True):
-                    self._check_started(joint, statusword)
+                for joint, (*_, extra), statusword in zip(JOINTS, configured, statuswords,
+                                                          strict=True):
+                    self._check_started(joint, extra, statusword)
             except RakeError:  # neither drive left taking RPDOs from whoever sends them
                 for joint in JOINTS:
                     with contextlib.suppress(BusError):
@@ -199,9 +205,19 @@ class BringUp:
     def _label(self, joint: Joint) -> str:
         return drive_label(joint, self._node_id[joint])
 
-    def _configure(self, joint: Joint) -> tuple[Identity, DriveLimits, tuple[PdoReading, ...],
-                                                 tuple[PdoReading, ...], tuple[ExtraPdo, ...]]:
-        self._nmt.reset_communication(joint)
+    def _configure(self, joint: Joint) -> Configured:
+        """Reset communication and steps 2 to 5, again from the reset if a boot-up came
+        meanwhile (``CONFIGURE_ATTEMPTS`` times in all): the late answer to a reset sent
+        again, or a drive still powering up; one that keeps restarting is a DriveFault."""
+        for _ in range(CONFIGURE_ATTEMPTS):
+            self._nmt.reset_communication(joint)
+            configured = self._configure_once(joint)
+            if not self._nmt.boot_ups_since_reset(joint):
+                return configured
+        raise DriveFault(f"{self._label(joint)}: a boot-up during its configuration, "
+                         f"{CONFIGURE_ATTEMPTS} times: it keeps restarting")
+
+    def _configure_once(self, joint: Joint) -> Configured:
         identity = self._check_identity(joint)
         supply_mv = round(motor_of(self._motors, joint).supply_voltage_v * 1000)
         if self._roboteq:
@@ -231,15 +247,18 @@ class BringUp:
         first object that differs."""
         self._check_no_boot_up(joint)
         self._check_parameters(joint, "before NMT start")
-        self._pdos.check_kept(joint, extra, RESTARTED)
+        self._pdos.check_kept(joint, extra, "before NMT start", RESTARTED)
 
-    def _check_started(self, joint: Joint, statusword: int) -> None:
-        """Once the drive says OPERATIONAL: no boot-up heard since the reset, the limits
-        read again (a restart since :meth:`_check_kept`, its boot-up lost), and a
-        Roboteq-class drive still in the emergency shutdown that keeps its power stage off
-        until armed (a restart clears it). The PDOs were read just before: each transfer
-        here delays the first SYNC and the controller's first heartbeat."""
+    def _check_started(self, joint: Joint, extra: tuple[ExtraPdo, ...],
+                       statusword: int) -> None:
+        """Once the drive says OPERATIONAL: no boot-up heard since the reset, the PDOs and
+        the limits read again (a restart since :meth:`_check_kept`, its boot-up lost: a
+        lost NMT start gives it time), and a Roboteq-class drive still in the emergency
+        shutdown that keeps its power stage off until armed (a restart clears it). Nothing
+        waits on it: the drives are not enabled, and a drive's heartbeat consumer starts
+        with the controller's first heartbeat."""
         self._check_no_boot_up(joint)
+        self._pdos.check_kept(joint, extra, "after NMT start", RESTARTED)
         if self._roboteq:
             state = self._start.state_of(joint, statusword)
             now = self._start.state_of(joint, self._start.read_status(joint))

@@ -176,6 +176,7 @@ class DriveClient(FrameSender):
         self._rebooted = [False, False]
         self._left_enabled: list[DriveState | None] = [None, None]
         self._nmt_fault = [False, False]
+        self._unconfigured = [False, False]
         self._tpdo2_after_emcy = [True, True]  # a TPDO2 came after the drive's last EMCY
         self._enabled_expected = False  # both drives were enabled, no other command since
         self._operational = False  # both drives started (NMT) and answering: heartbeats count
@@ -202,6 +203,7 @@ class DriveClient(FrameSender):
         self._rebooted = [False, False]
         self._left_enabled = [None, None]
         self._nmt_fault = [False, False]
+        self._unconfigured = [False, False]
         self._operational = True  # bring-up heard each drive say OPERATIONAL
         for joint in JOINTS:
             statusword = statuswords[joint]
@@ -291,15 +293,15 @@ class DriveClient(FrameSender):
     def reset_faults(self) -> None:
         """The operator's reset: a fault reset of both drives (:meth:`command`); a drive
         whose heartbeat says STOPPED (an NMT command from elsewhere: a stopped node keeps
-        its values) started again. Not one that says PRE-OPERATIONAL: that is also what a
-        drive that restarted with its boot-up lost says, holding its power-on values (its
-        own watchdog time, its stored PDOs), so it needs its bring-up, as a rebooted one
-        does. And the extra TPDO1s counted so far judged no more
-        (:meth:`answers_beyond_syncs` counts from the start: a SYNC producer gone would
-        fault the loop again at once)."""
+        its values) started again. Not one that has said PRE-OPERATIONAL since bring-up,
+        whatever it says now: that is also what a drive that restarted with its boot-up
+        lost says, holding its power-on values (its own watchdog time, its stored PDOs), so
+        it needs its bring-up, as a rebooted one does (a latched fault until then). And
+        the extra TPDO1s counted so far judged no more (:meth:`answers_beyond_syncs`
+        counts from the start: a SYNC producer gone would fault the loop again at once)."""
         self.command(None, DriveCommand.FAULT_RESET)
         for j in JOINTS:
-            if (self._operational and not self._rebooted[j]
+            if (self._operational and not self._rebooted[j] and not self._unconfigured[j]
                     and self.feedback.nmt_state[j] is NmtState.STOPPED):
                 self.start_node(j)
         received = self.stats.tpdo_received

@@ -124,6 +124,8 @@ class FrameDecoder(DriveSupervision):
         if state is NmtState.BOOT_UP:
             self._rebooted[j] = True
         self._nmt_fault[j] = self._operational and state is not NmtState.OPERATIONAL
+        if self._operational and state is NmtState.PRE_OPERATIONAL:
+            self._unconfigured[j] = True  # latched: what a drive restarted unseen says
         self._update_fault(j)
         self.stats.heartbeats_received += 1
 
@@ -137,6 +139,7 @@ class FrameDecoder(DriveSupervision):
 
     def _update_fault(self, j: int) -> None:
         self._fault[j] = (self._state_fault[j] or self._emcy_fault[j] or self._rebooted[j]
+                          or self._unconfigured[j]
                           or self._power.lost[j] or self._left_enabled[j] is not None
                           or self._nmt_fault[j])
 

@@ -143,6 +143,7 @@ class DriveSupervision:
     _power: PowerRequests  # its lost: a Roboteq-class drive went off by itself while on
     _left_enabled: list[DriveState | None]  # the state a drive left OPERATION ENABLED for
     _nmt_fault: list[bool]  # a heartbeat not OPERATIONAL once the drives were started
+    _unconfigured: list[bool]  # one said PRE-OPERATIONAL since: bring-up needed (latched)
     _answers_forgiven: int  # TPDO1s beyond the SYNCs sent, counted before the last reset
     _fault: list[bool]  # any of these
 
@@ -186,15 +187,20 @@ class DriveSupervision:
                 problems.append(f"{label}: left OPERATION ENABLED for {state_name(left)} while "
                                 "armed (not by this daemon: another CANopen master, or the "
                                 "drive itself)")
+            nmt_state = fb.nmt_state[joint]
+            latched = self._unconfigured[joint] and nmt_state is not NmtState.PRE_OPERATIONAL
             if self._nmt_fault[joint]:
-                problems.append(f"{label}: its heartbeat says NMT "
-                                f"{state_name(fb.nmt_state[joint])}, not OPERATIONAL "
-                                + _nmt_cause(fb.nmt_state[joint]))
+                problems.append(f"{label}: its heartbeat says NMT {state_name(nmt_state)}, "
+                                "not OPERATIONAL " + ("(an NMT command from another master)"
+                                                      if latched else _nmt_cause(nmt_state)))
             emcy = fb.last_emcy[joint]
             if self._emcy_fault[joint] and emcy is not None:
                 known = emcy_code(emcy.code)
                 problems.append(f"{label}: EMCY 0x{emcy.code:04X} {known.name if known else '?'}, "
                                 f"error register 0x{emcy.error_register:02X}")
+            if latched:
+                problems.append(f"{label}: said NMT PRE OPERATIONAL after bring-up "
+                                + NMT_CAUSES[NmtState.PRE_OPERATIONAL])
             if self._rebooted[joint]:
                 problems.append(f"{label}: rebooted (boot-up heartbeat): bring-up needed")
             if self._power.lost[joint]:

@@ -24,7 +24,7 @@ from collections.abc import Callable
 from dataclasses import replace
 
 from canopen import SdoAbortedError
-from canopen.objectdictionary import ObjectDictionary, ODVariable
+from canopen.objectdictionary import ObjectDictionary, ODVariable, datatypes
 
 from rakectl.drive.joints import ExtraPdo, Joint, Parameter, PdoReading, od_variable
 from rakectl.drive.sdo import abort_code
@@ -171,16 +171,18 @@ class PdoCheck:
                              f"{self._default(joint, index, subindex)} and read-only: the "
                              "hot path and the bus-load budget take the EDS's PDOs")
 
-    def check_kept(self, joint: Joint, extra: tuple[ExtraPdo, ...], cause: str) -> None:
-        """Before NMT start: every PDO the EDS declares still the EDS's, and those made not
-        valid still not valid; DriveFault naming the first object that is not and
-        ``cause``."""
+    def check_kept(self, joint: Joint, extra: tuple[ExtraPdo, ...], when: str,
+                   cause: str) -> None:
+        """Every PDO the EDS declares still the EDS's, and those made not valid still not
+        valid; DriveFault naming ``when`` (before or after NMT start), the first object
+        that is not and ``cause``."""
         od = self._od(joint)
         for slot in self._pdo_slots(joint):
             comm = slot[1]
             timers = [(sub, what, 0, 0) for sub, what in TIMERS
                       if od.get_variable(comm, sub) is not None]
-            self._verify(joint, slot, self._declared_pdo(joint, *slot), timers, cause)
+            self._verify(joint, slot, self._declared_pdo(joint, *slot), timers,
+                         f"{when}, ", cause)
         cob_id = od_variable(od, TPDO_BASE, 1)
         for pdo in extra:
             if pdo.kept:
@@ -188,33 +190,33 @@ class PdoCheck:
             now = self._read_if_present(joint, pdo.index, 1, f"{pdo.name} COB-ID", cob_id)
             if now is None or not now & PDO_NOT_VALID:
                 held = "no such object" if now is None else f"0x{now:X}, valid again"
-                raise DriveFault(f"{self._label(joint)}: before NMT start, 0x{pdo.index:04X}:1 "
+                raise DriveFault(f"{self._label(joint)}: {when}, 0x{pdo.index:04X}:1 "
                                  f"{pdo.name} COB-ID is {held}: {cause}")
 
     def _verify(self, joint: Joint, slot: Slot, eds: PdoReading, timers: list[Timer],
-                cause: str = "") -> None:
-        """A PDO read again after the write-back (or, with ``cause``, just before NMT
-        start): every object its EDS's."""
+                when: str = "", cause: str = "") -> None:
+        """A PDO read again after the write-back (or, with ``cause``, around NMT start,
+        ``when`` naming which side): every object its EDS's."""
         name, comm, mapping = slot
-        self._expect(joint, comm, 1, f"{name} COB-ID", PDO_NO_RTR, cause)
-        self._expect(joint, comm, 2, f"{name} transmission type", 0, cause)
-        for sub, what, _, _ in timers:
-            self._expect(joint, comm, sub, f"{name} {what}", 0, cause)
-        self._expect(joint, mapping, 0, f"{name} number of mapped objects", 0, cause)
-        for k in range(1, len(eds.mapped) + 1):
-            self._expect(joint, mapping, k, f"{name} mapped object {k}", 0, cause)
+        checks = [(comm, 1, "COB-ID", PDO_NO_RTR), (comm, 2, "transmission type", 0),
+                  *((comm, sub, what, 0) for sub, what, _, _ in timers),
+                  (mapping, 0, "number of mapped objects", 0),
+                  *((mapping, k, f"mapped object {k}", 0) for k in range(1, len(eds.mapped)
+                                                                         + 1))]
+        for index, subindex, what, ignored in checks:
+            self._expect(joint, index, subindex, f"{name} {what}", ignored, when, cause)
 
     def _expect(self, joint: Joint, index: int, subindex: int, name: str,
-                ignored: int = 0, cause: str = "") -> int:
+                ignored: int = 0, when: str = "", cause: str = "") -> int:
         """An object read back that must hold its EDS default (but the ``ignored`` bits);
-        ``cause``: why it would not, just before NMT start."""
+        ``cause``: why it would not, around NMT start."""
         value = self._read(joint, index, subindex, name)
         declared = self._default(joint, index, subindex)
         if (value ^ declared) & ~ignored:
             held = (f"0x{index:04X}:{subindex} {name} is 0x{value:X}, {self._eds(joint)} "
                     f"declares 0x{declared:X}")
             if cause:
-                raise DriveFault(f"{self._label(joint)}: before NMT start, {held}: {cause}")
+                raise DriveFault(f"{self._label(joint)}: {when}{held}: {cause}")
             raise DriveFault(f"{self._label(joint)}: {held}, and the drive kept it when the "
                              "EDS's mapping was written: the hot path decodes the EDS's PDO "
                              "layout")
@@ -242,6 +244,8 @@ class PdoCheck:
                 if held & PDO_NOT_VALID:
                     continue
                 kept = self._make_not_valid(joint, comm, what, held, cob_id)
+                if kept and kind == "RPDO":
+                    self._refuse_commanding(joint, name, comm, held, kept, slots)
                 if kept and kind == "TPDO":
                     raise DriveFault(
                         f"{self._label(joint)}: {name} (0x{comm:04X}:1 COB-ID 0x{held:X}) is "
@@ -251,6 +255,32 @@ class PdoCheck:
                         "drive's own tool and store that")
                 extra.append(ExtraPdo(name, comm, held, kept))
         return tuple(extra)
+
+    def _refuse_commanding(self, joint: Joint, name: str, comm: int, held: int, kept: str,
+                           slots: list[Slot]) -> None:
+        """An RPDO the drive keeps valid must map nothing the EDS's RPDOs map (what the
+        drive acts on: its voltage, its controlword): DriveFault naming the first it maps,
+        or that its mapping cannot be read."""
+        acted_on = {entry >> 8 for slot in slots if slot[0].startswith("RPDO")
+                    for entry in self._declared_pdo(joint, *slot).mapped}
+        mapping = comm + 0x200
+        count = self._read_if_present(joint, mapping, 0, f"{name} number of mapped objects",
+                                      _variable(mapping, 0, datatypes.UNSIGNED8))
+        entries = [self._read_if_present(joint, mapping, k, f"{name} mapped object {k}",
+                                         _variable(mapping, k, datatypes.UNSIGNED32))
+                   for k in range(1, (count or 0) + 1)]
+        where = (f"{self._label(joint)}: {name} (0x{comm:04X}:1 COB-ID 0x{held:X}) is valid "
+                 f"and {self._eds(joint)} has no such RPDO; the drive keeps it valid ({kept})")
+        if count is None or None in entries:
+            raise DriveFault(f"{where}, and its mapping 0x{mapping:04X} cannot be read: make "
+                             "it not valid (bit 31) with the drive's own tool and store that")
+        for entry in entries:
+            if entry is not None and entry >> 8 in acted_on:
+                raise DriveFault(
+                    f"{where}, and it maps 0x{entry >> 16:04X}:{entry >> 8 & 0xFF}, which the "
+                    f"drive acts on: a frame on 0x{held & 0x7FF:03X} would command it past "
+                    "the clamp; make the RPDO not valid (bit 31) with the drive's own tool "
+                    "and store that")
 
     def _make_not_valid(self, joint: Joint, comm: int, what: str, held: int,
                         cob_id: ODVariable) -> str:
@@ -283,3 +313,10 @@ def _describe(pdo: PdoReading, timers: list[Timer]) -> str:
     held = "".join(f", {what} {value}" for _, what, value, eds in timers if value != eds)
     return (f"COB-ID 0x{pdo.cob_id:X}, transmission type {pdo.transmission_type}{held}, "
             f"mapped [{mapped}]")
+
+
+def _variable(index: int, subindex: int, data_type: int) -> ODVariable:
+    """An object the EDS does not have, to read as ``data_type``."""
+    variable = ODVariable(f"0x{index:04X}:{subindex}", index, subindex)
+    variable.data_type = data_type
+    return variable

@@ -90,6 +90,10 @@ def test_number_literals_yaml_1_1_would_read_as_strings(tmp_path: Path) -> None:
         ("# only a comment\n", ": no settings in the file"),
         ("drives:\n  sync_counter_overflow: 1\n",
          ":2: drives.sync_counter_overflow must be 0 (SYNC without counter) or 2 … 240"),
+        ("drives:\n  heartbeat_period_ms: 300\n  heartbeat_timeout_ms: 900\n"
+         "daemon:\n  boot_timeout_s: 0.5\n",
+         ":5: daemon.boot_timeout_s must be >= 2 drives.heartbeat_period_ms (300 ms): "
+         "bring-up waits that long"),
     ],
 )
 def test_bad_files_name_file_line_and_key(tmp_path: Path, text: str, expected: str) -> None:

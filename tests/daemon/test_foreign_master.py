@@ -8,6 +8,7 @@ reset recovers from what a reset can recover from."""
 
 from __future__ import annotations
 
+import socket
 import struct
 from collections.abc import Iterator
 from pathlib import Path
@@ -16,7 +17,9 @@ import can
 import pytest
 
 from rakectl.bench.tick import LockstepRig
+from rakectl.daemon.sdnotify import Notifier
 from rakectl.daemon.states import DaemonState
+from rakectl.errors import CommandRejected
 from rakectl.protocol.cia402 import DriveState
 from rakectl.protocol.nmt import NmtState
 from tests.rig_commands import command, disarmed_rig
@@ -130,14 +133,22 @@ def test_a_foreign_enter_pre_operational_is_a_fault_a_reset_does_not_undo(
     assert [n.nmt for n in rig.emulator.nodes] == [NmtState.PRE_OPERATIONAL] * 2
 
 
+@pytest.mark.parametrize("then", [None, 0x01, 0x02])
 def test_a_drive_restarted_unseen_after_bring_up_is_never_started_by_the_daemon(
-        tmp_path: Path) -> None:
+        tmp_path: Path, then: int | None) -> None:
     """The r drive restarts (reset node) with its boot-up lost once bring-up has returned,
     before the loop has fresh feedback: it holds its power-on watchdog (20 ms, not 3 ms).
     Before, the loop took its PRE-OPERATIONAL heartbeat for a lost NMT start and started
-    it again, reached DISARMED and armed with it. It is a fault, and a reset leaves it
-    PRE-OPERATIONAL."""
+    it again, reached DISARMED and armed with it. It is a fault from INIT, which is the
+    service's start all the same (READY=1, else systemd kills it at TimeoutStartSec even
+    once reset), latched whatever the drive says next: another node's NMT start (then
+    OPERATIONAL) or stop (then STOPPED, which a reset starts) does not let a reset arm it."""
+    systemd = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    systemd.bind(str(tmp_path / "notify"))
+    systemd.settimeout(1.0)
     rig = LockstepRig(tmp_path)
+    rig.daemon.notifier = Notifier(str(tmp_path / "notify"))
+    other = can.Bus(interface="virtual", channel=rig.controller_bus.channel_id)
     try:
         rig.bring_up()
         r = rig.emulator.nodes[0]
@@ -146,11 +157,25 @@ def test_a_drive_restarted_unseen_after_bring_up_is_never_started_by_the_daemon(
         rig.until(DaemonState.FAULT, 3000)
         d = rig.daemon
         assert d.state is DaemonState.FAULT and PRE_OPERATIONAL_FAULT in d.fault_reason
+        ready = systemd.recv(4096).decode()
+        assert ready.startswith(f"READY=1\nSTATUS=fault: {PRE_OPERATIONAL_FAULT}"), ready
+        if then is not None:
+            _send(other, 0x000, bytes([then, 1]))
+            _ticks(rig, 300)
         _reset(rig)
         assert d.state is DaemonState.FAULT
-        assert r.nmt is NmtState.PRE_OPERATIONAL
+        assert ("r drive (node 1): said NMT PRE OPERATIONAL after bring-up" in d.fault_reason
+                or PRE_OPERATIONAL_FAULT in d.fault_reason), d.fault_reason
+        assert r.nmt is (NmtState.OPERATIONAL if then == 0x01 else NmtState.STOPPED
+                         if then == 0x02 else NmtState.PRE_OPERATIONAL)
+        with pytest.raises(CommandRejected):
+            command(rig, b'{"cmd": "arm"}')
+        _ticks(rig, 300)
+        assert d.state is DaemonState.FAULT and r.state is not DriveState.OPERATION_ENABLED
     finally:
+        other.shutdown()
         rig.close()
+        systemd.close()
 
 
 def test_an_emcy_warning_the_drives_never_clear_does_not_block_a_reset(

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import threading
 import time
 from dataclasses import replace
 from typing import Any
@@ -298,6 +299,65 @@ def test_a_drive_that_restarts_during_bring_up_is_refused(
     assert str(raised.value) == expected
 
 
+class SlowBootUp(VirtualBus):
+    """The drives' bus edge, where the r drive's boot-up after the first NMT reset
+    communication bring-up sends comes ``delay_s`` late (a slow reset, a drive still
+    finishing its power-on): after bring-up has sent the reset again."""
+
+    delay_s = 0.4
+
+    def __init__(self, channel: Any = "channel-0", **kwargs: Any) -> None:
+        super().__init__(channel, **kwargs)
+        self.boot_ups, self._timers = 0, []
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if msg.arbitration_id == 0x700 + R_NODE and bytes(msg.data) == b"\0":
+            self.boot_ups += 1
+            if self.boot_ups == 2:  # the first after power-on's: the answer to the reset
+                timer = threading.Timer(self.delay_s, super().send, (msg, timeout))
+                self._timers.append(timer)
+                timer.start()
+                return
+        super().send(msg, timeout)
+
+    def shutdown(self) -> None:
+        for timer in self._timers:
+            timer.join()
+        super().shutdown()
+
+
+def test_a_late_boot_up_is_configured_again_not_taken_for_a_restart() -> None:
+    """The boot-up answering the first reset comes after bring-up sent the reset again (each
+    attempt waits boot_timeout_s / 3, 0.33 s): the second reset's boot-up followed, and was
+    refused as a restart of a correct drive. A boot-up during the configuration now starts
+    it again from the reset."""
+    with drives_on_a_bus(emulator_bus_class=SlowBootUp) as (emulator, bus):
+        infos = run_bring_up(bus, DRIVES, MOTORS, BOOT_TIMEOUT_S)
+        assert emulator.bus.boot_ups >= 3  # power-on, the late one, the reset's again
+    assert infos[0].limits.watchdog_timeout_ms == DRIVES.watchdog_timeout_ms
+
+
+def test_a_restart_after_nmt_start_is_found_in_the_pdos(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The r drive stores the configured limits and heartbeats (nothing there differs after
+    a restart) and a TPDO2 event timer of 1 ms (a status frame every millisecond, beyond
+    the bus-load budget). It restarts, its boot-up lost, once it has said OPERATIONAL. Its
+    limits read again match; its PDOs are read again after NMT start too: refused, naming
+    the timer."""
+    r, theta = drive_specs(EmulatorConfig())
+    stored = (*((p.index, p.subindex, p.value) for p in drive_parameters(Joint.R, DRIVES, MOTORS)
+                if p.index >= 0x1010 and p.index != 0x1019), (0x1801, 5, 1))
+    monkeypatch.setattr(RestartsDuringBringUp, "after", OPERATIONAL_HEARTBEAT)
+    with drives_on_a_bus((replace(r, stored=stored), theta),
+                         emulator_bus_class=RestartsDuringBringUp) as (emulator, bus), \
+            pytest.raises(DriveFault) as raised:
+        run_bring_up(bus, DRIVES, MOTORS, BOOT_TIMEOUT_S)
+    assert emulator.bus.restarted
+    assert str(raised.value) == (
+        "r drive (node 1): after NMT start, 0x1801:5 TPDO2 event timer is 0x1, "
+        f"dc_servo_drive.eds declares 0x0: {RESTARTED_TEXT}")
+
+
 def test_a_roboteq_class_drive_that_restarts_with_its_own_values_is_refused(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """A Roboteq-class drive whose stored limits are the configured ones, restarted after
@@ -505,18 +565,53 @@ def test_a_tpdo_beyond_the_eds_s_that_stays_valid_is_refused(
     assert _cob_id(fake_drives[1], 0x1802) == 0x382
 
 
-def test_an_rpdo_beyond_the_eds_s_that_stays_valid_is_named(
-        fake_drives: tuple[FakeDrive, FakeDrive], network: LoopbackNetwork) -> None:
+def _add_mapping(drive: FakeDrive, index: int, entries: tuple[int, ...]) -> None:
+    """A PDO mapping parameter beyond the EDS's (0x1601 for RPDO2)."""
+    record = ODRecord("RPDO mapping parameter", index)
+    for subindex, data_type, value in ((0, datatypes.UNSIGNED8, len(entries)),
+                                       *((k, datatypes.UNSIGNED32, entry)
+                                         for k, entry in enumerate(entries, start=1))):
+        variable = ODVariable(f"sub {subindex}", index, subindex)
+        variable.data_type, variable.access_type, variable.default = data_type, "ro", value
+        record.add_member(variable)
+    drive.node.object_dictionary.add_object(record)
+
+
+KEPT = "SDO abort 0x06010002 writing 0x80000302: Attempt to write a read only object"
+WHERE = ("θ drive (node 2): RPDO2 (0x1401:1 COB-ID 0x302) is valid and geared_motor_drive.eds "
+         f"has no such RPDO; the drive keeps it valid ({KEPT})")
+
+
+@pytest.mark.parametrize(("mapping", "refused"), [
+    ((0x20050120,), ""),  # a user variable of the drive's: nothing it acts on
+    ((0x20050120, 0x20000020), f"{WHERE}, and it maps 0x2000:0, which the drive acts on: a "
+     "frame on 0x302 would command it past the clamp; make the RPDO not valid (bit 31) with "
+     "the drive's own tool and store that"),
+    (None, f"{WHERE}, and its mapping 0x1601 cannot be read: make it not valid (bit 31) "
+     "with the drive's own tool and store that")])
+def test_an_rpdo_beyond_the_eds_s_that_stays_valid_is_named_or_refused(
+        fake_drives: tuple[FakeDrive, FakeDrive], network: LoopbackNetwork,
+        mapping: tuple[int, ...] | None, refused: str) -> None:
     """A drive whose extra RPDO's COB-ID is fixed (read-only): no tool but the drive's own
-    changes it, and it takes only frames sent on its COB-ID, so the drive is brought up and
-    ``rakectl drives`` names the RPDO and what it takes."""
+    changes it. One that maps nothing the drive acts on takes only frames on its COB-ID:
+    the drive is brought up and ``rakectl drives`` names the RPDO and its CAN-ID. One that
+    maps the voltage or the controlword would let any node command the drive past the
+    clamp, and one whose mapping cannot be read cannot be judged: refused."""
     _add_pdo(fake_drives[1], 0x1401, 0x300 + THETA_NODE, access="ro")
-    infos = _announce_and_run(make_bring_up(network), fake_drives)
-    kept = ("SDO abort 0x06010002 writing 0x80000302: Attempt to write a read only object")
-    assert infos[1].extra == (ExtraPdo("RPDO2", 0x1401, 0x302, kept),)
+    if mapping is not None:
+        _add_mapping(fake_drives[1], 0x1601, mapping)
+    bring_up = make_bring_up(network)
+    if refused:
+        with pytest.raises(DriveFault) as raised:
+            _announce_and_run(bring_up, fake_drives)
+        bring_up.close()
+        assert str(raised.value) == refused
+        return
+    infos = _announce_and_run(bring_up, fake_drives)
+    assert infos[1].extra == (ExtraPdo("RPDO2", 0x1401, 0x302, KEPT),)
     printed = text(report(infos[1], drive_parameters(Joint.THETA, FAST, MOTORS),
                           "geared_motor_drive.eds", "cia402"))
-    assert printed.endswith(f"    RPDO2  COB-ID 0x302: kept valid by the drive ({kept}); it "
+    assert printed.endswith(f"    RPDO2  COB-ID 0x302: kept valid by the drive ({KEPT}); it "
                             "takes any frame sent on 0x302")
 
 
