@@ -29,8 +29,10 @@ from rakectl.drive.joints import Joint, Parameter, od_variable
 from rakectl.errors import CommsTimeout, DriveFault
 
 _T = TypeVar("_T")
-SDO_RETRIES = 3  # canopen repeats an unanswered SDO request this often at bring-up,
-# and a segmented upload that lost a segment is started again this often
+SDO_RETRIES = 6  # canopen sends an unanswered SDO request this often in all at bring-up
+# (on a bus losing 5 % each way, 1 exchange in 10 fails: 6 tries fail 1 transfer in a
+# million, 3 failed 1 bring-up of ~160 transfers in 7), and a segmented upload that lost a
+# segment is started again this often
 SDO_TOGGLE_BIT_ABORT = 0x05030000  # a segment lost or repeated
 SDO_NO_OBJECT_ABORTS = (0x06020000, 0x06090011)  # no such object, no such subindex
 SDO_LATE_ANSWER_RETRIES = 2  # a transfer that met a late answer is made again this often
