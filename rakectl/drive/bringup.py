@@ -58,12 +58,14 @@ flags read the same way. Then
 the statusword 0x6041 of each (the CiA 402 state the hot path starts
 from: the TPDO2 a drive sends on entering OPERATIONAL may reach the bring-up
 Notifier instead). A drive that restarted since its configuration (a brown-out, another
-node's NMT reset) holds its power-on values: so a boot-up heard since step 1 is a
-DriveFault, and everything steps 3 and 5 wrote is read again (a restart whose boot-up was
-lost), naming the first object that differs. Then NMT start for each node, sent again
-until its heartbeat says OPERATIONAL (``nmt_link.ATTEMPTS`` times within
-``boot_timeout_s``), and the boot-ups, the limits and a Roboteq-class drive's emergency
-shutdown checked once more: a restart since the reading. From then on a heartbeat in
+node's NMT reset) holds its power-on values: a boot-up heard during a drive's steps 1
+to 5 configures it again from step 1 (``CONFIGURE_ATTEMPTS`` times in all: it may be the
+late answer to a reset sent again), one heard after them is a DriveFault, and everything
+steps 3 and 5 wrote is read again (a restart whose boot-up was lost), naming the first
+object that differs. Then NMT start for each node, sent again until its heartbeat says
+OPERATIONAL (``nmt_link.ATTEMPTS`` times within ``boot_timeout_s``), and the boot-ups,
+the PDOs, the limits and a Roboteq-class drive's emergency shutdown checked once more: a
+restart since the reading. From then on a heartbeat in
 any other state is a fault of the drive client's. A failure after NMT start puts both
 nodes back in PRE-OPERATIONAL: no PDO taken from whoever sends one. Start ticking right away: an
 enabled drive faults when RPDO1 or SYNC stop for 0x2003 ms, and every drive
