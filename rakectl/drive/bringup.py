@@ -44,8 +44,8 @@ in turn (r, then θ), with the node-IDs of :class:`~rakectl.config.service.Drive
    it or keeps its own is refused, naming the object and both values. A PDO beyond
    the EDS's that the drive has and holds valid is made not valid (bit 31 of its
    COB-ID): a drive that keeps such a TPDO valid, or such an RPDO mapping what it acts
-   on, is refused; an RPDO it keeps that maps nothing of that is named
-   (:mod:`rakectl.drive.pdos`).
+   on (``POWER_OBJECTS``, the EDS's RPDOs' objects, what step 3 writes), is refused; an
+   RPDO it keeps that maps nothing of that is named (:mod:`rakectl.drive.pdos`).
    The dry run (``start=False``) also reads the device name 0x1008.
 
 Then a drive still in FAULT from the previous run (it lost that run's
@@ -59,17 +59,18 @@ the statusword 0x6041 of each (the CiA 402 state the hot path starts
 from: the TPDO2 a drive sends on entering OPERATIONAL may reach the bring-up
 Notifier instead). A drive that restarted since its configuration (a brown-out, another
 node's NMT reset) holds its power-on values: a boot-up heard during a drive's steps 1
-to 5 configures it again from step 1 (``CONFIGURE_ATTEMPTS`` times in all: it may be the
-late answer to a reset sent again), one heard after them is a DriveFault, and everything
-steps 3 and 5 wrote is read again (a restart whose boot-up was lost), naming the first
-object that differs. Then NMT start for each node, sent again until its heartbeat says
-OPERATIONAL (``nmt_link.ATTEMPTS`` times within ``boot_timeout_s``), and the boot-ups,
-the PDOs, the limits and a Roboteq-class drive's emergency shutdown checked once more: a
-restart since the reading. From then on a heartbeat in
-any other state is a fault of the drive client's. A failure after NMT start puts both
-nodes back in PRE-OPERATIONAL: no PDO taken from whoever sends one. Start ticking right away: an
-enabled drive faults when RPDO1 or SYNC stop for 0x2003 ms, and every drive
-once the controller's heartbeat (first sent with the first SYNC) stops.
+to 5 (with a failure of theirs, or after them) configures it again from step 1
+(``CONFIGURE_ATTEMPTS`` times in all: it may be the late answer to a reset sent again, or
+a restart between a write and its reading back), one heard after them is a DriveFault,
+and everything steps 3 and 5 wrote is read again (a restart whose boot-up was lost),
+naming the first object that differs. Then NMT start for each node, sent again until
+its heartbeat says OPERATIONAL (``nmt_link.ATTEMPTS`` times within ``boot_timeout_s``),
+and the boot-ups, the PDOs, the limits and a Roboteq-class drive's emergency shutdown
+checked once more: a restart since the reading. From then on a heartbeat in any other
+state is a fault of the drive client's. A failure after NMT start puts both nodes back
+in PRE-OPERATIONAL: no PDO taken from whoever sends one. Start ticking right away: an
+enabled drive faults when RPDO1 or SYNC stop for 0x2003 ms, and every drive once the
+controller's heartbeat (first sent with the first SYNC) stops.
 
 Every failure is one line naming the drive, e.g.
 ``DriveFault("r drive (node 1): wrong identity: product code 2, expected 1 (dc_servo_drive.eds)")``,
@@ -124,12 +125,14 @@ from rakectl.drive.profiles import (
     supply_problem,
 )
 from rakectl.drive.sdo import SDO_RETRIES, DriveSdo, abort_code, no_such_object
-from rakectl.errors import ConfigError, DriveFault, RakeError
+from rakectl.errors import CommsTimeout, ConfigError, DriveFault, RakeError
 from rakectl.protocol.files import DriveProfile
 from rakectl.protocol.nmt import NmtCommand
 
 NOTIFIER_POLL_S = 0.02  # bring-up Notifier's recv timeout: how fast it stops
 NOTIFIER_JOIN_S = 2.0
+POWER_OBJECTS = frozenset({(0x6040, 0), (0x200C, 0), (0x200D, 0)})  # controlword, a
+# Roboteq-class drive's emergency shutdown and release: what switches a power stage
 CONFIGURE_ATTEMPTS = 3  # a drive configured again from its reset after a boot-up
 Configured = tuple[Identity, DriveLimits, tuple[PdoReading, ...], tuple[PdoReading, ...],
                    tuple[ExtraPdo, ...]]  # the identity, limits, PDOs, written back, extra
@@ -164,7 +167,11 @@ class BringUp:
         self._pdos = PdoCheck(self._sdo.read, self._sdo.write, self._sdo.read_if_present,
                               self._label,
                               lambda joint: self._nodes[joint].object_dictionary,
-                              lambda joint: eds_file(drives, joint))
+                              lambda joint: eds_file(drives, joint),
+                              lambda joint: frozenset(
+                                  (p.index, p.subindex)
+                                  for p in drive_parameters(joint, drives, motors))
+                              | POWER_OBJECTS)
 
     def close(self) -> None:
         """Unsubscribe from the network."""
@@ -213,7 +220,12 @@ class BringUp:
         again, or a drive still powering up; one that keeps restarting is a DriveFault."""
         for _ in range(CONFIGURE_ATTEMPTS):
             self._nmt.reset_communication(joint)
-            configured = self._configure_once(joint)
+            try:
+                configured = self._configure_once(joint)
+            except (DriveFault, CommsTimeout):
+                if not self._nmt.boot_ups_since_reset(joint):
+                    raise  # the drive's own answer: a restart would have said boot-up
+                continue  # restarted between a write and its reading: its stored values
             if not self._nmt.boot_ups_since_reset(joint):
                 return configured
         raise DriveFault(f"{self._label(joint)}: a boot-up during its configuration, "

@@ -48,12 +48,16 @@ class PdoCheck:
                  write: Callable[[Joint, Parameter, ODVariable | None], None],
                  read_if_present: Callable[[Joint, int, int, str, ODVariable], int | None],
                  label: Callable[[Joint], str],
-                 od: Callable[[Joint], ObjectDictionary], eds: Callable[[Joint], str]) -> None:
+                 od: Callable[[Joint], ObjectDictionary], eds: Callable[[Joint], str],
+                 configured: Callable[[Joint], frozenset[tuple[int, int]]] = (
+                     lambda joint: frozenset())) -> None:
         """``write``: a write encoding as the variable given (None: the EDS's);
         ``read_if_present``: a read that gives None when the drive has no such object,
-        decoding as the variable given; ``eds``: the name of a drive's EDS file."""
+        decoding as the variable given; ``eds``: the name of a drive's EDS file;
+        ``configured``: the objects (index, subindex) bring-up writes or commands the power
+        stage through, which no RPDO beyond the EDS's may map."""
         self._read, self._write, self._label, self._od = read, write, label, od
-        self._read_if_present, self._eds = read_if_present, eds
+        self._read_if_present, self._eds, self._configured = read_if_present, eds, configured
 
     def check(self, joint: Joint) -> tuple[tuple[PdoReading, ...], tuple[PdoReading, ...],
                                             tuple[ExtraPdo, ...]]:
@@ -258,11 +262,13 @@ class PdoCheck:
 
     def _refuse_commanding(self, joint: Joint, name: str, comm: int, held: int, kept: str,
                            slots: list[Slot]) -> None:
-        """An RPDO the drive keeps valid must map nothing the EDS's RPDOs map (what the
-        drive acts on: its voltage, its controlword): DriveFault naming the first it maps,
-        or that its mapping cannot be read."""
+        """An RPDO the drive keeps valid must map nothing the drive acts on: what the
+        EDS's RPDOs map (its voltage, its controlword), what bring-up writes (its limits,
+        watchdog, heartbeats) and what switches its power stage. DriveFault naming the
+        first it maps, or that its mapping cannot be read."""
         acted_on = {entry >> 8 for slot in slots if slot[0].startswith("RPDO")
                     for entry in self._declared_pdo(joint, *slot).mapped}
+        acted_on |= {index << 8 | subindex for index, subindex in self._configured(joint)}
         mapping = comm + 0x200
         count = self._read_if_present(joint, mapping, 0, f"{name} number of mapped objects",
                                       _variable(mapping, 0, datatypes.UNSIGNED8))

@@ -337,6 +337,50 @@ def test_a_late_boot_up_is_configured_again_not_taken_for_a_restart() -> None:
     assert infos[0].limits.watchdog_timeout_ms == DRIVES.watchdog_timeout_ms
 
 
+class RestartsBeforeARequest(VirtualBus):
+    """The drives' bus edge, where the r drive restarts (NMT reset communication that it
+    alone sees, as a brown-out would) just before it takes the ``nth`` SDO request that
+    starts with ``request``: between a write and its reading back."""
+
+    request, nth = b"", 1
+
+    def __init__(self, channel: Any = "channel-0", **kwargs: Any) -> None:
+        super().__init__(channel, **kwargs)
+        self.seen = 0
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        msg, filtered = super()._recv_internal(timeout)
+        if (msg is not None and msg.arbitration_id == 0x600 + R_NODE
+                and bytes(msg.data).startswith(self.request)):
+            self.seen += 1
+            if self.seen == self.nth:  # the reset first, the request after it
+                self.queue.put_nowait(msg)  # type: ignore[attr-defined]
+                return can.Message(arbitration_id=0, data=bytes((0x82, R_NODE)),
+                                   is_extended_id=False), filtered
+        return msg, filtered
+
+
+@pytest.mark.parametrize(("request_", "nth"), [
+    (b"\x40\x17\x10\x00", 1),  # reading back the producer heartbeat just written
+    (b"\x40\x01\x18\x05", 2)],  # reading back TPDO2's event timer just written back
+    ids=["heartbeat-read-back", "event-timer-read-back"])
+def test_a_restart_between_a_write_and_its_reading_configures_again(
+        monkeypatch: pytest.MonkeyPatch, request_: bytes, nth: int) -> None:
+    """The r drive stores values another tool saved (no heartbeat, a 1 ms TPDO2 event
+    timer) and restarts, its boot-up heard, between a write and its reading back: the
+    reading found the stored value and refused the drive ("read-back mismatch", "the
+    drive kept it when the EDS's mapping was written"), though it had only restarted. A
+    boot-up heard with the failure configures it again from its reset."""
+    monkeypatch.setattr(RestartsBeforeARequest, "request", request_)
+    monkeypatch.setattr(RestartsBeforeARequest, "nth", nth)
+    with drives_on_a_bus(specs_with(stored=((0x1017, 0, 0), (0x1801, 5, 1))),
+                         emulator_bus_class=RestartsBeforeARequest) as (emulator, bus):
+        run_bring_up(bus, DRIVES, MOTORS, BOOT_TIMEOUT_S)
+        assert emulator.bus.seen >= nth
+        assert sdo_read(bus, R_NODE, 0x1801, 5) == 0
+        assert sdo_read(bus, R_NODE, 0x1017) == DRIVES.heartbeat_period_ms
+
+
 def test_a_restart_after_nmt_start_is_found_in_the_pdos(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """The r drive stores the configured limits and heartbeats (nothing there differs after
@@ -587,6 +631,9 @@ WHERE = ("θ drive (node 2): RPDO2 (0x1401:1 COB-ID 0x302) is valid and geared_m
     ((0x20050120, 0x20000020), f"{WHERE}, and it maps 0x2000:0, which the drive acts on: a "
      "frame on 0x302 would command it past the clamp; make the RPDO not valid (bit 31) with "
      "the drive's own tool and store that"),
+    ((0x20030010,), f"{WHERE}, and it maps 0x2003:0, which the drive acts on: a frame on "
+     "0x302 would command it past the clamp; make the RPDO not valid (bit 31) with the "
+     "drive's own tool and store that"),  # its command watchdog, which bring-up writes
     (None, f"{WHERE}, and its mapping 0x1601 cannot be read: make it not valid (bit 31) "
      "with the drive's own tool and store that")])
 def test_an_rpdo_beyond_the_eds_s_that_stays_valid_is_named_or_refused(
