@@ -20,7 +20,7 @@ LOG_EVERY_S = 1.0  # a rate-limited event is written at most this often
 
 WARNINGS = frozenset({"arm_refused", "timing_warning", "clamp_warning", "recorder_dump_failed",
                       "reset_failed", "force_limit", "object_found", "trace_failed",
-                      "descent_limit"})
+                      "descent_limit", "drive_rpdo_kept_valid"})
 ERROR_STATES = frozenset({"FAULT", "ESTOP"})
 
 
@@ -65,3 +65,19 @@ class EventLog:
                 continue
             self._last_s[name] = now
             getattr(self._log, level_of(name, fields))(name, state=state, **fields)
+
+
+def drive_summary(info: Any) -> dict[str, Any]:
+    """A drive after bring-up (rakectl.drive.joints.DriveInfo), as the fields of
+    ``drives_configured``."""
+    return {"node": info.node_id, "serial": info.identity.serial,
+            "max_voltage_mv": info.limits.max_voltage_mv,
+            "cleared_fault": f"0x{info.cleared_fault:04X}" if info.cleared_fault else None,
+            "pdos_made_not_valid": [p.name for p in info.extra if not p.kept]}
+
+
+def kept_rpdos(infos: Iterable[Any]) -> list[dict[str, Any]]:
+    """The fields of a ``drive_rpdo_kept_valid`` warning for each RPDO beyond the EDS's
+    that a drive keeps valid (rakectl.drive.pdos)."""
+    return [{"node": info.node_id, "pdo": pdo.name, "can_id": f"0x{pdo.cob_id & 0x7FF:03X}",
+             "why": pdo.kept} for info in infos for pdo in info.extra if pdo.kept]

@@ -43,7 +43,7 @@ from rakectl.core.supervision import (
     plausible_ranges,
 )
 from rakectl.daemon.checks import ArmingChecks
-from rakectl.daemon.events import EventLog
+from rakectl.daemon.events import EventLog, drive_summary, kept_rpdos
 from rakectl.daemon.inputs import InputLog
 from rakectl.daemon.recorder import DumpWriter, FlightRecorder
 from rakectl.daemon.sdnotify import Notifier
@@ -144,17 +144,9 @@ class Daemon(StateChanges):
             self.inputs.start(self.trace.recorded if self.trace is not None else 0,
                               (infos[Joint.R].statusword, infos[Joint.THETA].statusword),
                               self.settings)
-        self.event("drives_configured", drives=[
-            {"node": i.node_id, "serial": i.identity.serial,
-             "max_voltage_mv": i.limits.max_voltage_mv,
-             "cleared_fault": f"0x{i.cleared_fault:04X}" if i.cleared_fault else None,
-             "pdos_made_not_valid": [p.name for p in i.extra if not p.kept]}
-            for i in infos])
-        for info in infos:  # an RPDO beyond the EDS's that the drive keeps valid
-            for pdo in info.extra:
-                if pdo.kept:
-                    log.warning("drive_rpdo_kept_valid", node=info.node_id, pdo=pdo.name,
-                                can_id=f"0x{pdo.cob_id & 0x7FF:03X}", why=pdo.kept)
+        self.event("drives_configured", drives=[drive_summary(i) for i in infos])
+        for fields in kept_rpdos(infos):  # an RPDO beyond the EDS's the drive keeps valid
+            self.event("drive_rpdo_kept_valid", **fields)
 
     def run(self) -> None:
         """The loop, until a stop is requested. Ends with 0 V, drives disabled, a dump."""
@@ -215,12 +207,9 @@ class Daemon(StateChanges):
     def _check_ready(self) -> None:
         """READY once both drives' feedback is fresh and finite; a drive problem before it
         (a heartbeat not OPERATIONAL: a restart unseen since bring-up) is a fault."""
-        client, fb = self.client, self.client.feedback
-        if client.drive_faults():
-            limit = self.settings.drives.feedback_timeout_cycles
-            self.fault("; ".join(client.describe_problems(self.heartbeat_clock(), limit))
-                       or "drive problem")
-            return
+        fb = self.client.feedback
+        if self.client.drive_faults():
+            return self.fault(self._drive_problems())
         fresh = fb.stale_cycles[0] == 0 and fb.stale_cycles[1] == 0
         if fresh and math.isfinite(fb.r_m) and math.isfinite(fb.theta_rad):
             self._transition(Event.READY, "drives configured, feedback valid")
@@ -237,8 +226,7 @@ class Daemon(StateChanges):
         if client.drive_faults() or (armed and client.stale_feedback(limit)) or (
                 heartbeat_check and self._heartbeat_lost()) or (
                 client.answers_beyond_syncs() > FOREIGN_SYNC_ANSWERS):
-            return ("; ".join(client.describe_problems(self.heartbeat_clock(), limit))
-                    or "drive problem")
+            return self._drive_problems()
         if not armed:
             return ""
         if not (math.isfinite(fb.r_m) and math.isfinite(fb.theta_rad)

@@ -115,6 +115,12 @@ class StateChanges(SlackWork):
         self.client.reset_faults()
         self._reset_deadline = self.ticks + round(self.settings.rate_hz)
 
+    def _drive_problems(self) -> str:
+        """What the supervision checks see wrong with the drives, in one line."""
+        limit = self.settings.drives.feedback_timeout_cycles
+        return ("; ".join(self.client.describe_problems(self.heartbeat_clock(), limit))
+                or "drive problem")
+
     def _try_reset(self) -> None:
         limit = self.settings.drives.feedback_timeout_cycles
         client = self.client
