@@ -42,24 +42,20 @@ heartbeat 0x1017 of 0, CiA 301's default, or an event timer).
 from __future__ import annotations
 
 import dataclasses
-import enum
 import struct
 from collections.abc import Callable
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Final
 
 import canopen
 from canopen import SdoAbortedError
 
+from drivers.drive_spec import DriveSpec, Frame, SdoAbort
 from drivers.pdo_map import Pdo, PdoMaps
 from rakectl.core.motor_model import MotorParams, joint_resolution
 from rakectl.protocol.cia402 import DriveState
 from rakectl.protocol.codec import SYNC_COUNTER_MAX, FunctionCode, cob_id
-from rakectl.protocol.files import EDS_DIR
 from rakectl.protocol.nmt import NmtState
 
-Frame = tuple[int, bytes | bytearray]
 Reader = Callable[[], int]
 Writer = Callable[[int], None]
 ERROR_HISTORY: Final = 8  # entries of 0x1003 (its EDS has sub 1 … 8)
@@ -68,78 +64,6 @@ _COMM_RANGE: Final = range(0x1000, 0x2000)
 _SDO_ABORT: Final = struct.Struct("<BHBL")  # command 0x80, index, subindex, abort code
 COB_ID_NO_RTR: Final = 1 << 30  # bit 30 of a PDO's COB-ID: no RTR answered
 _TPDO_COB_IDS: Final = frozenset((p.comm_index, 1) for p in Pdo if p.value[2])
-
-
-Object = tuple[int, int]  # index, subindex
-
-
-@dataclass(frozen=True)
-class ParameterObjects:
-    """Where a drive type keeps the parameters the emulated drive acts on, and their units.
-
-    ``max_voltage`` None: the drive has no voltage limit of its own (it commands a share of
-    its supply). ``current_unit_ma``: the current limit's unit (1 mA, or 100 mA = 0.1 A).
-    ``rx``: the objects an RPDO may map (what the drive acts on)."""
-
-    max_voltage: Object | None
-    current_limit: Object
-    current_unit_ma: int
-    watchdog: Object
-    counts_per_rev: Object
-    tpdo2_refresh: Object
-    rx: frozenset[Object]
-
-
-OWN_PROFILE: Final = ParameterObjects(
-    max_voltage=(0x2001, 0), current_limit=(0x2002, 0), current_unit_ma=1,
-    watchdog=(0x2003, 0), counts_per_rev=(0x2004, 0), tpdo2_refresh=(0x2005, 0),
-    rx=frozenset({(0x2000, 0), (0x6040, 0)}))
-ROBOTEQ_CLASS: Final = ParameterObjects(
-    max_voltage=None, current_limit=(0x3002, 0), current_unit_ma=100,
-    watchdog=(0x3001, 0), counts_per_rev=(0x3003, 0), tpdo2_refresh=(0x3004, 0),
-    rx=frozenset({(0x2000, 1)}))
-
-
-class DriveKind(enum.Enum):
-    """A drive type and its EDS (object dictionary, product code)."""
-
-    DC_SERVO = "dc_servo_drive.eds"
-    GEARED_MOTOR = "geared_motor_drive.eds"
-    ROBOTEQ_CLASS = "roboteq_class_drive.eds"  # a manufacturer profile, no CiA 402
-
-    @property
-    def eds_path(self) -> Path:
-        return EDS_DIR / self.value
-
-    @property
-    def parameters(self) -> ParameterObjects:
-        return ROBOTEQ_CLASS if self is DriveKind.ROBOTEQ_CLASS else OWN_PROFILE
-
-
-class SdoAbort(enum.IntEnum):
-    """SDO abort codes (CiA 301) this drive's own checks use."""
-
-    UNKNOWN_COMMAND = 0x05040001  # command specifier not valid, or out of sequence
-    VALUE_RANGE = 0x06090030
-    VALUE_TOO_HIGH = 0x06090031
-    VALUE_TOO_LOW = 0x06090032
-    DEVICE_STATE = 0x08000022
-    NO_DATA = 0x08000024  # e.g. an error history entry beyond the number of errors
-
-
-@dataclass(frozen=True)
-class DriveSpec:
-    """What a drive is: its node-ID, type, hardware and serial number."""
-
-    node_id: int
-    kind: DriveKind
-    motor: MotorParams  # the hardware: supply and current limit bound 0x2001 and 0x2002
-    serial_number: int
-    controller_node_id: int
-    overcurrent_time_s: float = 0.5
-    stored: tuple[tuple[int, int, int], ...] = ()  # (index, subindex, value) of 0x1000–0x1FFF
-    # as another tool stored them: reset communication restores these, not the EDS's
-    tpdo_rtr: bool = True  # False: its TPDOs answer no RTR (COB-ID bit 30 set, kept)
 
 
 class _Outbox(canopen.Network):

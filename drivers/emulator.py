@@ -47,7 +47,7 @@ import structlog
 from can.typechecking import CanFilter
 
 from drivers.arm import ArmPlant
-from drivers.dictionary import DriveKind, DriveSpec, Frame
+from drivers.drive_spec import DriveKind, DriveSpec, Frame
 from drivers.ground import Ground
 from drivers.node import DriveNode
 from drivers.objects import Contact

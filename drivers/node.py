@@ -26,7 +26,7 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Final
 
-from drivers.dictionary import DriveSpec, Frame
+from drivers.drive_spec import DriveSpec, Frame
 from drivers.pdo_map import Entry, Pdo, PdoCodec
 from drivers.power_stage import EMCY_STATES, NO_FRAMES, REGISTER, PowerStage
 from drivers.stats import BadInput

@@ -21,7 +21,8 @@ from typing import Final
 
 from canopen import SdoAbortedError
 
-from drivers.dictionary import DriveObjects, DriveSpec, Frame, SdoAbort
+from drivers.dictionary import DriveObjects
+from drivers.drive_spec import DriveSpec, Frame, SdoAbort
 from drivers.stats import NodeStats
 from rakectl.protocol import cia402
 from rakectl.protocol.cia402 import DriveCommand, DriveState, StatusFlag

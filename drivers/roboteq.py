@@ -45,7 +45,7 @@ from typing import Final
 
 from canopen import SdoAbortedError
 
-from drivers.dictionary import DriveKind, DriveSpec, Frame, SdoAbort
+from drivers.drive_spec import DriveKind, DriveSpec, Frame, SdoAbort
 from drivers.node import DriveNode
 from drivers.power_stage import NO_FRAMES, OVERCURRENT_SHARE
 from rakectl.protocol.cia402 import DriveState

@@ -26,7 +26,7 @@ import pytest
 from can.interfaces.virtual import VirtualBus
 from canopen.objectdictionary import ODRecord, ODVariable, datatypes
 
-from drivers.dictionary import DriveSpec
+from drivers.drive_spec import DriveSpec
 from drivers.emulator import Emulator, drive_specs
 from drivers.settings import EmulatorConfig
 from rakectl.cli.drives import report, text

@@ -47,7 +47,7 @@ import canopen
 
 from drivers.arm import ArmPlant
 from drivers.cli import load_config, open_bus
-from drivers.dictionary import DriveKind
+from drivers.drive_spec import DriveKind
 from drivers.emulator import workspace
 from drivers.ground import Ground
 from drivers.settings import EmulatorConfig

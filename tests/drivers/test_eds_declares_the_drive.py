@@ -20,7 +20,7 @@ from typing import Any
 import canopen
 import pytest
 
-from drivers.dictionary import DriveKind, DriveSpec
+from drivers.drive_spec import DriveKind, DriveSpec
 from drivers.emulator import drive_node
 from rakectl.core.motor_model import R_MOTOR_DEFAULT
 from rakectl.protocol.nmt import NmtCommand

@@ -26,7 +26,7 @@ import canopen
 import pytest
 from can.interfaces.virtual import VirtualBus
 
-from drivers.dictionary import DriveKind, DriveSpec
+from drivers.drive_spec import DriveKind, DriveSpec
 from drivers.emulator import Emulator
 from drivers.settings import EmulatorConfig
 from rakectl.config.service import BusSettings, DrivesSettings

@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.dictionary import DriveKind, DriveSpec, Frame, SdoAbort
+from drivers.drive_spec import DriveKind, DriveSpec, Frame, SdoAbort
 from drivers.node import DriveNode
 from drivers.stats import BadInput
 from rakectl.core.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, joint_resolution

@@ -16,7 +16,7 @@ from collections.abc import Iterator
 import canopen
 import pytest
 
-from drivers.dictionary import DriveKind, DriveSpec
+from drivers.drive_spec import DriveKind, DriveSpec
 from drivers.emulator import Emulator, drive_specs
 from drivers.node import DriveNode
 from drivers.roboteq import RoboteqNode
