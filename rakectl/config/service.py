@@ -150,9 +150,14 @@ class SelfTestSettings:
     mount_softer_tolerance: float = setting(
         0.5, "How much softer than configured the measured mount may be, each way (much "
         "softer is another mount). Softer both ways alike is safe for the clamp; one way "
+        "softer than the other is mount_ratio_tolerance's to judge.", gt=0, lt=1)
+    mount_ratio_tolerance: float = setting(
+        1.5, "How far the measured ratio of the mount's two stiffnesses (down over "
+        "sideways) may stray from the configured ratio, as a factor either way. One way "
         "softer than the other stores energy a rounded edge turns into a push √ratio times "
-        "larger, which the presses' readings cannot resolve within clamp.model_margin (their "
-        "ratio is reported, not judged: rakectl.core.mount_check).", gt=0, lt=1)
+        "larger. The readings' own error moves the ratio 0.81–1.14 times with the anvil's "
+        "pose and the mount, so 1.5 passes a correct mount and refuses one whose true ratio "
+        "is off by more than 1.85 either way (rakectl.core.mount_check).", ge=1.25, le=2)
 
 
 @dataclass(frozen=True)

@@ -41,8 +41,8 @@ What it does not cover: the current's electrical transient after a command drops
 clamp is only as true as ``contact_stiffness_n_per_m`` and
 ``side_contact_stiffness_n_per_m``, and of the counterweight: hardware requirements,
 the mount each way and the weight checked before arming, rakectl.core.mount_check and
-rakectl.core.selftest, the ratio of the mount's two stiffnesses at assembly); the
-tines' own mass below the mount (its impulse is ignored). A non-finite input
+rakectl.core.selftest, the ratio of the two stiffnesses within a factor 1.85, closer at
+assembly); the tines' own mass below the mount (its impulse is ignored). A non-finite input
 gives 0 V and sets ``non_finite`` (the caller must fault): it is never silently
 replaced.
 """

@@ -101,6 +101,7 @@ def test_the_configured_mount_passes_both_ways_and_the_tip_comes_back(at: Anvil)
                       Phase.OFF, Phase.CLEAR, Phase.BACK, Phase.RETURN, Phase.LOWER,
                       Phase.DONE]
     assert (check.reach_m, check.depth_m) == at.start
+    assert 0.8 < result.ratio < 1.15  # measured: 1.11 at the test's anvil, 0.82 at the robot's
     assert 8.0 < true_peak_n < 20.0 and 8.0 < side_n < 20.0  # presses of 10 N, as read
     assert "matches 5000 N/m configured (clamp.contact_stiffness_n_per_m" in result.message
     assert "; sideways: stiffness " in result.message
@@ -148,6 +149,26 @@ def test_a_sideways_mount_of_another_stiffness_fails_naming_both(side_n_per_m: f
     else:
         assert result.side.stiffness_n_per_m == pytest.approx(side_n_per_m, rel=0.2)
     assert side_n < 45.0
+
+
+@pytest.mark.parametrize(("down_n_per_m", "side_n_per_m", "at", "softer"), [
+    (2750.0, 5000.0, Anvil(), "vertically"), (2750.0, 5000.0, ROBOTS, "vertically"),
+    (5500.0, 3000.0, Anvil(), "sideways")], ids=["soft-down-test", "soft-down-robot",
+                                                  "soft-side-test"])
+def test_a_mount_softer_one_way_than_the_other_fails_naming_the_ratio(
+        down_n_per_m: float, side_n_per_m: float, at: Anvil, softer: str) -> None:
+    """Each way within its own tolerance (0.5 softer, 0.2 stiffer), the two ways about a
+    factor 1.8 apart: a rounded edge would turn what the softer way stores into a push
+    √1.8 times the clamp's."""
+    check, _, _, _ = _press(down_n_per_m, side_n_per_m=side_n_per_m, at=at)
+    result = _result(check)
+    assert result.down.passed and result.side.passed and not result.passed
+    tolerance = Settings().selftest.mount_ratio_tolerance
+    assert not 1.0 / tolerance <= result.ratio <= tolerance
+    assert result.ratio == pytest.approx(down_n_per_m / side_n_per_m, rel=0.15)
+    assert f"the mount is softer {softer} than the other way" in result.message
+    assert f"is {result.ratio:.2f} times the configured one" in result.message
+    assert "(selftest.mount_ratio_tolerance)" in result.message
 
 
 def test_a_mount_somewhat_softer_both_ways_passes() -> None:

@@ -102,11 +102,16 @@ def _with_anvil(mount_n_per_m: float, side_n_per_m: float = 5.0e3
     return dataclasses.replace(s, selftest=selftest), emulator
 
 
-def test_a_mount_rigid_sideways_refuses_to_arm_naming_the_side(tmp_path: Path) -> None:
+@pytest.mark.parametrize(("down_n_per_m", "side_n_per_m"), [(5.0e3, 0.0), (2.75e3, 5.0e3)],
+                         ids=["rigid-sideways", "softer-down"])
+def test_a_mount_not_as_configured_sideways_refuses_to_arm_naming_it(
+        tmp_path: Path, down_n_per_m: float, side_n_per_m: float) -> None:
     """The press on the anvil's near side: a mount whose horizontal springs are blocked
     (the emulator's rigid sideways mount) faults the first arming, naming
-    clamp.side_contact_stiffness_n_per_m, and the tip comes back where it started."""
-    settings, emulator = _with_anvil(5.0e3, side_n_per_m=0.0)
+    clamp.side_contact_stiffness_n_per_m; one whose vertical springs are 0.55 times as
+    stiff as the horizontal ones, each way within its own tolerance, faults naming the
+    ratio."""
+    settings, emulator = _with_anvil(down_n_per_m, side_n_per_m=side_n_per_m)
     rig = LockstepRig(tmp_path, settings, emulator)
     try:
         rig.bring_up()
@@ -114,10 +119,17 @@ def test_a_mount_rigid_sideways_refuses_to_arm_naming_the_side(tmp_path: Path) -
         assert _arm(rig)["state"] == "checking"
         rig.until(DaemonState.FAULT, 30000)
         check = _call(rig, b'{"cmd": "status"}')["mount_check"]
-        assert not check["passed"] and check["stiffness_n_per_m"] == pytest.approx(5e3, rel=0.2)
-        assert check["side_stiffness_n_per_m"] > 5.0 * 5e3
-        assert ("sideways: stiffness " in check["message"] and "does not match 5000 N/m "
-                "configured (clamp.side_contact_stiffness_n_per_m" in check["message"])
+        assert not check["passed"]
+        assert check["stiffness_n_per_m"] == pytest.approx(down_n_per_m, rel=0.2)
+        assert "sideways: stiffness " in check["message"]
+        if side_n_per_m == 0.0:
+            assert check["side_stiffness_n_per_m"] > 5.0 * 5e3 and check["ratio"] is None
+            assert ("does not match 5000 N/m configured (clamp.side_contact_stiffness_n_per_m"
+                    in check["message"])
+        else:
+            assert check["side_stiffness_n_per_m"] == pytest.approx(side_n_per_m, rel=0.2)
+            assert check["ratio"] < 1.0 / settings.selftest.mount_ratio_tolerance
+            assert "the mount is softer vertically than the other way" in check["message"]
     finally:
         rig.close()
 
