@@ -157,7 +157,8 @@ class SelfTestSettings:
         "softer than the other stores energy a rounded edge turns into a push √ratio times "
         "larger. The readings' own error moves the ratio 0.81–1.14 times with the anvil's "
         "pose and the mount, so 1.5 passes a correct mount and refuses one whose true ratio "
-        "is off by more than 1.85 either way (rakectl.core.mount_check).", ge=1.25, le=2)
+        "is off by more than 1.85 either way (rakectl.core.mount_check); it may be tightened, "
+        "not loosened.", ge=1.25, le=1.5)
 
 
 @dataclass(frozen=True)

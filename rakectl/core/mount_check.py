@@ -72,13 +72,13 @@ correct mount read 0.82 (the robot's anvil) to 1.11 (the test's) times its confi
 over twelve poses from 0.45 to 1.4 m of reach, and a dozen unequal mounts at the two anvils
 read 0.81 to 1.14 times theirs. ``selftest.mount_ratio_tolerance`` (1.5) passes a correct
 mount with a margin and refuses a true ratio more than 1.5/0.81 = 1.85 times the configured
-one or less than 1/(1.5 · 1.14) = 1/1.71 (measured: a vertical mount 0.55 times the
-sideways one read 0.62 and 0.55 at the two anvils, and 5500 N/m down over 3000 sideways,
-each within its own tolerance, read 2.02 and 1.72: each refused; 5000 N/m down over 2750
-sideways, a true 1.82, read 1.47 at the robot's anvil and passed). Held to the stiffer
-side's √1.2 the ratio would need readings within a few per cent, so between 1.2 and 1.85
-the mount's isotropy stays an assembly check. Nor is the mount's damping judged (the
-presses are quasi-static).
+one or less than 1/(1.5 · 1.14) = 1/1.71 (measured: a vertical mount half the sideways one,
+2900 N/m under 5800, read 0.56 at the test's anvil, and 2750 under 5000 read 0.55 at the
+robot's; 5300 N/m down over 3100 sideways, a true 1.71, read 1.91 at the test's anvil: each
+within its own way's tolerance, each refused; 5000 N/m down over 2750 sideways, a true
+1.82, read 1.47 at the robot's anvil and passed). Held to the stiffer side's √1.2 the ratio
+would need readings within a few per cent, so between 1.2 and 1.85 the mount's isotropy
+stays an assembly check. Nor is the mount's damping judged (the presses are quasi-static).
 """
 
 from __future__ import annotations
