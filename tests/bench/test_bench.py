@@ -13,7 +13,7 @@ import pytest
 from rakectl.bench.excavation import SOILS, Controller, LaneShape, RunResult, run_excavation
 from rakectl.bench.excavation_text import format_excavation
 from rakectl.bench.hot_path import hot_path_section, write_hot_path_section
-from rakectl.bench.loop import BUS_BITS_PER_CYCLE, LoopFigures, format_loop
+from rakectl.bench.loop import BUS_BITS_PER_CYCLE, DAEMON_SETTINGS, LoopFigures, format_loop
 from rakectl.bench.report import (
     BENCHMARKS_FILE,
     EXCAVATION_END,
@@ -24,6 +24,10 @@ from rakectl.bench.report import (
     write_excavation,
 )
 from rakectl.bench.tick import STAGES, bench_tick, format_tick
+from rakectl.config.files import config_dir
+from rakectl.config.loader import load_settings
+from rakectl.config.service import RtModeSetting
+from rakectl.config.settings import held_command_gap
 from rakectl.sim.parallel import DaskExecutor
 
 TINY = LaneShape(reach_far_m=1.3, reach_near_m=1.15, target_depth_m=0.005)  # clay stalls at 10 mm
@@ -62,6 +66,17 @@ def test_a_missing_cyclictest_says_how_to_install_it() -> None:
     figures = _loop_figures(cyclictest=False)
     assert math.isnan(figures.wakeup_ratio(figures.idle))
     assert "apt-get install -y rt-tests" in format_loop(figures)
+
+
+def test_the_loop_benchmarks_daemon_is_one_enforce_arms() -> None:
+    """The loop benchmark runs the daemon with rt_mode enforce over the emulated bench's
+    configuration; enforce refuses to arm unless the clamp carries the drives' watchdog,
+    which the bench file's 100 ms is not (every `rakectl bench --loop` was refused)."""
+    s = load_settings(config_dir() / "rakectl-emulated.yaml", DAEMON_SETTINGS)
+    assert s.daemon.rt_mode is RtModeSetting.ENFORCE
+    assert held_command_gap(s) == ""
+    assert "drives.watchdog_timeout_ms (100 ms)" in held_command_gap(
+        load_settings(config_dir() / "rakectl-emulated.yaml", DAEMON_SETTINGS[:1]))
 
 
 SWEEP = (0.1, 0.05, 0.03)
