@@ -92,8 +92,8 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def _parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="python -m drivers", description=__doc__.split("\n")[0])
+def _parser(prog: str) -> argparse.ArgumentParser:
+    parser = _Parser(prog=prog, description=__doc__.split("\n")[0])
     parser.add_argument("--config", type=Path, help="YAML file (default: built-in defaults)")
     parser.add_argument("--interface", choices=[i.value for i in BusInterface])
     parser.add_argument("--channel")
@@ -116,15 +116,16 @@ def _cycles(text: str) -> int:
     return value
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+def main(argv: Sequence[str] | None = None, prog: str = "python -m drivers") -> int:
+    """``prog``: how the command was called (``rakectl emulator`` passes its own name)."""
+    args = _parser(prog).parse_args(argv)
     overrides = list(args.overrides)
     overrides += [f"bus.interface={args.interface}"] if args.interface else []
     overrides += [f"bus.channel={args.channel}"] if args.channel else []
     try:
         config = load_config(args.config, overrides)
     except ConfigError as exc:
-        print(f"python -m drivers: {exc}", file=sys.stderr)
+        print(f"{prog}: {exc}", file=sys.stderr)
         return 2
     configure_logging()
     if args.bench is not None:
@@ -136,13 +137,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             trace = (stack.enter_context(can.CanutilsLogWriter(config.bus.trace_path))
                      if config.bus.trace_path else None)
         except OSError as exc:
-            print(f"python -m drivers: cannot write {exc.filename}: "
+            print(f"{prog}: cannot write {exc.filename}: "
                   f"{exc.strerror or exc}", file=sys.stderr)
             return 1
         try:
             bus = open_bus(config.bus)
         except (can.CanError, OSError, ValueError, ImportError) as exc:
-            print(f"python -m drivers: cannot open {config.bus.interface.value}:"
+            print(f"{prog}: cannot open {config.bus.interface.value}:"
                   f"{config.bus.channel}: {exc}", file=sys.stderr)
             return 1
         stack.callback(bus.shutdown)

@@ -49,7 +49,9 @@ def simple(cmd: str) -> Ops:
 
     def op(args: argparse.Namespace) -> int:
         reply = call(socket_of(args), {"cmd": cmd})
-        print_reply(args, reply, f"{cmd}: {reply.get('state', 'ok')}")
+        state = reply.get("state", "ok")
+        print_reply(args, reply, f"{cmd}: the daemon stops the rake, disarms and ends (it was "
+                    f"{state})" if reply.get("stopping") else f"{cmd}: {state}")
         return 0
 
     return op

@@ -214,7 +214,8 @@ def show(args: argparse.Namespace) -> int:
             raise ConfigError(f"{args.file}: {dotted} {message}")
     sys.stdout.write(survey_yaml(points))
     gaps = [b.reach_m - a.reach_m for a, b in itertools.pairwise(points)]
-    print(f"survey: {len(points)} points, reach {points[0].reach_m:.3f}–"
+    plural = "s" if len(points) != 1 else ""
+    print(f"survey: {len(points)} point{plural}, reach {points[0].reach_m:.3f}–"
           f"{points[-1].reach_m:.3f} m, widest gap {1e3 * max(gaps, default=0.0):.0f} mm "
           "(between two points the higher stands for the surface: mark every crest)",
           file=sys.stderr)

@@ -189,7 +189,7 @@ def _replay_main(path: Path, as_json: bool, mcap: Path | None = None) -> int:
           f"replay {path}: ground {now.f_true_z_max_n:.1f} N, mine {now.f_mine_max_n:.1f} N, "
           f"{now.ticks_over_limit} ticks over, mine activated {now.mine_activated}; "
           + ("no recorded result" if recorded is None else
-             "same" if same else "DIFFERENT") + " result")
+             "same result" if same else "DIFFERENT result"))
     return 0 if same and now.safe else 1
 
 

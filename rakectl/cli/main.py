@@ -9,6 +9,7 @@ refused or failed).
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import select
@@ -76,6 +77,10 @@ def _build_parser() -> tuple[Parser, dict[str, Callable[[argparse.Namespace], in
     run.add_argument("--config", type=Path, help="YAML configuration (e.g. config/rakectl.yaml)")
     run.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                      help="override one option (repeatable)")
+    run.add_argument("--check", action="store_true",
+                     help="check the configuration as the daemon loads it, say what it would "
+                     "drive and exit (0: it loads; 2: it does not, naming the key); opens "
+                     "nothing")
     sub.add_parser("emulator", help="the emulated drives and physics (bench set-ups); "
                    "its options: rakectl emulator --help", add_help=False)
     client = Parser(add_help=False)
@@ -193,7 +198,14 @@ def _cmd_fuzz(args: argparse.Namespace) -> int:
     return fuzz_main(args.rest)
 
 
+DEMO_MODULES = ("matplotlib", "foxglove", "mcap", "msgpack")  # the [demo] extra's
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
+    missing = [name for name in DEMO_MODULES if importlib.util.find_spec(name) is None]
+    if missing:
+        raise RakeError(f"the demo needs the [demo] extra: pip install 'rakectl[demo]' "
+                        f"(missing: {', '.join(missing)})")
     from rakectl.sim.demo import run_demo
 
     return run_demo(args.out, args.json, args.drive_profile)
@@ -256,15 +268,42 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    if args.check:
+        return _check_config(args.config, args.overrides)
     from rakectl.daemon.service import run
 
     return run(args.config, args.overrides)
 
 
+def _check_config(config: Path | None, overrides: list[str]) -> int:
+    """``rakectl run --check``: the configuration loaded and cross-checked as the daemon
+    loads it (a ConfigError names the key), then what the daemon would drive."""
+    from rakectl.config.loader import load_settings
+    from rakectl.config.service import RtModeSetting
+    from rakectl.config.settings import Settings, held_command_gap
+
+    s = load_settings(config, overrides, root=Settings)
+    d = s.drives
+    print(f"{config or '<defaults>'}: the configuration loads")
+    print(f"  bus {s.bus.interface.value}:{s.bus.channel} at {s.bus.bitrate} bit/s; drives "
+          f"{d.profile.value}, r node {d.r_node_id}, θ node {d.theta_node_id}, watchdog "
+          f"{d.watchdog_timeout_ms} ms; loop {s.rate_hz:g} Hz, rt_mode {s.daemon.rt_mode.value}")
+    checks = ("weight check" + (" and tine-mount check" if s.selftest.press else "")
+              if s.selftest.enabled else "none (selftest.enabled: false)")
+    print(f"  force limit {s.clamp.force_limit_n:g} N; checks before arming: {checks}; "
+          f"surveyed points: {len(s.descent.survey)}")
+    gap = held_command_gap(s)
+    if gap:
+        refusal = ("arming is refused" if s.daemon.rt_mode is RtModeSetting.ENFORCE else
+                   "logged as clamp_warning at start-up and at each arming")
+        print(f"  warning: {gap} ({refusal})")
+    return 0
+
+
 def _cmd_emulator(args: argparse.Namespace) -> int:
     from drivers.cli import main as emulator_main
 
-    return emulator_main(args.rest)
+    return emulator_main(args.rest, prog="rakectl emulator")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

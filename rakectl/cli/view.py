@@ -123,6 +123,8 @@ def cmd_view(args: argparse.Namespace) -> int:
         stream.run(lambda: not stop.is_set())
     truth = (f"; truth: {stream.truth_rows} rows served, {stream.truth_bad_rows} skipped"
              if args.truth else "")
+    if args.truth and not args.truth.is_file():
+        truth += f" ({args.truth} never appeared: is the emulator writing it there?)"
     print(f"view: {stream.replies} status replies, {stream.errors} failed{truth}"
           + (f" (last: {stream.last_error})" if stream.last_error else ""), file=sys.stderr)
     return 0
@@ -145,7 +147,7 @@ def cmd_mcap(args: argparse.Namespace) -> int:
         with args.csv.open(newline="") as f:
             header = next(csv.reader(f), [])
     except OSError as exc:
-        raise RakeError(f"mcap: cannot read {args.csv}: {exc.strerror or exc}") from exc
+        raise ConfigError(f"mcap: cannot read {args.csv}: {exc.strerror or exc}") from exc
     out = args.out or args.csv.with_suffix(".mcap")
     objects = objects_of(args.emulator_config)
     if all(k in header for k in DUMP_KEYS):

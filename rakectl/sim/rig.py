@@ -102,11 +102,23 @@ class Bench:
                 if reply.get("state") in states:
                     return reply
             if self.process.poll() is not None:
-                raise RakeError(f"the bench stopped (exit {self.process.returncode}); see "
-                                f"{self.out}/daemon.log and {self.out}/emulator.log")
+                said = "; ".join(f"{log}: {line}" for log in ("emulator.log", "daemon.log")
+                                 if (line := _last_line(self.out / log)))
+                raise RakeError(f"the bench stopped (exit {self.process.returncode})"
+                                f"{': ' + said if said else ''}; see {self.out}/daemon.log "
+                                f"and {self.out}/emulator.log")
             time.sleep(0.1)
         raise CommsTimeout(f"daemon not {'/'.join(states)} within {timeout_s:g} s "
                            f"(last: {reply.get('state')}); see {self.out}/daemon.log")
+
+
+def _last_line(path: Path) -> str:
+    """The last non-empty line of a log, cut to 300 characters ("" if none)."""
+    try:
+        lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    except OSError:
+        return ""
+    return next((line.strip()[:300] for line in reversed(lines) if line.strip()), "")
 
 
 @contextlib.contextmanager

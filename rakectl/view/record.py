@@ -58,7 +58,7 @@ def check_columns(path: Path, needed: Iterable[str]) -> None:
         with path.open(newline="") as f:
             header = next(csv.reader(f), [])
     except OSError as exc:
-        raise RakeError(f"mcap: cannot read {path}: {exc.strerror or exc}") from exc
+        raise ConfigError(f"mcap: cannot read {path}: {exc.strerror or exc}") from exc
     missing = [k for k in needed if k not in header]
     if missing:
         raise ConfigError(f"mcap: {path} is not a flight-recorder dump, an emulator truth "

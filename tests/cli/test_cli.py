@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import sys
 from pathlib import Path
 
 import pytest
@@ -99,7 +100,7 @@ def test_bench_refuses_too_few_ticks_in_every_mode_that_times_them(
 def test_pass_through_commands_read_their_own_options(command: str) -> None:
     done = run_rakectl(command, "--help")
     assert done.returncode == 0, done.stderr
-    assert "usage" in done.stdout.lower()
+    assert f"usage: rakectl {command} " in done.stdout
 
 
 @pytest.mark.parametrize(("argv", "expected"), [
@@ -108,7 +109,7 @@ def test_pass_through_commands_read_their_own_options(command: str) -> None:
     (("fuzz", "--scenarios", "x"),
      "rakectl: error: fuzz: argument --scenarios: invalid int value"),
     (("emulator", "--interface", "foo"),
-     "python -m drivers: error: argument --interface: invalid choice: 'foo'"),
+     "rakectl emulator: error: argument --interface: invalid choice: 'foo'"),
 ])
 def test_unknown_options_elsewhere_are_one_line_errors(argv: tuple[str, ...],
                                                       expected: str) -> None:
@@ -214,3 +215,59 @@ def test_arm_prints_each_check_as_it_starts_and_its_verdict(
     assert done.stderr.splitlines() == lines
     assert done.stdout.startswith(f"arm: {replies[-1]['state']}")
     assert daemon.requests == ["arm"] + ["status"] * (len(replies) - 1)
+
+
+def test_the_demo_without_its_extra_names_the_extra_and_what_is_missing(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """Without msgpack (python-can's udp_multicast needs it) the demo's emulator used to
+    die at start-up, and the demo said only that the bench stopped."""
+    from rakectl.cli.main import main
+
+    monkeypatch.setitem(sys.modules, "msgpack", None)  # find_spec: not installed
+    assert main(["demo", "--out", str(tmp_path / "demo")]) == 1
+    err = capsys.readouterr().err
+    assert "the demo needs the [demo] extra: pip install 'rakectl[demo]' (missing: msgpack)" in (
+        err)
+    assert not (tmp_path / "demo").exists()  # nothing started
+
+
+def test_a_view_whose_truth_file_never_appeared_says_so(tmp_path: Path) -> None:
+    """--truth follows a file a running emulator writes; a path nothing wrote (mistyped, or
+    a bench elsewhere) used to end with "0 rows served" and nothing else."""
+    missing = tmp_path / "out" / "truth.csv"
+    done = run_rakectl("view", "--socket", str(tmp_path / "none.sock"), "--port", "0",
+                       "--truth", str(missing), "--seconds", "1")
+    assert done.returncode == 0, done.stderr
+    last = done.stderr.strip().splitlines()[-1]
+    assert f"truth: 0 rows served, 0 skipped ({missing} never appeared: is the emulator " in last
+
+
+def test_run_check_loads_the_configuration_as_the_daemon_does_and_opens_nothing(
+        tmp_path: Path) -> None:
+    """`rakectl run --check`: what a field engineer runs after editing the service's
+    configuration, before restarting it."""
+    done = run_rakectl("run", "--config", str(ROOT / "config" / "rakectl.yaml"), "--check",
+                       "--set", f"daemon.socket_path={tmp_path / 'rakectl.sock'}")
+    assert done.returncode == 0, done.stderr
+    lines = done.stdout.splitlines()
+    assert lines[0].endswith("config/rakectl.yaml: the configuration loads")
+    assert "bus socketcan:can0 at 1000000 bit/s; drives cia402, r node 1, θ node 2, " in lines[1]
+    assert "checks before arming: weight check and tine-mount check" in lines[2]
+    assert not any("warning" in line for line in lines)  # the robot's clamp carries 3 ms
+    assert not (tmp_path / "rakectl.sock").exists()
+    slow = run_rakectl("run", "--config", str(ROOT / "config" / "rakectl.yaml"), "--check",
+                       "--set", "drives.watchdog_timeout_ms=20")
+    assert slow.returncode == 0, slow.stderr
+    assert ("warning: clamp.reaction_latency_s (4 ms) does not cover the command the drives "
+            "hold") in slow.stdout and "(arming is refused)" in slow.stdout
+
+
+def test_run_check_names_a_bad_key_in_one_line(tmp_path: Path) -> None:
+    bad = tmp_path / "rakectl.yaml"
+    bad.write_text("drives:\n  watchdog_timout_ms: 3\n")
+    done = run_rakectl("run", "--config", str(bad), "--check")
+    assert done.returncode == 2
+    assert done.stdout == ""
+    assert done.stderr.strip().startswith(f"rakectl: error: {bad}:2: drives.watchdog_timout_ms")
+    assert len(done.stderr.strip().splitlines()) == 1

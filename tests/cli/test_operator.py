@@ -328,6 +328,19 @@ def test_a_refusal_names_the_next_step_by_the_daemons_state(
     assert fake.requests == [command, "status"]
 
 
+def test_shutdown_says_the_daemon_ends_not_only_the_state_it_was_in(tmp_path: Path) -> None:
+    """The reply carries the state the daemon was in when it took the request (hold):
+    printed alone, it read as if the daemon went on holding."""
+    path = tmp_path / "rakectl.sock"
+    with AnsweringDaemon(path, lambda request: {"ok": True, "state": "hold",
+                                               "stopping": True}) as fake:
+        done = run_rakectl("shutdown", "--socket", str(path))
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == ("shutdown: the daemon stops the rake, disarms and ends (it "
+                                   "was hold)")
+    assert fake.requests == ["shutdown"]
+
+
 def test_a_refusal_that_carries_the_state_needs_no_status(tmp_path: Path) -> None:
     path = tmp_path / "rakectl.sock"
     with AnsweringDaemon(path, lambda request: {"ok": False, "state": "estop",

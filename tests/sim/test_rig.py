@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from rakectl.errors import ApiError
+from rakectl.errors import ApiError, RakeError
 from rakectl.sim.rig import Bench, emulated_bench, namespaces_unavailable
 from tests.cli_run import run_rakectl
 
@@ -107,6 +107,19 @@ def test_an_arm_without_its_counterweight_is_refused_by_the_weight_check(tmp_pat
         assert bench.wait_for_state(["fault", "armed"], 15.0)["state"] == "fault"
     print(f"\nno counterweight → {final['fault']}")
     assert "ARMED" not in _states(tmp_path)
+
+
+def test_a_bench_whose_emulator_dies_says_why(tmp_path: Path) -> None:
+    """The emulator failing at start-up (here: a slave module that does not exist; in the
+    field, python-can without msgpack) is named with its log's last line, not only "the
+    bench stopped"."""
+    with (emulated_bench(tmp_path, EMULATOR, DAEMON, emulator_module="no_such_slave") as bench,
+          pytest.raises(RakeError) as stopped):
+        bench.wait_for_state(["disarmed"], 60.0)
+    message = str(stopped.value)
+    assert message.startswith("the bench stopped (exit 4): emulator.log: ")
+    assert "No module named no_such_slave" in message
+    assert f"see {tmp_path}/daemon.log and {tmp_path}/emulator.log" in message
 
 
 def test_a_loop_that_cannot_keep_time_is_not_armed_in_enforce_mode(tmp_path: Path) -> None:

@@ -79,7 +79,7 @@ def test_a_file_that_is_neither_a_dump_nor_a_truth_is_refused(tmp_path: Path,
     err = capsys.readouterr().err
     assert "not a flight-recorder dump, an emulator truth file" in err and "t_s" in err
     assert not (tmp_path / "other.mcap").exists() or (tmp_path / "other.mcap").stat().st_size
-    assert main(["mcap", str(tmp_path / "missing.csv")]) == 1
+    assert main(["mcap", str(tmp_path / "missing.csv")]) == 2  # an input file: as bad as a bad one
     assert "cannot read" in capsys.readouterr().err
 
 
