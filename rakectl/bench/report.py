@@ -212,7 +212,9 @@ def _loop_section(loop: LoopFigures | None, text: str) -> list[str]:
     if loop.cyclictest is None:
         reasons = "; ".join(loop.cyclictest_reasons) or "unavailable"
         lines += [f"cyclictest was not measured: {reasons}.", ""]
-    lines += [f"{loop.seconds:g} s per phase, daemon SCHED_FIFO 80, emulator SCHED_FIFO 70, "
+    daemon = (f"daemon SCHED_FIFO {loop.priority}" if loop.priority is not None else
+              "daemon NOT real-time (" + "; ".join(loop.rt_problems) + ")")
+    lines += [f"{loop.seconds:g} s per phase, {daemon}, emulator SCHED_FIFO 70, "
               "both as separate processes over udp_multicast in a private network namespace. "
               "The daemon's figure is how late its sleep woke before the spin (what compares "
               "with cyclictest's clock_nanosleep); late ticks are ticks that began after "

@@ -48,7 +48,8 @@ def _loop_figures(cyclictest: bool) -> LoopFigures:
     ct = ({"label": "cyclictest -m -p 80 -i 1000", "samples": 5000,
            "latency_ns": {"p50": 10_000, "p99": 40_000, "p99.9": 80_000, "max": 90_000}}
           if cyclictest else None)
-    phase = {"status": {"timing": _timing(20_000)}, "gc_gen2": 0}
+    phase = {"status": {"timing": _timing(20_000), "state": "armed"}, "gc_gen2": 0,
+             "start_state": "armed"}
     reasons = () if cyclictest else ("cyclictest not found: apt-get install -y rt-tests",)
     return LoopFigures(5.0, ct, reasons, phase, phase, bus)
 
@@ -62,21 +63,48 @@ def test_loop_figures_bus_load_and_ratio() -> None:
     assert "p99 OS wake-up / cyclictest p99: 1.00×" in format_loop(figures)
 
 
+def test_a_phase_the_daemon_did_not_spend_armed_is_named() -> None:
+    """A drive's 3 ms watchdog tripped by a stall of the machine faults the daemon, whose
+    loop then ticks with less to do: its figures are not the armed loop's."""
+    figures = _loop_figures(cyclictest=True)
+    assert "NOT ARMED" not in format_loop(figures)
+    status = {"timing": _timing(20_000), "state": "fault",
+              "fault": "r drive (node 1): EMCY 0x8250 COMMAND_WATCHDOG_TIMEOUT"}
+    faulted = dataclasses.replace(
+        figures, loaded={"status": status, "gc_gen2": 0, "start_state": "armed"},
+        viewed={"status": status, "gc_gen2": 0, "start_state": "fault",
+                "viewer_messages": 10})
+    text = format_loop(faulted)
+    assert ("NOT ARMED by the phase's end (fault: r drive (node 1): EMCY 0x8250 "
+            "COMMAND_WATCHDOG_TIMEOUT): these figures are not the armed loop's") in text
+    assert "NOT ARMED throughout the phase (fault: " in text
+    assert text.count("NOT ARMED") == 2  # the idle phase was armed
+
+
 def test_a_missing_cyclictest_says_how_to_install_it() -> None:
     figures = _loop_figures(cyclictest=False)
     assert math.isnan(figures.wakeup_ratio(figures.idle))
     assert "apt-get install -y rt-tests" in format_loop(figures)
 
 
-def test_the_loop_benchmarks_daemon_is_one_enforce_arms() -> None:
-    """The loop benchmark runs the daemon with rt_mode enforce over the emulated bench's
-    configuration; enforce refuses to arm unless the clamp carries the drives' watchdog,
-    which the bench file's 100 ms is not (every `rakectl bench --loop` was refused)."""
+def test_the_loop_benchmarks_daemon_is_real_time_and_arms() -> None:
+    """The loop benchmark's daemon sets itself up real-time, and arms: enforce refuses to
+    arm unless the clamp carries the drives' watchdog, which the bench file's 100 ms is not
+    (every `rakectl bench --loop` was refused while it ran enforce)."""
     s = load_settings(config_dir() / "rakectl-emulated.yaml", DAEMON_SETTINGS)
-    assert s.daemon.rt_mode is RtModeSetting.ENFORCE
-    assert held_command_gap(s) == ""
-    assert "drives.watchdog_timeout_ms (100 ms)" in held_command_gap(
-        load_settings(config_dir() / "rakectl-emulated.yaml", DAEMON_SETTINGS[:1]))
+    assert s.daemon.rt_mode is not RtModeSetting.OFF
+    assert s.daemon.rt_mode is not RtModeSetting.ENFORCE or held_command_gap(s) == ""
+
+
+def test_the_loop_benchmark_says_when_the_daemon_was_not_real_time() -> None:
+    figures = dataclasses.replace(_loop_figures(cyclictest=True), priority=None,
+                                  rt_problems=("SCHED_FIFO priority 80 refused",))
+    lines = format_loop(figures).splitlines()
+    assert lines[0] == ("loop benchmark: 5 s per phase, daemon NOT real-time, emulator "
+                        "SCHED_FIFO 70")
+    assert lines[1] == "  real-time set-up: SCHED_FIFO priority 80 refused"
+    assert format_loop(_loop_figures(cyclictest=True)).startswith(
+        "loop benchmark: 5 s per phase, daemon SCHED_FIFO 80, emulator SCHED_FIFO 70\n")
 
 
 SWEEP = (0.1, 0.05, 0.03)
