@@ -211,10 +211,6 @@ class LoopFigures:
         return missed, missed + received
 
 
-def run_bench(seconds: float, out: Path) -> str:
-    return format_loop(measure_loop(seconds, out))
-
-
 def measure_loop(seconds: float, out: Path) -> LoopFigures:
     reason = namespaces_unavailable()
     if reason:

@@ -183,7 +183,7 @@ def markdown(options: BenchOptions, started: str, loop: LoopFigures | None, loop
              "Figures, not pass/fail: these machines are shared and noisy, and timing is "
              "never asserted in tests.", "",
              *(f"- **{key}**: {value}" for key, value in facts.items()), ""]
-    lines += _loop_section(loop, loop_text)
+    lines += _loop_section(loop, loop_text, options.command, started, tree)
     lines += _tick_section(tick)
     lines += _excavation_section(excavation, options.command, started, tree)
     return "\n".join(lines) + "\n"
@@ -193,10 +193,22 @@ def _us(ns: float) -> str:
     return f"{ns / 1e3:.0f}"
 
 
-def _loop_section(loop: LoopFigures | None, text: str) -> list[str]:
-    lines = ["## (a) The loop's wake-up latency, next to cyclictest", ""]
+LOOP_START, LOOP_END = markers("loop", "rakectl bench --loop")
+
+
+def write_loop_section(path: Path, loop: LoopFigures, text: str, command: str, started: str,
+                       tree: str) -> None:
+    """Parts (a) and (c) run alone, into ``path`` in place of their last version; the rest
+    of the file as ``rakectl bench --all`` wrote it."""
+    write_section(path, LOOP_START, LOOP_END, _loop_section(loop, text, command, started, tree))
+
+
+def _loop_section(loop: LoopFigures | None, text: str, command: str, started: str,
+                  tree: str) -> list[str]:
+    lines = [LOOP_START, "## (a) The loop's wake-up latency, next to cyclictest", "",
+             f"`{command}` on {started}, tree {tree}.", ""]
     if loop is None:
-        return [*lines, text, "", "## (c) Cross-process 1 kHz run", "", text, ""]
+        return [*lines, text, "", "## (c) Cross-process 1 kHz run", "", text, LOOP_END, ""]
     rows: list[tuple[str, ...]] = []
     if loop.cyclictest is not None:
         p = loop.cyclictest["latency_ns"]
@@ -233,7 +245,7 @@ def _loop_section(loop: LoopFigures | None, text: str) -> list[str]:
               f"- bus load at 1 Mbit/s: {loop.bits_per_cycle():.0f} bits per 1 ms cycle = "
               f"{loop.bits_per_cycle() / 10:.1f} % before bit stuffing, from the frames the "
               "daemon counted (design: SYNC + 2 TPDO1 + 2 RPDO1 = 435 bits, 43.5 %)", "",
-              "The whole printout:", "", "```text", text, "```", ""]
+              "The whole printout:", "", "```text", text, "```", LOOP_END, ""]
     return lines
 
 

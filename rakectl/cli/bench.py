@@ -21,7 +21,8 @@ def add_parser(sub: argparse._SubParsersAction[Any]) -> None:
                       "cross-process bus, per-tick stages, excavation; writes "
                       "REPORT/BENCHMARKS.md and one plot per soil")
     what.add_argument("--loop", action="store_true",
-                      help="the daemon's loop on the emulated bench against cyclictest")
+                      help="the daemon's loop on the emulated bench against cyclictest; "
+                      "rewrites its sections of REPORT/BENCHMARKS.md alone")
     what.add_argument("--tick", action="store_true", help="the daemon's tick, stage by stage")
     what.add_argument("--excavation", action="store_true", help="time to rake a lane to "
                       "depth in three soils: adaptive vs position control vs fixed speed; "
@@ -47,7 +48,8 @@ def add_parser(sub: argparse._SubParsersAction[Any]) -> None:
     bench.add_argument("--out", type=Path, default=Path("out/bench-loop"),
                        help="scratch: the loop benchmark's logs")
     bench.add_argument("--report", type=Path, default=None, help="where --all writes "
-                       "BENCHMARKS.md (--excavation, --profiles and --campaign their sections) "
+                       "BENCHMARKS.md (--loop, --excavation, --profiles and --campaign their "
+                       "sections) "
                        "and --all/--excavation the plots (default: bench, out/bench with "
                        "--quick)")
 
@@ -77,12 +79,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.campaign:
         return _cmd_bench_campaign(args, report)
     if args.loop:
-        from rakectl.bench.loop import run_bench
-
-        if not 1.0 <= args.seconds <= 3600.0:
-            raise ConfigError("bench: --seconds must be in [1, 3600]")
-        print(run_bench(args.seconds, args.out))
-        return 0
+        return _cmd_bench_loop(args, Path(args.report or "bench"))
     from rakectl.bench.hot_path import bench_hot_path
 
     print(bench_controller_step(args.ticks))
@@ -102,6 +99,23 @@ def _cmd_bench_profiles(args: argparse.Namespace, report: Path) -> int:
     write_hot_path_section(path, hot_path_section("rakectl " + " ".join(args.argv), started,
                                                   git_revision(), text))
     print(f"written: section (e) of {path}")
+    return 0
+
+
+def _cmd_bench_loop(args: argparse.Namespace, report: Path) -> int:
+    from rakectl.bench.loop import format_loop, measure_loop
+    from rakectl.bench.report import BENCHMARKS_FILE, git_revision, write_loop_section
+
+    if not 1.0 <= args.seconds <= 3600.0:
+        raise ConfigError("bench: --seconds must be in [1, 3600]")
+    started = time.strftime("%Y-%m-%d %H:%M %Z")
+    figures = measure_loop(args.seconds, args.out)
+    text = format_loop(figures)
+    print(text)
+    path = report / BENCHMARKS_FILE
+    write_loop_section(path, figures, text, "rakectl " + " ".join(args.argv), started,
+                       git_revision())
+    print(f"written: sections (a) and (c) of {path}")
     return 0
 
 

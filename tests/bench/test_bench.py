@@ -18,10 +18,13 @@ from rakectl.bench.report import (
     BENCHMARKS_FILE,
     EXCAVATION_END,
     EXCAVATION_START,
+    LOOP_END,
+    LOOP_START,
     BenchOptions,
     machine_facts,
     markdown,
     write_excavation,
+    write_loop_section,
 )
 from rakectl.bench.tick import STAGES, bench_tick, format_tick
 from rakectl.config.files import config_dir
@@ -105,6 +108,30 @@ def test_the_loop_benchmark_says_when_the_daemon_was_not_real_time() -> None:
     assert lines[1] == "  real-time set-up: SCHED_FIFO priority 80 refused"
     assert format_loop(_loop_figures(cyclictest=True)).startswith(
         "loop benchmark: 5 s per phase, daemon SCHED_FIFO 80, emulator SCHED_FIFO 70\n")
+
+
+def test_the_loop_alone_rewrites_its_sections_and_nothing_else(tmp_path: Path) -> None:
+    """``rakectl bench --loop`` replaces sections (a) and (c) in place (once the file has
+    their markers; appended before), the rest as it was."""
+    path = tmp_path / BENCHMARKS_FILE
+    path.write_text("# Benchmarks\n\nhead\n\n" + "\n".join(hot_path_section(
+        "rakectl bench --profiles", "then", "old1234", "hot path text")))
+    write_loop_section(path, _loop_figures(True), "first printout", "rakectl bench --loop",
+                       "then", "old1234")
+    before = path.read_text()
+    assert before.count(LOOP_START) == 1 and "first printout" in before
+    write_loop_section(path, _loop_figures(False), "second printout",
+                       "rakectl bench --loop --seconds 5", "now", "new5678")
+    after = path.read_text()
+    assert after.count(LOOP_START) == after.count(LOOP_END) == 1
+    head, tail = before.split(LOOP_START)[0], before.split(LOOP_END)[1]
+    assert after.startswith(head + LOOP_START) and after.endswith(LOOP_END + tail)
+    section = after.split(LOOP_START)[1].split(LOOP_END)[0]
+    assert "`rakectl bench --loop --seconds 5` on now, tree new5678" in section
+    assert "second printout" in section and "first printout" not in after
+    assert "## (a) The loop's wake-up latency" in section and "## (c) Cross-process" in section
+    assert "cyclictest was not measured: cyclictest not found" in section
+    assert "hot path text" in after
 
 
 SWEEP = (0.1, 0.05, 0.03)
