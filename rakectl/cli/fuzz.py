@@ -163,13 +163,13 @@ def _replay_main(path: Path, as_json: bool, mcap: Path | None = None) -> int:
         from rakectl.view.record import telemetry_to_mcap  # fail before the work
 
         if mcap.suffix != ".mcap":
-            print(f"rakectl fuzz: --mcap {mcap}: give a file ending in .mcap (its telemetry "
-                  "goes next to it as .csv)", file=sys.stderr)
+            print(f"rakectl: error: fuzz: --mcap {mcap}: give a file ending in .mcap (its "
+                  "telemetry goes next to it as .csv)", file=sys.stderr)
             return 2
     try:
         case, _ = read_case_file(path)  # a file that is not a case: refused before running
     except (OSError, ValueError, KeyError, TypeError) as e:
-        print(f"rakectl fuzz: --replay {path}: not a case file ({e})", file=sys.stderr)
+        print(f"rakectl: error: fuzz: --replay {path}: not a case file ({e})", file=sys.stderr)
         return 2
     now, recorded = replay(path, record if mcap is not None else None)
     if mcap is not None:
@@ -204,8 +204,8 @@ def _trace_main(args: argparse.Namespace) -> int:
         try:
             case, _ = read_case_file(Path(what))
         except (OSError, ValueError, KeyError, TypeError) as e:
-            print(f"rakectl fuzz: --trace {what}: neither a case index (a whole number) nor "
-                  f"a case file ({e})", file=sys.stderr)
+            print(f"rakectl: error: fuzz: --trace {what}: neither a case index (a whole "
+                  f"number) nor a case file ({e})", file=sys.stderr)
             return 2
     trace = trace_case(case)
     print("\n".join(describe(trace)))
@@ -250,11 +250,11 @@ def _merge_main(args: argparse.Namespace) -> int:
     given = ["--" + name.replace("_", "-") for name in _NOT_WITH_MERGE
              if getattr(args, name) != getattr(defaults, name)]
     if given:
-        print(f"rakectl fuzz: --merge reads finished campaigns and runs nothing; "
+        print(f"rakectl: error: fuzz: --merge reads finished campaigns and runs nothing; "
               f"{', '.join(given)} cannot go with it", file=sys.stderr)
         return 2
     if args.plot != (args.out is not None):
-        print("rakectl fuzz: --merge takes --plot and --out together (the figures are "
+        print("rakectl: error: fuzz: --merge takes --plot and --out together (the figures are "
               "written to --out DIR) or neither", file=sys.stderr)
         return 2
     if args.plot:
@@ -264,7 +264,7 @@ def _merge_main(args: argparse.Namespace) -> int:
     try:
         report, counts = merged(args.merge)
     except ValueError as e:
-        print(f"rakectl fuzz: --merge: {e}", file=sys.stderr)
+        print(f"rakectl: error: fuzz: --merge: {e}", file=sys.stderr)
         return 2
     for out_dir, n in counts.items():
         print(f"merged: {n} results from {out_dir}")
@@ -283,10 +283,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.merge is not None:
         return _merge_main(args)
     if args.mcap is not None and args.replay is None:
-        print("rakectl fuzz: --mcap records a --replay: give the case file", file=sys.stderr)
+        print("rakectl: error: fuzz: --mcap records a --replay: give the case file",
+              file=sys.stderr)
         return 2
     if args.trace is not None and args.replay is not None:
-        print("rakectl fuzz: --trace and --replay each run one case: give one of them",
+        print("rakectl: error: fuzz: --trace and --replay each run one case: give one of them",
               file=sys.stderr)
         return 2
     if args.replay is not None:
@@ -294,11 +295,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.trace is not None:
         return _trace_main(args)
     if args.scenarios < 1 or args.workers < 1 or args.first < 0:
-        print("rakectl fuzz: --scenarios and --workers must be >= 1, --first >= 0",
+        print("rakectl: error: fuzz: --scenarios and --workers must be >= 1, --first >= 0",
               file=sys.stderr)
         return 2
     if args.plot and args.out is None:
-        print("rakectl fuzz: --plot needs --out DIR (the plot is written there)",
+        print("rakectl: error: fuzz: --plot needs --out DIR (the plot is written there)",
               file=sys.stderr)
         return 2
     if args.plot:
@@ -310,11 +311,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             earlier = read_results(args.compare)
         except OSError as e:
-            print(f"rakectl fuzz: --compare {args.compare}: no campaign results there ({e})",
-                  file=sys.stderr)
+            print(f"rakectl: error: fuzz: --compare {args.compare}: no campaign results there "
+                  f"({e})", file=sys.stderr)
             return 2
         if not earlier:
-            print(f"rakectl fuzz: --compare {args.compare}: its {RESULTS_FILE} holds no "
+            print(f"rakectl: error: fuzz: --compare {args.compare}: its {RESULTS_FILE} holds no "
                   "case's result", file=sys.stderr)
             return 2
     executor = executor_for(args.scheduler, args.workers)

@@ -108,6 +108,9 @@ def test_pass_through_commands_read_their_own_options(command: str) -> None:
     (("fuzz", "--bogus"), "rakectl: error: fuzz: unrecognized arguments: --bogus"),
     (("fuzz", "--scenarios", "x"),
      "rakectl: error: fuzz: argument --scenarios: invalid int value"),
+    (("fuzz", "--scenarios", "0"),
+     "rakectl: error: fuzz: --scenarios and --workers must be >= 1, --first >= 0"),
+    (("fuzz", "--plot"), "rakectl: error: fuzz: --plot needs --out DIR"),
     (("emulator", "--interface", "foo"),
      "rakectl emulator: error: argument --interface: invalid choice: 'foo'"),
 ])
