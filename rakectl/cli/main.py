@@ -277,12 +277,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 def _check_config(config: Path | None, overrides: list[str]) -> int:
     """``rakectl run --check``: the configuration loaded and cross-checked as the daemon
-    loads it (a ConfigError names the key), then what the daemon would drive."""
+    loads it, and what bring-up would write checked against the drives' EDS limits (a
+    ConfigError names the key), then what the daemon would drive."""
     from rakectl.config.loader import load_settings
     from rakectl.config.service import RtModeSetting
     from rakectl.config.settings import Settings, held_command_gap
+    from rakectl.drive.profiles import check_parameter_ranges
 
     s = load_settings(config, overrides, root=Settings)
+    check_parameter_ranges(s.drives, s.motors)  # bring-up's own check, before it sends
     d = s.drives
     print(f"{config or '<defaults>'}: the configuration loads")
     print(f"  bus {s.bus.interface.value}:{s.bus.channel} at {s.bus.bitrate} bit/s; drives "

@@ -104,13 +104,11 @@ from rakectl.drive.joints import (
     Joint,
     Parameter,
     PdoReading,
-    allowed_range,
     configured_identity,
     drive_label,
     load_drive_od,
     motor_of,
     node_ids,
-    od_variable,
     own_ids,
 )
 from rakectl.drive.nmt_link import NmtLink
@@ -120,12 +118,13 @@ from rakectl.drive.profiles import (
     SUPPLY_OBJECT,
     SYNC_OVERFLOW_OBJECT,
     DriveStart,
+    check_parameter_ranges,
     drive_parameters,
     eds_file,
     supply_problem,
 )
 from rakectl.drive.sdo import SDO_RETRIES, DriveSdo, abort_code, no_such_object
-from rakectl.errors import CommsTimeout, ConfigError, DriveFault, RakeError
+from rakectl.errors import CommsTimeout, DriveFault, RakeError
 from rakectl.protocol.files import DriveProfile
 from rakectl.protocol.nmt import NmtCommand
 
@@ -182,6 +181,7 @@ class BringUp:
     def run(self, start: bool = True) -> tuple[DriveInfo, DriveInfo]:
         """Configure and verify both drives, read their statusword, start them (OPERATIONAL);
         ``start=False`` (a dry run, ``rakectl drives``) leaves them PRE-OPERATIONAL."""
+        check_parameter_ranges(self._drives, self._motors)  # before anything is sent
         configured = [self._configure(joint) for joint in JOINTS]
         # the device name is a segmented transfer, the one a lossy bus breaks most easily
         # (a lost segment is a toggle-bit abort): read for the dry run only
@@ -237,8 +237,6 @@ class BringUp:
         if self._roboteq:
             self._check_supply(joint)
         parameters = drive_parameters(joint, self._drives, self._motors)
-        for p in parameters:
-            self._check_range(joint, p)
         absent = [p for p in parameters if not self._write_parameter(joint, p)]
         read_back = [p.value if p in absent
                      else self._sdo.read(joint, p.index, p.subindex, p.name)
@@ -359,13 +357,6 @@ class BringUp:
                                  f"expected {wanted} ({source})")
         return identity
 
-    def _check_range(self, joint: Joint, p: Parameter) -> None:
-        var = od_variable(self._nodes[joint].object_dictionary, p.index, p.subindex)
-        low, high = allowed_range(var)
-        if not low <= p.value <= high:
-            raise ConfigError(f"{p.setting}: {self._label(joint)} {p.where()} {p.name} = "
-                              f"{p.value} {p.unit} is outside {low}..{high} of "
-                              f"{eds_file(self._drives, joint)}")
 
 def run_bring_up(bus: can.BusABC, drives: DrivesSettings, motors: MotorsSettings,
                  boot_timeout_s: float, trace: TraceRecorder | None = None,

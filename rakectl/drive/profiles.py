@@ -32,8 +32,18 @@ from collections.abc import Callable
 
 from rakectl.config.service import DrivesSettings
 from rakectl.config.settings import MotorsSettings
-from rakectl.drive.joints import Joint, Parameter, motor_of
-from rakectl.errors import DriveFault, FrameError
+from rakectl.drive.joints import (
+    JOINTS,
+    Joint,
+    Parameter,
+    allowed_range,
+    drive_label,
+    load_drive_od,
+    motor_of,
+    node_ids,
+    od_variable,
+)
+from rakectl.errors import ConfigError, DriveFault, FrameError
 from rakectl.protocol import roboteq
 from rakectl.protocol.cia402 import DriveState, decode_statusword
 from rakectl.protocol.files import DriveProfile
@@ -93,6 +103,20 @@ def drive_parameters(joint: Joint, drives: DrivesSettings,
                   f"{key}.encoder_counts_per_rev", "encoder_counts_per_rev"),
         *common,
     )
+
+
+def check_parameter_ranges(drives: DrivesSettings, motors: MotorsSettings) -> None:
+    """Every parameter bring-up would write, within its drive's EDS limits (what bring-up
+    checks before it sends anything; ``rakectl run --check`` without a bus): ConfigError
+    naming the setting, the drive, the object and the EDS."""
+    for joint, node_id in zip(JOINTS, node_ids(drives), strict=True):
+        od = load_drive_od(eds_file(drives, joint), node_id)
+        for p in drive_parameters(joint, drives, motors):
+            low, high = allowed_range(od_variable(od, p.index, p.subindex))
+            if not low <= p.value <= high:
+                raise ConfigError(f"{p.setting}: {drive_label(joint, node_id)} {p.where()} "
+                                  f"{p.name} = {p.value} {p.unit} is outside {low}..{high} "
+                                  f"of {eds_file(drives, joint)}")
 
 
 def state_of(profile: DriveProfile, status: int) -> DriveState:

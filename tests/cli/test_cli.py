@@ -246,19 +246,16 @@ def test_a_view_whose_truth_file_never_appeared_says_so(tmp_path: Path) -> None:
     assert f"truth: 0 rows served, 0 skipped ({missing} never appeared: is the emulator " in last
 
 
-def test_run_check_loads_the_configuration_as_the_daemon_does_and_opens_nothing(
-        tmp_path: Path) -> None:
+def test_run_check_loads_the_configuration_as_the_daemon_does() -> None:
     """`rakectl run --check`: what a field engineer runs after editing the service's
     configuration, before restarting it."""
-    done = run_rakectl("run", "--config", str(ROOT / "config" / "rakectl.yaml"), "--check",
-                       "--set", f"daemon.socket_path={tmp_path / 'rakectl.sock'}")
+    done = run_rakectl("run", "--config", str(ROOT / "config" / "rakectl.yaml"), "--check")
     assert done.returncode == 0, done.stderr
     lines = done.stdout.splitlines()
     assert lines[0].endswith("config/rakectl.yaml: the configuration loads")
     assert "bus socketcan:can0 at 1000000 bit/s; drives cia402, r node 1, θ node 2, " in lines[1]
     assert "checks before arming: weight check and tine-mount check" in lines[2]
     assert not any("warning" in line for line in lines)  # the robot's clamp carries 3 ms
-    assert not (tmp_path / "rakectl.sock").exists()
     slow = run_rakectl("run", "--config", str(ROOT / "config" / "rakectl.yaml"), "--check",
                        "--set", "drives.watchdog_timeout_ms=20")
     assert slow.returncode == 0, slow.stderr
@@ -274,3 +271,15 @@ def test_run_check_names_a_bad_key_in_one_line(tmp_path: Path) -> None:
     assert done.stdout == ""
     assert done.stderr.strip().startswith(f"rakectl: error: {bad}:2: drives.watchdog_timout_ms")
     assert len(done.stderr.strip().splitlines()) == 1
+
+
+def test_run_check_refuses_what_bring_up_would_refuse_before_sending() -> None:
+    """A value each option allows that the drive's EDS does not (40 A is 40 000 mA, beyond
+    the 0x2002 object's 32 767): `rakectl run` refuses it at bring-up, so --check does."""
+    done = run_rakectl("run", "--config", str(ROOT / "config" / "rakectl.yaml"), "--check",
+                       "--set", "motors.r.current_limit_a=40")
+    assert done.returncode == 2
+    assert done.stdout == ""
+    assert done.stderr.strip() == (
+        "rakectl: error: motors.r.current_limit_a: r drive (node 1) 0x2002 current limit = "
+        "40000 mA is outside 1..32767 of dc_servo_drive.eds")
