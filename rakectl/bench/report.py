@@ -48,7 +48,7 @@ from rakectl.bench.excavation_text import (
     time_budget_line,
 )
 from rakectl.bench.hot_path import bench_hot_path, hot_path_section, write_hot_path_section
-from rakectl.bench.loop import LoopFigures, format_loop, measure_loop
+from rakectl.bench.loop import LoopFigures, format_loop, measure_loop, not_armed
 from rakectl.bench.sections import markdown_table, markers, write_section
 from rakectl.bench.throughput import (
     CASES,
@@ -218,14 +218,17 @@ def _loop_section(loop: LoopFigures | None, text: str, command: str, started: st
         t = phase["status"]["timing"]
         p = t["oversleep_ns"]
         ratio = loop.wakeup_ratio(phase)
-        rows.append((f"daemon, {name}", _us(p["p50"]), _us(p["p99"]), _us(p["p99.9"]),
+        label = f"daemon, {name}" + (" (NOT ARMED: see the printout)" if not_armed(phase)
+                                     else "")
+        rows.append((label, _us(p["p50"]), _us(p["p99"]), _us(p["p99.9"]),
                      _us(p["max"]), str(t["overruns"]),
                      f"{ratio:.2f}×" if math.isfinite(ratio) else "—"))
     if loop.cyclictest is None:
         reasons = "; ".join(loop.cyclictest_reasons) or "unavailable"
         lines += [f"cyclictest was not measured: {reasons}.", ""]
     daemon = (f"daemon SCHED_FIFO {loop.priority}" if loop.priority is not None else
-              "daemon NOT real-time (" + "; ".join(loop.rt_problems) + ")")
+              "daemon NOT real-time" + (f" ({'; '.join(loop.rt_problems)})"
+                                        if loop.rt_problems else ""))
     lines += [f"{loop.seconds:g} s per phase, {daemon}, emulator SCHED_FIFO 70, "
               "both as separate processes over udp_multicast in a private network namespace. "
               "The daemon's figure is how late its sleep woke before the spin (what compares "

@@ -70,16 +70,17 @@ def cmd_bench(args: argparse.Namespace) -> int:
             raise ConfigError("bench: --scheduler is for the excavation runs (--excavation, "
                               "--all)")
         local_workers(args.scheduler)  # a bad one is named now, not after the other parts
-    report = args.report or Path("bench" if (args.all or args.excavation or args.campaign)
+    report = args.report or Path("bench" if (args.all or args.excavation or args.campaign
+                                             or args.loop or args.profiles)
                                  and not args.quick else "out/bench")
     if args.all or args.excavation or args.tick:
         return _cmd_bench_parts(args, report)
     if args.profiles:
-        return _cmd_bench_profiles(args, Path(args.report or "bench"))
+        return _cmd_bench_profiles(args, report)
     if args.campaign:
         return _cmd_bench_campaign(args, report)
     if args.loop:
-        return _cmd_bench_loop(args, Path(args.report or "bench"))
+        return _cmd_bench_loop(args, report)
     from rakectl.bench.hot_path import bench_hot_path
 
     print(bench_controller_step(args.ticks))

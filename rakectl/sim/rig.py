@@ -102,7 +102,7 @@ class Bench:
                 if reply.get("state") in states:
                     return reply
             if self.process.poll() is not None:
-                said = "; ".join(f"{log}: {line}" for log in ("emulator.log", "daemon.log")
+                said = "; ".join(f"{log}: {line}" for log in ("daemon.log", "emulator.log")
                                  if (line := _last_line(self.out / log)))
                 raise RakeError(f"the bench stopped (exit {self.process.returncode})"
                                 f"{': ' + said if said else ''}; see {self.out}/daemon.log "
