@@ -65,8 +65,8 @@ def _phase(bench_socket: Path, seconds: float, status_hz: float) -> dict[str, An
 
 def not_armed(phase: dict[str, Any]) -> str:
     """What to say of a phase the daemon did not spend armed ("" if it did): a fault (a
-    drive's 3 ms watchdog tripped by a stall of the machine) leaves its loop ticking with
-    less to do, so those figures are not the armed loop's."""
+    drive's watchdog tripped by a stall of the machine) leaves its loop ticking with less
+    to do, so those figures are not the armed loop's."""
     start, final = phase.get("start_state", "armed"), phase["status"].get("state")
     if start == "armed" and final == "armed":
         return ""
