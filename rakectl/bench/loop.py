@@ -250,23 +250,24 @@ def _viewer_installed() -> bool:
     return True
 
 
+def _events(log: Path, name: str) -> list[dict[str, Any]]:
+    """The daemon log's JSON events called ``name``, in order."""
+    marker = f'"event": "{name}"'
+    return [json.loads(line) for line in log.read_text().splitlines()
+            if line.startswith("{") and marker in line]
+
+
 def _realtime(log: Path) -> tuple[int | None, tuple[str, ...]]:
     """The SCHED_FIFO priority the daemon's start-up applied (None: none) and its
     real-time set-up's warnings, from its log."""
-    priority, problems = None, []
-    for line in log.read_text().splitlines():
-        if line.startswith("{") and '"event": "started"' in line:
-            priority = json.loads(line).get("priority")
-        elif line.startswith("{") and '"event": "realtime"' in line:
-            problems.append(str(json.loads(line).get("problem")))
-    return priority, tuple(problems)
+    started = _events(log, "started")
+    return (started[-1].get("priority") if started else None,
+            tuple(str(e.get("problem")) for e in _events(log, "realtime")))
 
 
 def _bus_latency(log: Path) -> dict[str, Any]:
-    for line in reversed(log.read_text().splitlines()):
-        if '"event": "bus_latency"' in line:
-            return dict(json.loads(line))
-    return {}
+    latency = _events(log, "bus_latency")
+    return dict(latency[-1]) if latency else {}
 
 
 def _us(ns: float) -> str:

@@ -14,6 +14,8 @@ import time
 from collections.abc import Callable, Iterable
 from typing import Any
 
+from rakectl.drive.joints import DriveInfo
+
 QUEUE_LENGTH = 256  # events kept while the slack is too short to write them (oldest dropped)
 LOG_EVERY_S = 1.0  # a rate-limited event is written at most this often
 
@@ -67,8 +69,8 @@ class EventLog:
             getattr(self._log, level_of(name, fields))(name, state=state, **fields)
 
 
-def drive_summary(info: Any) -> dict[str, Any]:
-    """A drive after bring-up (rakectl.drive.joints.DriveInfo), as the fields of
+def drive_summary(info: DriveInfo) -> dict[str, Any]:
+    """A drive after bring-up, as the fields of
     ``drives_configured``."""
     return {"node": info.node_id, "serial": info.identity.serial,
             "max_voltage_mv": info.limits.max_voltage_mv,
@@ -76,7 +78,7 @@ def drive_summary(info: Any) -> dict[str, Any]:
             "pdos_made_not_valid": [p.name for p in info.extra if not p.kept]}
 
 
-def kept_rpdos(infos: Iterable[Any]) -> list[dict[str, Any]]:
+def kept_rpdos(infos: Iterable[DriveInfo]) -> list[dict[str, Any]]:
     """The fields of a ``drive_rpdo_kept_valid`` warning for each RPDO beyond the EDS's
     that a drive keeps valid (rakectl.drive.pdos)."""
     return [{"node": info.node_id, "pdo": pdo.name, "can_id": f"0x{pdo.cob_id & 0x7FF:03X}",
