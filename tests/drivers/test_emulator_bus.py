@@ -314,6 +314,28 @@ def test_bad_frames_are_counted_logged_at_most_once_a_second_and_ignored() -> No
         emulator_bus.shutdown()
 
 
+@pytest.mark.parametrize("foreign", [
+    can.Message(arbitration_id=0x123, data=bytes(8), is_extended_id=False),
+    can.Message(arbitration_id=0x181, data=bytes(8), is_extended_id=True),
+], ids=["unknown-id", "29-bit"])
+def test_a_frame_the_filters_drop_holds_back_nothing_behind_it(
+        rig: tuple[Controller, Emulator, io.StringIO], foreign: can.Message) -> None:
+    """On ``virtual`` (and ``udp_multicast``) python-can filters in software and
+    ``recv(0)`` returns None at the first frame that fails: with the filters set on the
+    bus, three such frames held the SYNC behind them for one service round, and a
+    lock-stepped daemon faulted ("no TPDO1 for 3 cycles"). Each round now handles the
+    SYNC that follows them."""
+    ctl, emulator, _ = rig
+    ctl.nmt(NmtCommand.START)
+    for cycle in range(3):
+        for _ in range(3):
+            ctl.bus.send(foreign)
+        frames = ctl.cycle({})
+        assert emulator.stats.syncs == cycle + 1
+        assert [can_id for can_id, _ in frames if can_id in (0x181, 0x182)] == [0x181, 0x182]
+    assert emulator.stats.bad.total == 0  # dropped as a drive's acceptance filter drops them
+
+
 def test_heartbeats_go_on_while_frames_come_faster_than_they_are_handled() -> None:
     """Every reading of the injected clock costs 15 ms, so 100 queued frames take over a
     second to handle: the drives' heartbeat (100 ms) still goes out every 100 ms, between
