@@ -94,7 +94,7 @@ import canopen
 
 from rakectl.config.service import DrivesSettings
 from rakectl.config.settings import MotorsSettings
-from rakectl.drive.canbus import BusError, TracedNetwork, TraceRecorder
+from rakectl.drive.canbus import BusError, CanopenFrames, TracedNetwork, TraceRecorder
 from rakectl.drive.joints import (
     JOINTS,
     DriveInfo,
@@ -174,6 +174,7 @@ class BringUp:
 
     def close(self) -> None:
         """Unsubscribe from the network."""
+        self._sdo.close()
         self._nmt.close()
         for node_id in self._node_id.values():
             del self._network[node_id]
@@ -363,7 +364,8 @@ def run_bring_up(bus: can.BusABC, drives: DrivesSettings, motors: MotorsSettings
                  start: bool = True) -> tuple[DriveInfo, DriveInfo]:
     """:class:`BringUp` on a ``canopen.Network`` over ``bus``, fed by a temporary
     ``can.Notifier`` that is stopped and joined before this returns (the module docstring);
-    with ``trace``, its frames go to the bus trace too."""
+    with ``trace``, its frames go to the bus trace too. Only CiA 301's 11-bit data frames
+    reach the network (:class:`~rakectl.drive.canbus.CanopenFrames`)."""
     listeners: list[can.Listener] = []
     if trace is None:
         network = canopen.Network(bus)
@@ -371,7 +373,8 @@ def run_bring_up(bus: can.BusABC, drives: DrivesSettings, motors: MotorsSettings
         network = TracedNetwork(bus, trace, frozenset(own_ids(drives)))
         listeners.append(network.trace_listener)
     sequence = BringUp(network, drives, motors, boot_timeout_s)
-    notifier = can.Notifier(bus, [*network.listeners, *listeners], timeout=NOTIFIER_POLL_S)
+    notifier = can.Notifier(bus, [CanopenFrames(network.listeners), *listeners],
+                            timeout=NOTIFIER_POLL_S)
     try:
         infos = sequence.run(start)
     finally:

@@ -229,3 +229,26 @@ class TracedNetwork(canopen.Network):
                           is_remote_frame=remote)
         with self._lock:
             self._trace.record(msg, False)
+
+
+class CanopenFrames(can.Listener):
+    """Passes to ``listeners`` only the frames a CANopen network is made of: 11-bit data
+    frames (CiA 301). canopen's own listener hands any frame's ID to its subscribers,
+    so a 29-bit frame whose ID reads as a drive's heartbeat or SDO answer (0x701, 0x581)
+    would be taken for one on ``virtual`` and ``udp_multicast``, where nothing filters
+    them out before the bring-up sees them. Dropped frames are counted in ``dropped``."""
+
+    def __init__(self, listeners: Iterable[can.Listener]) -> None:
+        self._listeners = tuple(listeners)
+        self.dropped = 0
+
+    def on_message_received(self, msg: can.Message) -> None:  # the notifier's thread
+        if msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame or msg.is_fd:
+            self.dropped += 1
+            return
+        for listener in self._listeners:
+            listener.on_message_received(msg)
+
+    def stop(self) -> None:
+        for listener in self._listeners:
+            listener.stop()

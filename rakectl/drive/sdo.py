@@ -10,7 +10,13 @@ a frame. A transfer that meets an answer of another kind is made again, twice at
 canopen empties its answer queue only before it sends, so the late answer to a request
 it had repeated is otherwise taken for the next request's (``Unexpected response
 0x60``, or ``Node returned a value for 0x1018:01 instead``); a segmented upload that
-lost a segment is started again.
+lost a segment is started again. An answer that names another object than the one
+asked (an abort, an upload's or a download's first answer: they carry the index) is
+not taken as the transfer's (:class:`AnswerGate`): a late abort of an object asked
+before, or another SDO client's answer on the drive's channel, would otherwise
+refuse a healthy drive naming the wrong object and cause, or acknowledge a write
+the drive never took. Left without its own answer, the transfer's ``CommsTimeout``
+names what came instead.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from typing import TypeVar
 import can
 import canopen
 from canopen.objectdictionary import ObjectDictionaryError, ODVariable, datatypes
+from canopen.sdo.client import SdoClient
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from rakectl.drive.canbus import BusError
@@ -40,20 +47,69 @@ _TYPE_NAMES = {code: name for name, code in vars(datatypes).items()
                if name.isupper() and isinstance(code, int)}
 
 
+class AnswerGate:
+    """Between the network and one drive's ``canopen`` SDO client: while a transfer of
+    ``expected`` (index, subindex) runs, an answer naming another object is kept from
+    the client and described in ``ignored``. Segments carry no index and pass."""
+
+    def __init__(self, client: SdoClient) -> None:
+        self._client = client
+        self._forward: Callable[[int, bytearray, float], None] = client.on_response
+        self.expected: tuple[int, int] | None = None
+        self.ignored: list[str] = []
+
+    def install(self) -> None:
+        """In place of the client's own subscription to the drive's SDO answers."""
+        network, cob_id = self._client.network, self._client.tx_cobid
+        network.unsubscribe(cob_id, self._client.on_response)
+        network.subscribe(cob_id, self.on_response)
+
+    def remove(self) -> None:
+        """The client's own subscription back (canopen removes that one with the node)."""
+        network, cob_id = self._client.network, self._client.tx_cobid
+        network.unsubscribe(cob_id, self.on_response)
+        network.subscribe(cob_id, self._client.on_response)
+
+    def on_response(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        expected = self.expected  # the notifier's thread; set by the bring-up's
+        if expected is not None and len(data) >= 4 and data[0] & 0xE0 in _INDEXED:
+            named = (data[1] | data[2] << 8, data[3])
+            if named != expected:
+                kind = (f"abort 0x{int.from_bytes(data[4:8], 'little'):08X}"
+                        if data[0] & 0xE0 == 0x80 else _INDEXED[data[0] & 0xE0])
+                self.ignored.append(f"{kind} for 0x{named[0]:04X}:{named[1]}")
+                return
+        self._forward(can_id, data, timestamp)
+
+
+_INDEXED = {0x40: "upload answer", 0x60: "download answer", 0x80: "abort"}  # by their
+# server command specifier (CiA 301): the answers that name the object
+
+
 class DriveSdo:
     """Reads and writes of the drives' objects over their ``canopen.RemoteNode``s."""
 
     def __init__(self, nodes: dict[Joint, canopen.RemoteNode], label: Callable[[Joint], str],
                  timeout_s: float) -> None:
-        """``nodes``: filled by the caller as it adds them; ``label``: a drive's name in
-        messages; ``timeout_s``: the SDO answer timeout, for the message."""
+        """``nodes``: on their network already (an :class:`AnswerGate` each is installed
+        here, and removed by :meth:`close`); ``label``: a drive's name in messages;
+        ``timeout_s``: the SDO answer timeout, for the message."""
         self._nodes, self._label, self._timeout_s = nodes, label, timeout_s
+        self._gates = {joint: AnswerGate(node.sdo) for joint, node in nodes.items()}
+        for gate in self._gates.values():
+            gate.install()
+
+    def close(self) -> None:
+        """Each drive's SDO answers to its client again, ungated."""
+        for gate in self._gates.values():
+            gate.remove()
 
     def read_text(self, joint: Joint, index: int, subindex: int, name: str) -> str:
         """A segmented upload, started again when a segment was lost (``_repeatable``)."""
         node = self._nodes[joint]
         what = f"reading 0x{index:04X}:{subindex} {name}"
-        data = self._transfer(joint, what, lambda: node.sdo.upload(index, subindex), segmented=True)
+        data = self._transfer(joint, (index, subindex), what,
+                              lambda: node.sdo.upload(index, subindex), segmented=True)
         return bytes(data).decode("ascii", errors="replace").rstrip("\0")
 
     def read(self, joint: Joint, index: int, subindex: int, name: str,
@@ -62,7 +118,8 @@ class DriveSdo:
         object the EDS does not have)."""
         node = self._nodes[joint]
         what = f"reading 0x{index:04X}:{subindex} {name}"
-        data = self._transfer(joint, what, lambda: node.sdo.upload(index, subindex))
+        data = self._transfer(joint, (index, subindex), what,
+                              lambda: node.sdo.upload(index, subindex))
         var = od_variable(node.object_dictionary, index, subindex) if variable is None \
             else variable
         try:
@@ -94,14 +151,24 @@ class DriveSdo:
             else variable
         data = var.encode_raw(p.value)
         what = f"writing {p.where()} {p.name} = {p.value}{' ' + p.unit if p.unit else ''}"
-        self._transfer(joint, what, lambda: node.sdo.download(p.index, p.subindex, data))
+        self._transfer(joint, (p.index, p.subindex), what,
+                       lambda: node.sdo.download(p.index, p.subindex, data))
 
-    def _transfer(self, joint: Joint, what: str, transfer: Callable[[], _T],
-                  segmented: bool = False) -> _T:
-        """One transfer (an upload, or a download of a value: either may be made again), made
-        again while its failure is ``_repeatable``, up to ``SDO_RETRIES`` more times for a
-        segmented one, ``SDO_LATE_ANSWER_RETRIES`` otherwise; its failure as one line naming
-        the drive and the object."""
+    def _transfer(self, joint: Joint, obj: tuple[int, int], what: str,
+                  transfer: Callable[[], _T], segmented: bool = False) -> _T:
+        """One transfer of ``obj`` (an upload, or a download of a value: either may be made
+        again), gated to its answers, made again while its failure is ``_repeatable``, up
+        to ``SDO_RETRIES`` more times for a segmented one, ``SDO_LATE_ANSWER_RETRIES``
+        otherwise; its failure as one line naming the drive and the object."""
+        gate = self._gates[joint]
+        gate.expected, gate.ignored = obj, []
+        try:
+            return self._attempts(joint, what, transfer, segmented, gate)
+        finally:
+            gate.expected = None
+
+    def _attempts(self, joint: Joint, what: str, transfer: Callable[[], _T], segmented: bool,
+                  gate: AnswerGate) -> _T:
         label = self._label(joint)
         retries = SDO_RETRIES if segmented else SDO_LATE_ANSWER_RETRIES
         for attempt in range(retries + 1):
@@ -117,8 +184,11 @@ class DriveSdo:
                 if attempt < retries and _repeatable(error, segmented):
                     continue
                 if "No SDO response" in str(error):
+                    came = (f" (ignored, naming other objects: {', '.join(gate.ignored[:3])}"
+                            f"{', …' if len(gate.ignored) > 3 else ''})" if gate.ignored
+                            else "")
                     raise CommsTimeout(f"{label}: no SDO response {what} within "
-                                       f"{self._timeout_s:g} s") from error
+                                       f"{self._timeout_s:g} s{came}") from error
                 raise DriveFault(f"{label}: SDO error {what}: {error}") from error
             except can.CanError as error:
                 raise BusError(f"{label}: bus error {what}: {error}") from error
