@@ -42,22 +42,38 @@ def _where(source: str, node: yaml.Node) -> str:
     return f"{source}:{node.start_mark.line + 1}"
 
 
-def _plain(source: str, node: yaml.Node) -> Any:
-    """A YAML node as nested dicts/lists whose leaves are _Value."""
+def _scalar(source: str, node: yaml.Node) -> Any:
+    """A scalar node's value as PyYAML's safe loader resolves it; ConfigError naming the
+    line for what it cannot construct (an explicit tag, a merge key)."""
+    try:
+        return yaml.constructor.SafeConstructor().construct_object(node)
+    except yaml.YAMLError as exc:
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(f"{_where(source, node)}: unsupported YAML: {problem}") from None
+
+
+def _plain(source: str, node: yaml.Node, within: frozenset[int] = frozenset()) -> Any:
+    """A YAML node as nested dicts/lists whose leaves are _Value (``within``: the
+    collections it is inside, by id: an alias to one of them is refused)."""
+    if isinstance(node, yaml.MappingNode | yaml.SequenceNode):
+        if id(node) in within:
+            raise ConfigError(f"{_where(source, node)}: a value that contains itself (an "
+                              "alias to a collection around it)")
+        within |= {id(node)}
     if isinstance(node, yaml.MappingNode):
         out: dict[str, Any] = {}
         for key_node, value_node in node.value:
-            key = yaml.safe_load(yaml.serialize(key_node))
+            key = _scalar(source, key_node) if isinstance(key_node, yaml.ScalarNode) else None
             if not isinstance(key, str):
-                raise ConfigError(f"{_where(source, key_node)}: keys must be strings, got {key!r}")
+                raise ConfigError(f"{_where(source, key_node)}: keys must be strings, got "
+                                  f"{key!r}")
             if key in out:
                 raise ConfigError(f"{_where(source, key_node)}: {key} is given twice")
-            out[key] = (_where(source, key_node), _plain(source, value_node))
+            out[key] = (_where(source, key_node), _plain(source, value_node, within))
         return out
     if isinstance(node, yaml.SequenceNode):
-        return [(_where(source, item), _plain(source, item)) for item in node.value]
-    text = node.value if isinstance(node, yaml.ScalarNode) else None
-    return _Value(yaml.safe_load(yaml.serialize(node)), _where(source, node), text)
+        return [(_where(source, item), _plain(source, item, within)) for item in node.value]
+    return _Value(_scalar(source, node), _where(source, node), node.value)
 
 
 def parse_yaml(text: str, source: str) -> dict[str, Any]:
@@ -128,6 +144,11 @@ def _coerce(tp: Any, raw: _Value, dotted: str, bounds: Bounds | None) -> Any:
             raise ConfigError(f"{where}: {dotted} must be true or false, got {value!r}")
         return value
     if tp in (int, float):
+        if raw.text is not None and isinstance(value, int | float) and not isinstance(
+                value, bool):  # as written: YAML 1.1 reads 010 as 8, 0b11 as 3, 1:40 as 100
+            value = _as_written(raw.text.strip(), value, where, dotted)
+        if isinstance(value, str) and _HEX_OCTAL.fullmatch(value.strip()):  # YAML 1.1: text
+            value = int(value.strip(), 0)
         if isinstance(value, str) and _NUMBER.fullmatch(value.strip()):
             if tp is int and not value.strip().lstrip("+-").isdigit():
                 raise ConfigError(f"{where}: {dotted} must be a whole number, got {value!r}")
@@ -148,8 +169,31 @@ def _coerce(tp: Any, raw: _Value, dotted: str, bounds: Bounds | None) -> Any:
     if tp is str:
         if not isinstance(value, str):
             raise ConfigError(f"{where}: {dotted} must be a string, got {value!r}")
+        if "\0" in value:  # no path, group or channel name holds one
+            raise ConfigError(f"{where}: {dotted} must not contain a NUL character")
         return value
     raise ConfigError(f"{where}: {dotted} has unsupported type {tp!r}")  # pragma: no cover
+
+
+def _as_written(text: str, value: float, where: str, dotted: str) -> float:
+    """A number as its text reads in YAML 1.2: decimal, 0x hexadecimal, 0o octal
+    (infinities and NaN as resolved, for the bounds to judge); ConfigError for what
+    only YAML 1.1 reads as a number, and for a leading zero, which each reads its way."""
+    if _INFINITE.fullmatch(text):
+        return value
+    if _HEX_OCTAL.fullmatch(text):
+        return int(text, 0)
+    if not _NUMBER.fullmatch(text):
+        raise ConfigError(f"{where}: {dotted} must be a number in decimal, 0x hexadecimal "
+                          f"or 0o octal (YAML 1.2), got {text!r}")
+    if re.fullmatch(r"[-+]?0\d+", text):
+        raise ConfigError(f"{where}: {dotted}: {text!r} has a leading zero (YAML 1.1 reads "
+                          f"it as octal, YAML 1.2 as decimal): write it without")
+    return int(text) if re.fullmatch(r"[-+]?\d+", text) else float(text)
+
+
+_INFINITE = re.compile(r"[-+]?\.(inf|Inf|INF)|\.(nan|NaN|NAN)")
+_HEX_OCTAL = re.compile(r"[-+]?0(x[0-9a-fA-F]+|o[0-7]+)")
 
 
 def _build(cls: type[T], tree: Mapping[str, Any], prefix: str, where: str) -> T:

@@ -94,6 +94,24 @@ def test_number_literals_yaml_1_1_would_read_as_strings(tmp_path: Path) -> None:
          "daemon:\n  boot_timeout_s: 0.5\n",
          ":5: daemon.boot_timeout_s must be >= 2 drives.heartbeat_period_ms (300 ms): "
          "bring-up waits that long"),
+        # a traceback before (yaml's ParserError, ConstructorError, RecursionError)
+        ("clamp:\n", ":1: clamp must be a section"),
+        ("rate_hz: !foo 1\n", ":1: unsupported YAML: could not determine a constructor for "
+         "the tag '!foo'"),
+        ("rate_hz: !!python/object:os.system x\n", ":1: unsupported YAML: could not "
+         "determine a constructor for the tag 'tag:yaml.org,2002:python/object:os.system'"),
+        ("b: &b {x: 1}\nclamp:\n  <<: *b\n", ":3: unsupported YAML: could not determine a "
+         "constructor for the tag 'tag:yaml.org,2002:merge'"),
+        ("a: &x [*x]\n", ":1: a value that contains itself"),
+        # read as another value before: YAML 1.1's octal, binary, base 60, underscores
+        ("drives:\n  r_node_id: 010\n", ":2: drives.r_node_id: '010' has a leading zero"),
+        ("drives:\n  r_node_id: 0b11\n", ":2: drives.r_node_id must be a number in "
+         "decimal, 0x hexadecimal or 0o octal (YAML 1.2), got '0b11'"),
+        ("rate_hz: 16:40\n", ":1: rate_hz must be a number in decimal"),
+        ("rate_hz: 1_000\n", ":1: rate_hz must be a number in decimal"),
+        # a NUL passed --check and stopped the daemon with a traceback at its first use
+        ('daemon:\n  socket_path: "/run/a\\0b.sock"\n',
+         ":2: daemon.socket_path must not contain a NUL character"),
     ],
 )
 def test_bad_files_name_file_line_and_key(tmp_path: Path, text: str, expected: str) -> None:
@@ -101,6 +119,14 @@ def test_bad_files_name_file_line_and_key(tmp_path: Path, text: str, expected: s
     message = _error(path)
     assert message.startswith(str(path))
     assert expected in message
+
+
+def test_hexadecimal_and_octal_integers_read_as_yaml_1_2_reads_them(tmp_path: Path) -> None:
+    """A vendor-ID as CANopen tools print it (0x…), and 0o octal, which YAML 1.1 read as
+    a string."""
+    path = _write(tmp_path, "drives:\n  r_vendor_id: 0x2F\n  r_product_code: 0o17\n")
+    drives = load_settings(path, (), root=Scenario).drives
+    assert (drives.r_vendor_id, drives.r_product_code) == (47, 15)
 
 
 def test_a_file_that_is_not_utf8_is_one_line(tmp_path: Path) -> None:
