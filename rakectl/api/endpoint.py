@@ -71,6 +71,20 @@ def listen(path: Path, group: str | None, backlog: int) -> socket.socket:
     return sock
 
 
+SUN_PATH_MAX_BYTES = 107  # an AF_UNIX socket's path: sun_path's 108 bytes, its NUL included
+
+
+def check_endpoint(path: Path, group: str | None) -> None:
+    """What :func:`listen` would refuse, judged without touching anything: a path longer
+    than AF_UNIX takes, a group that does not exist (ApiError naming it). The daemon asks
+    before the drives' bring-up, and ``rakectl run --check`` too."""
+    size = len(os.fsencode(path))
+    if size > SUN_PATH_MAX_BYTES:
+        raise ApiError(f"the command socket's path {path} is {size} bytes long; AF_UNIX "
+                       f"takes at most {SUN_PATH_MAX_BYTES}")
+    _group_id(group)
+
+
 def _group_id(group: str | None) -> int | None:
     if group is None:
         return None

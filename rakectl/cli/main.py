@@ -278,7 +278,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _check_config(config: Path | None, overrides: list[str]) -> int:
     """``rakectl run --check``: the configuration loaded and cross-checked as the daemon
     loads it, and what bring-up would write checked against the drives' EDS limits (a
-    ConfigError names the key), then what the daemon would drive."""
+    ConfigError names the key), the command socket's path and group as the daemon checks
+    them before bring-up, then what the daemon would drive."""
+    from rakectl.api.client import socket_path
+    from rakectl.api.endpoint import check_endpoint
     from rakectl.config.loader import load_settings
     from rakectl.config.service import RtModeSetting
     from rakectl.config.settings import Settings, held_command_gap
@@ -286,6 +289,7 @@ def _check_config(config: Path | None, overrides: list[str]) -> int:
 
     s = load_settings(config, overrides, root=Settings)
     check_parameter_ranges(s.drives, s.motors)  # bring-up's own check, before it sends
+    check_endpoint(socket_path(s.daemon.socket_path or None), s.daemon.socket_group or None)
     d = s.drives
     print(f"{config or '<defaults>'}: the configuration loads")
     print(f"  bus {s.bus.interface.value}:{s.bus.channel} at {s.bus.bitrate} bit/s; drives "

@@ -21,18 +21,18 @@ from typing import Any
 import structlog
 
 from rakectl.api.client import socket_path
-from rakectl.api.endpoint import refuse_if_listening
+from rakectl.api.endpoint import check_endpoint, refuse_if_listening
 from rakectl.api.server import CommandServer
 from rakectl.config.loader import load_settings
 from rakectl.config.service import DaemonSettings
 from rakectl.config.settings import Settings, held_command_gap
 from rakectl.daemon.cyclictest import run_cyclictest
 from rakectl.daemon.handlers import make_handler
-from rakectl.daemon.inputs import open_inputs
+from rakectl.daemon.inputs import InputLog, open_inputs
 from rakectl.daemon.loop import Daemon
 from rakectl.daemon.rt import RtMode, RtRequest, apply_rt, freeze_gc
 from rakectl.daemon.sdnotify import Notifier
-from rakectl.drive.canbus import open_bus, open_trace
+from rakectl.drive.canbus import TraceRecorder, open_bus, open_trace
 from rakectl.drive.client import DriveClient
 from rakectl.drive.joints import receive_ids
 
@@ -85,23 +85,29 @@ def run(config: Path | None, overrides: list[str]) -> int:
     settings = load_settings(config, overrides, root=Settings)
     configure_logging()
     log = structlog.get_logger("rakectl")
-    # before the bus: a second daemon's bring-up would reset the first one's drives
-    refuse_if_listening(socket_path(settings.daemon.socket_path or None))
+    # before the bus: a second daemon's bring-up would reset the first one's drives, and
+    # what would refuse the command socket or the dumps must not wait until after it
+    path = socket_path(settings.daemon.socket_path or None)
+    refuse_if_listening(path)
+    check_endpoint(path, settings.daemon.socket_group or None)
+    dump_dir = _dump_dir(settings)
     bus = open_bus(settings.bus, receive_ids(settings.drives))
-    trace = open_trace(settings.bus)
-    inputs = open_inputs(settings.bus)  # what a replay needs besides the trace
-    client = DriveClient(bus, settings.drives, settings.motors, settings.rate_hz, trace)
-    notifier = Notifier.from_environ(os.environ)
-    daemon = Daemon(settings, client, notifier, _dump_dir(settings))
-    daemon.trace, daemon.inputs = trace, inputs
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        daemon.request_stop()
-
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
+    trace: TraceRecorder | None = None
+    inputs: InputLog | None = None
     server: CommandServer | None = None
     try:
+        trace = open_trace(settings.bus)
+        inputs = open_inputs(settings.bus)  # what a replay needs besides the trace
+        client = DriveClient(bus, settings.drives, settings.motors, settings.rate_hz, trace)
+        notifier = Notifier.from_environ(os.environ)
+        daemon = Daemon(settings, client, notifier, dump_dir)
+        daemon.trace, daemon.inputs = trace, inputs
+
+        def on_signal(signum: int, frame: FrameType | None) -> None:
+            daemon.request_stop()
+
+        signal.signal(signal.SIGTERM, on_signal)
+        signal.signal(signal.SIGINT, on_signal)
         daemon.timing_reference = measure_reference(settings.daemon, notifier)
         log.info("timing_reference", **daemon.timing_reference)
         notifier.status("bringing up the drives")
@@ -109,7 +115,6 @@ def run(config: Path | None, overrides: list[str]) -> int:
         report = apply_rt(RtMode(settings.daemon.rt_mode.value), _rt_request(settings))
         for warning in report.warnings:
             log.warning("realtime", problem=warning)
-        path = socket_path(settings.daemon.socket_path or None)
         server = CommandServer(path, settings.daemon.socket_group or None, make_handler(daemon))
         daemon.slack_hook = server.poll
         daemon.connected = server.is_connected

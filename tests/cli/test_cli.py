@@ -248,8 +248,10 @@ def test_a_view_whose_truth_file_never_appeared_says_so(tmp_path: Path) -> None:
 
 def test_run_check_loads_the_configuration_as_the_daemon_does() -> None:
     """`rakectl run --check`: what a field engineer runs after editing the service's
-    configuration, before restarting it."""
-    done = run_rakectl("run", "--config", str(ROOT / "config" / "rakectl.yaml"), "--check")
+    configuration, before restarting it. The file's socket group (rakectl, which the
+    installation creates) is one this machine has: root."""
+    done = run_rakectl("run", "--config", str(ROOT / "config" / "rakectl.yaml"), "--check",
+                       "--set", "daemon.socket_group=root")
     assert done.returncode == 0, done.stderr
     lines = done.stdout.splitlines()
     assert lines[0].endswith("config/rakectl.yaml: the configuration loads")
@@ -257,10 +259,31 @@ def test_run_check_loads_the_configuration_as_the_daemon_does() -> None:
     assert "checks before arming: weight check and tine-mount check" in lines[2]
     assert not any("warning" in line for line in lines)  # the robot's clamp carries 3 ms
     slow = run_rakectl("run", "--config", str(ROOT / "config" / "rakectl.yaml"), "--check",
-                       "--set", "drives.watchdog_timeout_ms=20")
+                       "--set", "daemon.socket_group=root", "--set",
+                       "drives.watchdog_timeout_ms=20")
     assert slow.returncode == 0, slow.stderr
     assert ("warning: clamp.reaction_latency_s (4 ms) does not cover the command the drives "
             "hold") in slow.stdout and "(arming is refused)" in slow.stdout
+
+
+@pytest.mark.parametrize(("setting", "expected"), [
+    ("daemon.socket_group=no-such-group-here", "rakectl: error: the command socket's group "
+     "'no-such-group-here' does not exist (create it with systemd-sysusers or groupadd)"),
+    ("daemon.socket_path=/run/" + "s" * 110, "rakectl: error: the command socket's path "
+     "/run/" + "s" * 110 + " is 115 bytes long; AF_UNIX takes at most 107"),
+])
+def test_a_command_socket_the_daemon_cannot_make_is_refused_before_the_bus(
+        tmp_path: Path, setting: str, expected: str) -> None:
+    """Both passed --check, and `rakectl run` brought the drives up (reset, configured,
+    OPERATIONAL) before it refused them; now --check refuses them, and so does the daemon
+    before it opens the bus (over the same interface and channel, no emulator: nothing
+    answers, so a bring-up would have timed out instead)."""
+    check = run_rakectl("run", "--check", "--set", setting)
+    assert check.returncode == 1 and check.stderr.strip() == expected
+    done = run_rakectl("run", "--set", setting, "--set", f"daemon.dump_dir={tmp_path}",
+                       "--set", "daemon.startup_cyclictest_s=0")
+    assert done.returncode == 1
+    assert done.stderr.strip().splitlines()[-1] == expected
 
 
 def test_run_check_names_a_bad_key_in_one_line(tmp_path: Path) -> None:
