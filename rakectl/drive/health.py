@@ -18,7 +18,7 @@ from rakectl.drive.joints import JOINTS, drive_label, node_ids
 from rakectl.drive.power import PowerRequests
 from rakectl.protocol.cia402 import DriveState
 from rakectl.protocol.codec import TPDO1_SIZE
-from rakectl.protocol.nmt import Emcy, NmtState, emcy_code
+from rakectl.protocol.nmt import Emcy, EmcyCode, NmtState, emcy_code
 
 
 class Feedback:
@@ -197,7 +197,8 @@ class DriveSupervision:
             if self._emcy_fault[joint] and emcy is not None:
                 known = emcy_code(emcy.code)
                 problems.append(f"{label}: EMCY 0x{emcy.code:04X} {known.name if known else '?'}, "
-                                f"error register 0x{emcy.error_register:02X}")
+                                f"error register 0x{emcy.error_register:02X}"
+                                + _EMCY_CAUSES.get(emcy.code, ""))
             if latched:
                 problems.append(f"{label}: said NMT PRE OPERATIONAL after bring-up "
                                 + NMT_CAUSES[NmtState.PRE_OPERATIONAL])
@@ -207,10 +208,14 @@ class DriveSupervision:
                 flags = fb.statusword[joint]
                 problems.append(f"{label}: its power stage went off by itself (fault flags "
                                 f"0x{flags >> 16:04X}, status flags 0x{flags & 0xFFFF:04X})")
-            extra = self.stats.tpdo_received[joint] - self.stats.syncs - self._answers_forgiven
-            if extra > FOREIGN_SYNC_ANSWERS:
-                problems.append(f"{label}: {extra} TPDO1s more than the SYNCs sent: another "
-                                "node sends SYNC on this bus (another CANopen master)")
+            extra, other = (self.stats.tpdo_received[j] - self.stats.syncs
+                            - self._answers_forgiven for j in (joint, 1 - joint))
+            if extra > FOREIGN_SYNC_ANSWERS:  # a foreign SYNC is answered by both drives
+                problems.append(f"{label}: {extra} TPDO1s more than the SYNCs sent: " + (
+                    "another node sends SYNC on this bus (another CANopen master)"
+                    if other > FOREIGN_SYNC_ANSWERS // 2 else "the other drive's are not: "
+                    "this one answers a SYNC more than once, or another node sends on its "
+                    f"TPDO1 COB-ID (0x{0x180 + node:03X})"))
             if fb.stale_cycles[joint] >= limit_cycles:
                 bad = self.stats.tpdo1_bad_length[joint]
                 problems.append(f"{label}: no TPDO1 for {fb.stale_cycles[joint]} cycles"
@@ -219,6 +224,11 @@ class DriveSupervision:
             if now_s - self._heard_s[joint] > self._heartbeat_timeout_s:
                 problems.append(f"{label}: no heartbeat for {now_s - self._heard_s[joint]:.3f} s")
         return problems
+
+
+_EMCY_CAUSES: dict[int, str] = {  # what an EMCY's code says of its cause, where it is ours
+    EmcyCode.SYNC_DATA_LENGTH: " (a SYNC of a length the drive does not take: another node "
+    "sends SYNC, or drives.sync_counter_overflow is not the drive's)"}
 
 
 def state_name(state: enum.Enum | None) -> str:

@@ -189,6 +189,8 @@ def test_an_emcy_warning_the_drives_never_clear_does_not_block_a_reset(
     _ticks(rig, 20)
     d = rig.daemon
     assert d.state is DaemonState.FAULT and "EMCY 0x8240" in d.fault_reason
+    assert "(a SYNC of a length the drive does not take: another node sends SYNC, or " \
+        "drives.sync_counter_overflow is not the drive's)" in d.fault_reason
     _reset(rig)
     assert d.state is DaemonState.DISARMED, d.fault_reason
 
@@ -310,6 +312,23 @@ def test_a_client_with_a_connection_per_request_keeps_its_jog_going(rig: Lockste
         assert _from(client, JOG_UP, rig)["state"] == "jog"
         _ticks(rig, 100)
     assert rig.daemon.state is DaemonState.JOG
+
+
+def test_answers_beyond_the_syncs_from_one_drive_only_are_not_named_another_master(
+        rig: LockstepRig, other: can.BusABC) -> None:
+    """Another node sends on the r drive's TPDO1 COB-ID (as a drive answering each SYNC
+    twice would): one drive's answers outnumber the SYNCs, the other's do not. A fault,
+    which named another SYNC producer before; a foreign SYNC is answered by both."""
+    _ticks(rig, 100)
+    for _ in range(30):
+        _send(other, 0x181, bytes(8))
+        rig.tick()
+    d = rig.daemon
+    assert d.state is DaemonState.FAULT
+    assert ("r drive (node 1): 11 TPDO1s more than the SYNCs sent: the other drive's are "
+            "not: this one answers a SYNC more than once, or another node sends on its TPDO1 "
+            "COB-ID (0x181)") in d.fault_reason
+    assert "another CANopen master" not in d.fault_reason
 
 
 def test_another_sync_producer_is_a_fault_named(rig: LockstepRig, other: can.BusABC) -> None:
