@@ -62,6 +62,26 @@ ERROR_HISTORY: Final = 8  # entries of 0x1003 (its EDS has sub 1 … 8)
 MAX_COUNTS_PER_REV: Final = 10**9  # MotorParams' bound on encoder_counts_per_rev
 _COMM_RANGE: Final = range(0x1000, 0x2000)
 _SDO_ABORT: Final = struct.Struct("<BHBL")  # command 0x80, index, subindex, abort code
+_SEGMENT_OF: Final = {0x60: "upload", 0x00: "download"}  # segment requests' ccs (CiA 301)
+
+
+def _segmented_after(ccs: int, request: int, answer: int) -> str | None:
+    """The segmented transfer open after a request (its client command specifier ``ccs``,
+    its first byte) and the server's answer (first byte): an initiation not expedited
+    opens one, a segment keeps it open until the last one (bit 0), an abort either way
+    ends it."""
+    if answer & 0xE0 == 0x80 or ccs == 0x80:
+        return None
+    if ccs in (0x40, 0xA0):  # initiate upload (a block upload is answered as one): segmented
+        # unless the answer is expedited (bit 1)
+        return None if answer & 0x02 else "upload"
+    if ccs == 0x20:  # initiate download: segmented unless the request is expedited
+        return None if request & 0x02 else "download"
+    if ccs == 0x60:  # upload segment: the answer's bit 0 says it was the last
+        return None if answer & 0x01 else "upload"
+    if ccs == 0x00:
+        return None if request & 0x01 else "download"
+    return None
 COB_ID_NO_RTR: Final = 1 << 30  # bit 30 of a PDO's COB-ID: no RTR answered
 _TPDO_COB_IDS: Final = frozenset((p.comm_index, 1) for p in Pdo if p.value[2])
 
@@ -110,6 +130,7 @@ class DriveObjects:
 
     def __init__(self, spec: DriveSpec) -> None:
         self.spec, self.node_id = spec, spec.node_id
+        self._segmented: str | None = None  # the segmented transfer open: upload, download
         self._network = _Outbox()
         self._od = _SdoServerNode(spec.node_id, str(spec.kind.eds_path))
         self._network.add_node(self._od)
@@ -124,20 +145,22 @@ class DriveObjects:
 
     def _serve_sdo(self, can_id: int, data: bytes | bytearray, now_s: float,
                    out: list[Frame]) -> bool:
-        """Answer one SDO request into ``out``; False if canopen's server could not
-        take it (a segment with no transfer open): an abort is answered instead."""
+        """Answer one SDO request into ``out``; False if it is a segment of no segmented
+        transfer open (canopen's server would take it for one, or log a traceback and
+        answer an abort naming the object of an earlier transfer): an abort 0x05040001
+        is answered instead, naming no object."""
         self._now_s, self._out = now_s, out  # context of the write callbacks
-        network, served = self._network, True
-        try:
-            network.notify(can_id, bytearray(data), now_s)
-        except Exception:  # canopen's server raises on a segment with no transfer open
-            network.frames.clear()
+        network, ccs = self._network, data[0] & 0xE0
+        if ccs in _SEGMENT_OF and self._segmented != _SEGMENT_OF[ccs]:
             abort = _SDO_ABORT.pack(0x80, 0, 0, SdoAbort.UNKNOWN_COMMAND)
-            network.frames.append((self._sdo_response_id, abort))
-            served = False
+            out.append((self._sdo_response_id, abort))
+            return False
+        network.notify(can_id, bytearray(data), now_s)
+        answer = network.frames[-1][1] if network.frames else b"\x80"
+        self._segmented = _segmented_after(ccs, data[0], answer[0])
         out += network.frames
         network.frames.clear()
-        return served
+        return True
 
     # ------------------------------------------------------------------- power-on values
 

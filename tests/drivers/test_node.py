@@ -558,6 +558,25 @@ def test_segmented_upload_of_the_device_name(drive: Bench) -> None:
     assert name == b"Rake DC-servo drive"
 
 
+@pytest.mark.parametrize("segment", [
+    b"\x10" + bytes(7), b"\x00" + bytes(7), b"\x01" + bytes(7),  # download segments
+    b"\x60" + bytes(7), b"\x70" + bytes(7),  # upload segments
+])
+def test_a_segment_of_no_transfer_open_is_refused_and_counted(
+        drive: Bench, caplog: pytest.LogCaptureFixture, segment: bytes) -> None:
+    """After an expedited upload of 0x2003, canopen's server took a download segment for
+    the old transfer: a logged traceback ('NoneType' object has no attribute 'extend')
+    and a general-error abort naming 0x2003, not counted. Now: abort 0x05040001 (command
+    specifier not valid) naming no object, counted, and the next transfer is served."""
+    assert drive.sdo(sdo_upload(0x2003))[0] == "value"
+    frames = drive.rx(SDO_RX, segment)
+    assert frames == [(SDO_TX, b"\x80\0\0\0" + SdoAbort.UNKNOWN_COMMAND.to_bytes(4, "little"))]
+    assert drive.node.stats.bad.counts[BadInput.BAD_VALUE] == 1
+    assert not [r for r in caplog.records if r.exc_info]
+    assert drive.sdo(sdo_upload(0x2003))[0] == "value"
+    test_segmented_upload_of_the_device_name(drive)  # a segmented transfer still is
+
+
 # ----------------------------------------------------------------------------- cost
 
 
