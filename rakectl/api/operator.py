@@ -154,6 +154,13 @@ def status(args: argparse.Namespace) -> int:
     return 0
 
 
+def _file_path(text: str) -> Path:
+    """A file's path as given (an empty one read as the current directory before)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path names no file")
+    return Path(text)
+
+
 def dump(args: argparse.Namespace) -> int:
     """Ask for a dump and wait until the daemon has written it (or says it could not)."""
     request: dict[str, Any] = {"cmd": "dump"}
@@ -211,7 +218,7 @@ def add_parsers(sub: Any, parent: argparse.ArgumentParser) -> dict[str, Ops]:
     p = sub.add_parser("dump", parents=[parent], help="write the flight recorder to a file",
                        description="Write the flight recorder's last seconds to a file on "
                        "the daemon's machine and wait until it is written.")
-    p.add_argument("--path", type=Path, help="file on the daemon's machine")
+    p.add_argument("--path", type=_file_path, help="file on the daemon's machine")
     ops["dump"] = dump
     p = sub.add_parser("jog", parents=[parent], help="move while this command runs (dead-man)",
                        description="Move the tip (task space) or the joints (joint space) "

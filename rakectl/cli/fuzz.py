@@ -302,6 +302,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("rakectl: error: fuzz: --plot needs --out DIR (the plot is written there)",
               file=sys.stderr)
         return 2
+    if args.out is not None and args.out.exists() and not args.out.is_dir():
+        print(f"rakectl: error: fuzz: --out {args.out} is not a directory", file=sys.stderr)
+        return 2
     if args.plot:
         from rakectl.sim.plot import pyplot
 

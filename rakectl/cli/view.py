@@ -81,6 +81,10 @@ def cmd_view(args: argparse.Namespace) -> int:
 
         from rakectl.view.layout import build
 
+        if args.write_layout.is_dir():
+            print(f"rakectl: error: view: --write-layout {args.write_layout} is a directory, "
+                  "not a file", file=sys.stderr)
+            return 2
         args.write_layout.write_text(json.dumps(json.loads(build()), indent=1,
                                                 ensure_ascii=False) + "\n")
         print(f"view: layout written to {args.write_layout}", file=sys.stderr)

@@ -113,6 +113,14 @@ def test_pass_through_commands_read_their_own_options(command: str) -> None:
     (("fuzz", "--plot"), "rakectl: error: fuzz: --plot needs --out DIR"),
     (("emulator", "--interface", "foo"),
      "rakectl emulator: error: argument --interface: invalid choice: 'foo'"),
+    # read as the current directory before, which the daemon refused as "a file is there"
+    (("dump", "--path", ""), "rakectl: error: dump: argument --path: an empty path names "
+     "no file"),
+    # "[Errno 17] File exists" and "[Errno 21] Is a directory", exit 1, before
+    (("fuzz", "--scenarios", "1", "--out", "/etc/passwd"),
+     "rakectl: error: fuzz: --out /etc/passwd is not a directory"),
+    (("view", "--write-layout", "/tmp"),
+     "rakectl: error: view: --write-layout /tmp is a directory, not a file"),
 ])
 def test_unknown_options_elsewhere_are_one_line_errors(argv: tuple[str, ...],
                                                       expected: str) -> None:
