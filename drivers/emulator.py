@@ -48,45 +48,21 @@ from can.interfaces.socketcan import SocketcanBus
 from can.typechecking import CanFilter
 
 from drivers.arm import ArmPlant
-from drivers.drive_spec import DriveKind, DriveSpec, Frame
+from drivers.drive_spec import DriveSpec, Frame
+from drivers.drives import drive_node, drive_specs, workspace
 from drivers.ground import Ground
 from drivers.node import DriveNode
 from drivers.objects import Contact
 from drivers.records import TRUTH_ROW, EmulatorStats, RateLimitedLog, TruthRecorder
-from drivers.roboteq import RoboteqNode
 from drivers.settings import EmulatorConfig, TimingMode
 from drivers.stats import BadInput
-from rakectl.core.kinematics import Workspace
 from rakectl.core.motor_model import MotorParams, joint_per_motor_rad
 from rakectl.protocol.codec import SYNC_COB_ID
-from rakectl.protocol.files import DriveProfile
 from rakectl.protocol.nmt import EmcyCode
 
+UNREADABLE_LIMIT: Final = 1000  # undecodable receptions in a row: the bus is broken
 REPORT_INTERVAL_S: Final = 0.25  # how often counters are checked for the rate-limited log
 COMM_FAULTS: Final = frozenset({EmcyCode.COMMAND_WATCHDOG_TIMEOUT, EmcyCode.HEARTBEAT_LOST})
-
-
-def workspace(config: EmulatorConfig) -> Workspace:
-    g = config.geometry
-    return Workspace(g.pivot_height_m, g.r_min_m, g.r_max_m, g.theta_min_rad, g.theta_max_rad)
-
-
-def drive_specs(config: EmulatorConfig) -> tuple[DriveSpec, DriveSpec]:
-    """(r drive, θ drive) as the configuration describes them."""
-    d, p = config.drives, config.physics
-    roboteq = d.profile is DriveProfile.ROBOTEQ
-    return (
-        DriveSpec(d.r_node_id, DriveKind.ROBOTEQ_CLASS if roboteq else DriveKind.DC_SERVO,
-                  p.motor_r, d.r_serial_number, d.controller_node_id, d.overcurrent_time_s),
-        DriveSpec(d.theta_node_id, DriveKind.ROBOTEQ_CLASS if roboteq else DriveKind.GEARED_MOTOR,
-                  p.motor_theta, d.theta_serial_number, d.controller_node_id,
-                  d.overcurrent_time_s),
-    )
-
-
-def drive_node(spec: DriveSpec) -> DriveNode:
-    """The emulated drive its type calls for."""
-    return RoboteqNode(spec) if spec.kind is DriveKind.ROBOTEQ_CLASS else DriveNode(spec)
 
 
 class Emulator:
@@ -202,12 +178,24 @@ class Emulator:
 
     def _recv(self, timeout_s: float) -> can.Message | None:
         """The next frame :meth:`bus_filters` pass (and error frames, to be counted), waiting
-        ≤ timeout_s for the first; the others dropped."""
-        msg, routes = self.bus.recv(timeout_s), self._routes
-        while msg is not None and not (msg.is_error_frame or (not msg.is_extended_id and (
-                msg.arbitration_id in routes or 0x700 <= msg.arbitration_id < 0x780))):
-            msg = self.bus.recv(0.0)
-        return msg
+        ≤ timeout_s for the first; the others dropped. What the bus cannot decode (a
+        udp_multicast datagram that is no frame) is counted; ``UNREADABLE_LIMIT`` of it in
+        a row raise (a bus that no longer works)."""
+        routes, unreadable = self._routes, 0
+        while True:
+            try:
+                msg = self.bus.recv(timeout_s)
+            except can.CanError as error:
+                unreadable += 1
+                if unreadable >= UNREADABLE_LIMIT:
+                    raise
+                self.stats.bad.count(BadInput.UNREADABLE, 0, str(error).encode()[:32])
+                timeout_s = 0.0
+                continue
+            if msg is None or msg.is_error_frame or (not msg.is_extended_id and (
+                    msg.arbitration_id in routes or 0x700 <= msg.arbitration_id < 0x780)):
+                return msg
+            timeout_s = 0.0
 
     def handle(self, msg: can.Message, now_s: float) -> None:
         """One received frame (bus filters bypassed)."""

@@ -13,6 +13,7 @@ class BadInput(enum.Enum):
     BAD_VALUE = "bad_value"  # a value the protocol does not define
     UNKNOWN_ID = "unknown_id"  # no drive listens to it (counted by the emulator)
     UNSUPPORTED = "unsupported"  # remote, error, extended-ID or FD frame (emulator)
+    UNREADABLE = "unreadable"  # what the bus could not decode as a frame (emulator)
 
 
 class InputStats:

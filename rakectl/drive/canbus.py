@@ -236,11 +236,19 @@ class CanopenFrames(can.Listener):
     frames (CiA 301). canopen's own listener hands any frame's ID to its subscribers,
     so a 29-bit frame whose ID reads as a drive's heartbeat or SDO answer (0x701, 0x581)
     would be taken for one on ``virtual`` and ``udp_multicast``, where nothing filters
-    them out before the bring-up sees them. Dropped frames are counted in ``dropped``."""
+    them out before the bring-up sees them. Dropped frames are counted in ``dropped``, and
+    what the bus could not decode (a udp_multicast datagram that is no frame) in
+    ``unreadable``: handled here, it no longer ends the notifier's thread, which left
+    the bring-up deaf ("no heartbeat or boot-up") with its drives running."""
 
     def __init__(self, listeners: Iterable[can.Listener]) -> None:
         self._listeners = tuple(listeners)
-        self.dropped = 0
+        self.dropped = self.unreadable = 0
+
+    def on_error(self, exc: Exception) -> None:  # the notifier's thread, its recv failed
+        if not isinstance(exc, can.CanError):
+            raise NotImplementedError  # not handled: the notifier raises it
+        self.unreadable += 1
 
     def on_message_received(self, msg: can.Message) -> None:  # the notifier's thread
         if msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame or msg.is_fd:

@@ -27,7 +27,8 @@ from can.interfaces.virtual import VirtualBus
 from canopen.objectdictionary import ODRecord, ODVariable, datatypes
 
 from drivers.drive_spec import DriveSpec
-from drivers.emulator import Emulator, drive_specs
+from drivers.drives import drive_specs
+from drivers.emulator import Emulator
 from drivers.settings import EmulatorConfig
 from rakectl.cli.drives import report, text
 from rakectl.config.service import DrivesSettings

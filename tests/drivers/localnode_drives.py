@@ -48,7 +48,7 @@ import canopen
 from drivers.arm import ArmPlant
 from drivers.cli import load_config, open_bus
 from drivers.drive_spec import DriveKind
-from drivers.emulator import workspace
+from drivers.drives import workspace
 from drivers.ground import Ground
 from drivers.settings import EmulatorConfig
 from rakectl.core.motor_model import MotorParams, joint_per_motor_rad, joint_resolution

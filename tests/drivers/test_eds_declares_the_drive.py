@@ -21,7 +21,7 @@ import canopen
 import pytest
 
 from drivers.drive_spec import DriveKind, DriveSpec
-from drivers.emulator import drive_node
+from drivers.drives import drive_node
 from rakectl.core.motor_model import R_MOTOR_DEFAULT
 from rakectl.protocol.nmt import NmtCommand
 from tests.drivers.test_node import Bench, sdo_download, sdo_upload

@@ -17,7 +17,8 @@ import canopen
 import pytest
 
 from drivers.drive_spec import DriveKind, DriveSpec
-from drivers.emulator import Emulator, drive_specs
+from drivers.drives import drive_specs
+from drivers.emulator import Emulator
 from drivers.node import DriveNode
 from drivers.roboteq import RoboteqNode
 from drivers.settings import EmulatorConfig

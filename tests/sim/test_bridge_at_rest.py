@@ -13,7 +13,7 @@ from dataclasses import replace
 import pytest
 
 from drivers.arm import ArmPlant
-from drivers.emulator import workspace
+from drivers.drives import workspace
 from drivers.ground import Ground
 from drivers.ground_params import BuriedObjects, MineParams
 from drivers.motor import Bridge
