@@ -176,6 +176,9 @@ class TipController:
         self.reach_m = r_m * math.cos(theta_rad)
         self.depth_m = r_m * math.sin(theta_rad) - self.servo.workspace.pivot_height_m
         self.x_ref_m = self.impedance.step(depth_ref_m, self.depth_m, samples)
+        if not (math.isfinite(reach_ref_m) and math.isfinite(self.x_ref_m)):  # else the
+            self.fault = "non-finite tip reference"  # servo holds it as unreachable
+            return 0.0, 0.0
         descent = self.descent
         if descent is not None:
             if not math.isfinite(mount_force_n):

@@ -5,17 +5,17 @@ Each tick, on an absolute deadline (rakectl.daemon.timing)::
     receive the drives' TPDOs ─▶ supervise ─▶ reference (hold, jog, lane) ─▶
     TipController (impedance, IK, joint loops, CLAMP) ─▶ RPDOs + SYNC ─▶ recorder
 
-Only this thread touches the bus. What is not the tick (the command socket,
-flight-recorder dumps, bus traces, log lines, systemd's watchdog) runs in the
-tick's slack with a hard time budget, so it can delay nothing but itself.
+Only this thread touches the bus. What is not the tick (the command socket, dumps,
+bus traces, log lines, systemd's watchdog) runs in the tick's slack with a hard time
+budget, so it can delay nothing but itself.
 
-Every voltage that reaches the bus comes from ``TipController.step``, whose
-last stage is the voltage clamp; outside the armed states the loop sends 0 V
-with the drives disabled. Any fault (a drive's EMCY or FAULT state, stale
-feedback, lost heartbeats, failed sends, a non-finite number, a clamp that
-cannot meet its bound, a streak of late ticks) sends 0 V, disables the drives,
-dumps the recorder and latches FAULT until ``reset`` finds the cause gone. A
-controller that dies leaves the arm to the drives' own command watchdogs.
+Every voltage that reaches the bus comes from ``TipController.step``, whose last stage
+is the voltage clamp; outside the armed states the loop sends 0 V with the drives
+disabled. Any fault (a drive's EMCY or FAULT state, stale feedback, lost heartbeats,
+failed sends, a non-finite number, a clamp that cannot meet its bound, a streak of late
+ticks) sends 0 V from its tick on, disables the drives, dumps the recorder and latches
+FAULT until ``reset`` finds the cause gone. A dead controller leaves the arm to the
+drives' own command watchdogs.
 """
 
 from __future__ import annotations
@@ -188,8 +188,10 @@ class Daemon(StateChanges):
             problem = self._supervise(armed=state in ARMED_STATES)
             if problem:
                 self.fault(problem)
-            elif state in ARMED_STATES:
-                voltages = self._control()
+            elif state in ARMED_STATES:  # a fault within it (a check's, the force limit's
+                voltages = self._control()  # in CHECKING) sends 0 V from this tick on
+                if self.state not in ARMED_STATES:
+                    voltages = (0.0, 0.0)
         elif self._reset_deadline >= 0:
             self._try_reset()
         try:
@@ -216,10 +218,8 @@ class Daemon(StateChanges):
 
     def _supervise(self, armed: bool) -> str:
         """Why the loop must fault now, or "" (cheap: strings only when something is wrong).
-
-        Disarmed, only drive faults and lost heartbeats count: stale feedback
-        matters once voltages depend on it (arming requires it fresh).
-        """
+        Disarmed, only drive faults and lost heartbeats count: stale feedback matters once
+        voltages depend on it (arming requires it fresh)."""
         client, fb = self.client, self.client.feedback
         limit = self.settings.drives.feedback_timeout_cycles
         heartbeat_check = self.ticks % HEARTBEAT_CHECK_TICKS == 0

@@ -11,6 +11,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import can
 import pytest
 
 from drivers.ground_params import BuriedObjects, StoneParams
@@ -24,6 +25,7 @@ from rakectl.core.kinematics import inverse
 from rakectl.daemon.handlers import make_handler
 from rakectl.daemon.states import DaemonState
 from rakectl.errors import CommandRejected
+from rakectl.protocol.codec import decode_rpdo
 from rakectl.protocol.files import DriveProfile
 
 
@@ -179,5 +181,35 @@ def test_the_first_arming_presses_the_anvil_and_refuses_a_stiffer_mount(
         assert status["weight_check"]["passed"]
         assert status["mount_check"] == {"passed": None, "message": "running"}
         rig.until(DaemonState.FAULT, 30000)
+    finally:
+        rig.close()
+
+
+def test_a_check_that_fails_sends_0_v_from_its_own_tick(tmp_path: Path) -> None:
+    """The weight check judged on a tick (its tolerance set so that it fails): that tick
+    still sent the voltages the check's reference had asked for, with the disabling
+    controlword, and 0 V only from the next; the fault's own tick is 0 V now."""
+    s = Settings()
+    rig = LockstepRig(tmp_path, dataclasses.replace(
+        s, selftest=dataclasses.replace(s.selftest, tolerance=0.001)))
+    sent: list[tuple[int, int, int]] = []  # (tick, voltage mV, controlword) of the r drive
+    send = rig.controller_bus.send
+
+    def spy(msg: can.Message, timeout: float | None = None) -> None:
+        if msg.arbitration_id == 0x201:
+            sent.append((rig.daemon.ticks, *decode_rpdo(bytes(msg.data))))
+        send(msg, timeout)
+
+    rig.controller_bus.send = spy  # type: ignore[method-assign]
+    try:
+        rig.bring_up()
+        rig.until(DaemonState.DISARMED, 3000)
+        assert _arm(rig)["state"] == "checking"
+        rig.until(DaemonState.FAULT, 30000)
+        assert "weight check" in rig.daemon.fault_reason
+        fault_tick = rig.daemon.ticks
+        before = [mv for tick, mv, _ in sent if tick == fault_tick - 1]
+        assert before and before[0] != 0  # holding against the weight until then
+        assert [(mv, word) for tick, mv, word in sent if tick == fault_tick] == [(0, 0)]
     finally:
         rig.close()
