@@ -175,6 +175,7 @@ class DriveClient(FrameSender):
         self._emcy_fault = [False, False]
         self._rebooted = [False, False]
         self._left_enabled: list[DriveState | None] = [None, None]
+        self._left_status = [0, 0]  # the status it was read with
         self._nmt_fault = [False, False]
         self._unconfigured = [False, False]
         self._tpdo2_after_emcy = [True, True]  # a TPDO2 came after the drive's last EMCY
@@ -276,7 +277,11 @@ class DriveClient(FrameSender):
     def enabled(self) -> None:
         """Both drives reached OPERATION ENABLED: from now until another command, a drive
         reporting any other state is a latched fault (the controlword the next send()
-        carries would enable a drive in QUICK STOP ACTIVE again, CiA 402 transition 16)."""
+        carries would enable a drive in QUICK STOP ACTIVE again, CiA 402 transition 16).
+        ENABLE_OPERATION is asked of both even so: a state read just after a disarm may be
+        the drive's last before it, whose disable (a Roboteq-class drive's shutdown) is
+        still on its way, and the drive then leaving OPERATION ENABLED is that fault."""
+        self.command(None, DriveCommand.ENABLE_OPERATION)
         self._enabled_expected = True
 
     def clear_contradicted_emcy(self) -> None:

@@ -96,9 +96,11 @@ class FrameDecoder(DriveSupervision):
         fb = self.feedback
         fb.statusword[j], fb.error_register[j], fb.state[j] = statusword, error_register, state
         self._state_fault[j] = state in (DriveState.FAULT, DriveState.FAULT_REACTION_ACTIVE)
-        if self._enabled_expected and state is not DriveState.OPERATION_ENABLED \
-                and not self._roboteq:  # latched: the next RPDO1 would enable it again
-            self._left_enabled[j] = state
+        # latched: the next RPDO1 would enable it again (a Roboteq-class drive's watchdog
+        # lets go at the next command: its expiry may be gone within the same drain)
+        if self._enabled_expected and state is not DriveState.OPERATION_ENABLED and (
+                not self._roboteq or state is DriveState.FAULT):
+            self._left_enabled[j], self._left_status[j] = state, statusword
         self._tpdo2_after_emcy[j] = True
         self._update_fault(j)
         self.stats.tpdo2_received[j] += 1

@@ -18,7 +18,9 @@ from rakectl.drive.joints import JOINTS, drive_label, node_ids
 from rakectl.drive.power import PowerRequests
 from rakectl.protocol.cia402 import DriveState
 from rakectl.protocol.codec import TPDO1_SIZE
+from rakectl.protocol.files import DriveProfile
 from rakectl.protocol.nmt import Emcy, EmcyCode, NmtState, emcy_code
+from rakectl.protocol.roboteq import STATUS_WATCHDOG_EXPIRED
 
 
 class Feedback:
@@ -142,6 +144,7 @@ class DriveSupervision:
     _rebooted: list[bool]  # a boot-up heartbeat came after bring-up
     _power: PowerRequests  # its lost: a Roboteq-class drive went off by itself while on
     _left_enabled: list[DriveState | None]  # the state a drive left OPERATION ENABLED for
+    _left_status: list[int]  # ... and the status it was read with
     _nmt_fault: list[bool]  # a heartbeat not OPERATIONAL once the drives were started
     _unconfigured: list[bool]  # one said PRE-OPERATIONAL since: bring-up needed (latched)
     _answers_forgiven: int  # TPDO1s beyond the SYNCs sent, counted before the last reset
@@ -174,19 +177,24 @@ class DriveSupervision:
         heard, timeout = self._heard_s, self._heartbeat_timeout_s
         return now_s - heard[0] > timeout or now_s - heard[1] > timeout
 
+    def _flags(self, status: int) -> str:
+        """A Roboteq-class drive's flags image for a message, "" for a CiA 402 drive."""
+        return flags_text(status) if self._drives.profile is DriveProfile.ROBOTEQ else ""
+
     def describe_problems(self, now_s: float, limit_cycles: int) -> list[str]:
         """One line per problem the supervision checks see (off the hot path)."""
         problems = []
         fb = self.feedback
         for joint, node in zip(JOINTS, node_ids(self._drives), strict=True):
             label = drive_label(joint, node)
+            flags = self._flags(fb.statusword[joint])
             if self._state_fault[joint]:
-                problems.append(f"{label}: state {state_name(fb.state[joint])}")
+                problems.append(f"{label}: state {state_name(fb.state[joint])}{flags}")
             left = self._left_enabled[joint]
             if left is not None:
                 problems.append(f"{label}: left OPERATION ENABLED for {state_name(left)} while "
                                 "armed (not by this daemon: another CANopen master, or the "
-                                "drive itself)")
+                                f"drive itself){self._flags(self._left_status[joint])}")
             nmt_state = fb.nmt_state[joint]
             latched = self._unconfigured[joint] and nmt_state is not NmtState.PRE_OPERATIONAL
             if self._nmt_fault[joint]:
@@ -205,9 +213,7 @@ class DriveSupervision:
             if self._rebooted[joint]:
                 problems.append(f"{label}: rebooted (boot-up heartbeat): bring-up needed")
             if self._power.lost[joint]:
-                flags = fb.statusword[joint]
-                problems.append(f"{label}: its power stage went off by itself (fault flags "
-                                f"0x{flags >> 16:04X}, status flags 0x{flags & 0xFFFF:04X})")
+                problems.append(f"{label}: its power stage went off by itself{flags}")
             extra, other = (self.stats.tpdo_received[j] - self.stats.syncs
                             - self._answers_forgiven for j in (joint, 1 - joint))
             if extra > FOREIGN_SYNC_ANSWERS:  # a foreign SYNC is answered by both drives
@@ -229,6 +235,14 @@ class DriveSupervision:
 _EMCY_CAUSES: dict[int, str] = {  # what an EMCY's code says of its cause, where it is ours
     EmcyCode.SYNC_DATA_LENGTH: " (a SYNC of a length the drive does not take: another node "
     "sends SYNC, or drives.sync_counter_overflow is not the drive's)"}
+
+
+def flags_text(image: int) -> str:
+    """A Roboteq-class drive's flags image (:func:`rakectl.protocol.roboteq.flags_image`)
+    for a message, naming an expired command watchdog, which no EMCY reports."""
+    status = image & 0xFFFF
+    expired = "; its command watchdog expired" if status & STATUS_WATCHDOG_EXPIRED else ""
+    return f" (fault flags 0x{image >> 16:04X}, status flags 0x{status:04X}{expired})"
 
 
 def state_name(state: enum.Enum | None) -> str:

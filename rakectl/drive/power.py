@@ -18,7 +18,8 @@ power stage, switched on by *release shutdown* (0x200D) and off by *emergency sh
   while the drive still reads FAULT.
 * Requests go out in :meth:`PowerRequests.send`, once per tick before the RPDOs, each at
   most every ``REQUEST_TICKS`` while the drive's flags (its TPDO2) do not show it yet: a
-  request or its answer lost on the bus is made again.
+  request or its answer lost on the bus is made again. A request the other way (off
+  while a release waits for its answer) goes out at the next send, not after the wait.
 
 Sends through the client's ``transmit`` (counted, traced, never raising); allocates
 nothing per tick.
@@ -59,8 +60,10 @@ class PowerRequests:
     def command(self, j: int, command: DriveCommand) -> None:
         """What ``command`` asks of drive ``j``'s power stage (the module docstring)."""
         want_on = command is DriveCommand.ENABLE_OPERATION
-        if want_on and not self._want_on[j]:
-            self._seen_on[j], self._countdown[j] = False, 0
+        if want_on is not self._want_on[j]:  # asked the other way: at once, not after the
+            self._countdown[j] = 0  # wait for the last request's answer (50 ms)
+            if want_on:
+                self._seen_on[j] = False
         self._want_on[j] = want_on
         if command is DriveCommand.FAULT_RESET:  # asked again: again once the last is old
             self.lost[j] = False

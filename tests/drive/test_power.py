@@ -83,3 +83,21 @@ def test_the_path_to_enabled() -> None:
     assert path_to_enabled(OFF) == [DriveCommand.ENABLE_OPERATION]
     assert path_to_enabled(FAULT) == [DriveCommand.FAULT_RESET, DriveCommand.ENABLE_OPERATION]
     assert path_to_enabled(ON) == []
+
+
+def test_asked_off_while_a_release_awaits_its_answer_shuts_down_at_once() -> None:
+    """Disarm, e-stop, a fault or the daemon's exit within 50 ticks of arming: the
+    shutdown waited out the release's REQUEST_TICKS (49 ms with the power stage on), and
+    the exit's one last send never made it."""
+    wire = Wire()
+    power = PowerRequests((1, 2), wire.transmit)
+    power.command(0, DriveCommand.ENABLE_OPERATION)
+    ticks(power, 1, (OFF, STOPPED))
+    assert wire.take() == [(0x601, RELEASE)]
+    ticks(power, 2, (ON, 0))
+    power.command(0, DriveCommand.QUICK_STOP)
+    ticks(power, 1, (ON, 0))
+    assert wire.take() == [(0x601, SHUTDOWN)]
+    power.command(0, DriveCommand.ENABLE_OPERATION)  # asked on again at once: the same
+    ticks(power, 1, (OFF, STOPPED))
+    assert wire.take() == [(0x601, RELEASE)]

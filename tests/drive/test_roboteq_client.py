@@ -7,10 +7,12 @@ read as CiA 402 states) and the power requests that stand in for the controlword
 from __future__ import annotations
 
 import math
+import struct
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import replace
 
+import can
 import pytest
 
 from drivers.emulator import Emulator
@@ -220,3 +222,51 @@ def test_a_profile_that_does_not_match_the_drives_is_refused_naming_both() -> No
         with pytest.raises(DriveFault, match=r"r drive \(node 1\): wrong identity: product "
                            r"code 3, expected 1 \(dc_servo_drive\.eds\)"):
             client.bring_up(boot_timeout_s=TIMEOUT_S)
+
+
+def test_a_watchdog_expiry_gone_within_one_drain_is_latched_naming_it(
+        rig: tuple[DriveClient, Emulator]) -> None:
+    """A Roboteq-class drive's watchdog lets go at the next command: its flags can read
+    expired, then driving again, in the TPDO2s of one drain (a tick late by more than the
+    watchdog). The client looked only at the last and went on; now the expiry while
+    enabled is latched, and the fault names the flag (no EMCY reports it)."""
+    client, emulator = rig
+    client.bring_up(boot_timeout_s=TIMEOUT_S)
+    client.command(None, DriveCommand.ENABLE_OPERATION)
+    until(client, lambda: client.feedback.state == [DriveState.OPERATION_ENABLED] * 2)
+    client.enabled()
+    tick(client)
+    assert not client.drive_faults()
+    serial = roboteq.STATUS_SERIAL_MODE
+    for status in (serial | roboteq.STATUS_WATCHDOG_EXPIRED, serial):  # as r would send
+        emulator.bus.send(can.Message(arbitration_id=0x281, is_extended_id=False,
+                                      data=struct.pack("<HH", 0, status)))
+    until(client, lambda: client.stats.tpdo2_received[Joint.R] >= 2 and client.drive_faults())
+    assert client.feedback.state[Joint.R] is DriveState.OPERATION_ENABLED  # the last read
+    assert client.describe_problems(client.clock(), 1000) == [
+        "r drive (node 1): left OPERATION ENABLED for FAULT while armed (not by this daemon: "
+        "another CANopen master, or the drive itself) (fault flags 0x0000, status flags "
+        "0x0021; its command watchdog expired)"]
+    client.shutdown()
+
+
+def test_enabled_asks_the_power_stages_on_even_when_they_already_read_on(
+        rig: tuple[DriveClient, Emulator]) -> None:
+    """Re-armed a few ticks after a disarm, both drives still read on (their shutdown on
+    its way): the daemon took them as enabled without asking them on, and sat ARMED with
+    both power stages off and no fault. Now they are asked on, and one that then goes off
+    is a fault."""
+    client, emulator = rig
+    client.bring_up(boot_timeout_s=TIMEOUT_S)
+    client.command(None, DriveCommand.ENABLE_OPERATION)
+    until(client, lambda: client.feedback.state == [DriveState.OPERATION_ENABLED] * 2)
+    client.command(None, DriveCommand.DISABLE_VOLTAGE)  # disarm: the shutdowns go out
+    client.send(0.0, 0.0)
+    client.sync()
+    assert client.feedback.state == [DriveState.OPERATION_ENABLED] * 2  # not read yet
+    client.enabled()  # armed again at once
+    until(client, lambda: client.drive_faults())
+    assert [n.output_voltage_v for n in emulator.nodes] == [0.0, 0.0]
+    assert "its power stage went off by itself" in "; ".join(
+        client.describe_problems(client.clock(), 1000))
+    client.shutdown()
