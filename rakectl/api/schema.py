@@ -120,8 +120,12 @@ _SPECS = (
     CommandSpec(ApiCommand.DISARM, "Stop any motion and disable the drives."),
     CommandSpec(ApiCommand.STOP, "Stop the jog or excavation and hold the pose; stays armed."),
     CommandSpec(ApiCommand.ESTOP, "Emergency stop: quick-stop both drives now and latch it "
-                "until `reset`."),
-    CommandSpec(ApiCommand.RESET, "Clear a latched emergency stop or fault; stays disarmed."),
+                "until a `reset` asked after it (one asked before, still waiting for a fault's "
+                "cause to clear, is called off; the fault's cause stays named)."),
+    CommandSpec(ApiCommand.RESET, "Clear a latched emergency stop or fault; stays disarmed. "
+                "It ends once no drive problem is left and no sooner than 20 ms (another SYNC "
+                "producer still on the bus shows within them); after 1 s, `reset failed` "
+                "naming what is left."),
     CommandSpec(ApiCommand.DUMP, "Write the flight recorder's recent history to a file.", (
         Arg("path", ArgKind.STRING, "File to write, on the daemon's machine. Default: a new "
             "file in the daemon's state directory."),)),
@@ -130,8 +134,8 @@ _SPECS = (
                 "when they stop. Absent velocities are 0. The jog belongs to the connection "
                 "that started it: another connection's jog is refused while that one is open, "
                 "and once the jog has ended (a stop, the force limit, the dead-man) its "
-                "connection's next jog is refused, naming why; a new connection starts a new "
-                "jog.", (
+                "connection's next jog is refused, naming why, while that connection stays "
+                "open; a new connection starts a new jog.", (
         Arg("space", ArgKind.STRING, "task: tip velocities; joint: joint velocities.",
             required=True, choices=JogSpace),
         _jog_arg("reach_m_per_s", "m/s", JOG_SPEED_LIMIT_M_PER_S, JogSpace.TASK,
@@ -144,7 +148,8 @@ _SPECS = (
                  "Velocity of the rotary joint θ, positive lowering the rake."),
     )),
     CommandSpec(ApiCommand.EXCAVATE, "Rake a lane: contact strokes from reach_far_m to "
-                "reach_near_m, deeper each cycle down to target_depth_m.", (
+                "reach_near_m, deeper each cycle down to target_depth_m. Refused during a "
+                "jog or another lane: `stop` first.", (
         _lane_arg("reach_far_m", True), _lane_arg("reach_near_m", True),
         _lane_arg("target_depth_m", True), _lane_arg("depth_step_m", False),
         _lane_arg("stroke_speed_m_per_s", False),

@@ -46,12 +46,16 @@ _NEXT_STEP = {DaemonState.ESTOP: "reset clears it, then arm",
               DaemonState.FAULT: "reset clears it once its cause is gone, then arm",
               DaemonState.DISARMED: "arm first",
               DaemonState.CHECKING: "the checks before arming are running",
-              DaemonState.INIT: "the drives are being brought up"}
+              DaemonState.INIT: "the drives are being brought up",
+              DaemonState.JOG: "stop first", DaemonState.EXCAVATE: "stop first",
+              DaemonState.ARMED: "it is armed", DaemonState.HOLD: "it is armed, holding"}
 
 
 def _require(daemon: Daemon, event: Event, what: str) -> None:
     if next_state(daemon.state, event) is None:
-        step = _NEXT_STEP.get(daemon.state)
+        step = ("nothing moves: the drives are disabled" if daemon.state is
+                DaemonState.DISARMED and event in (Event.DISARM, Event.STOP)
+                else _NEXT_STEP.get(daemon.state))
         raise CommandRejected(f"cannot {what} while {daemon.state.name.lower()}"
                               + (f" ({daemon.fault_reason})" if daemon.fault_reason else "")
                               + (f": {step}" if step and event is not Event.RESET else ""))
@@ -177,14 +181,16 @@ def _jog(daemon: Daemon, request: Request) -> Reply:
                                       "when its requests stop, or with stop)")
             daemon.jog_client = request.client
     else:
-        ended = daemon.jog_ended
-        if ended is not None and request.client and ended[0] == request.client:
-            raise CommandRejected(f"this jog has ended ({ended[1]}): start a new jog to move "
-                                  "again")
         _require(daemon, Event.JOG, "jog")
+        ended = daemon.jog_ended.get(request.client) if request.client else None
+        if ended is not None:  # every connection whose jog ended, not only the last one
+            raise CommandRejected(f"this jog has ended ({ended}): start a new jog, on a new "
+                                  "connection, to move again")
         r_m, theta_rad = daemon.controller.servo.q_ref
         daemon.jog = Jog(daemon.settings.jog, daemon.workspace, daemon.dt_s, r_m, theta_rad)
-        daemon.jog_client, daemon.jog_ended = request.client, None
+        daemon.jog_client = request.client
+        daemon.jog_ended = {client: why for client, why in daemon.jog_ended.items()
+                            if daemon.connected(client)}  # closed ones never ask again
         daemon.planner, daemon.f_hat_max_n = None, 0.0  # status: the jog's, not a lane's
         daemon._transition(Event.JOG, "operator jog")
     assert daemon.jog is not None

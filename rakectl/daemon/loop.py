@@ -96,7 +96,7 @@ class Daemon(StateChanges):
         self.hold = (0.0, 0.0)  # (reach, depth) held in ARMED and HOLD
         self.jog: Jog | None = None
         self.jog_client = 0  # the connection whose requests drive the jog (Request.client)
-        self.jog_ended: tuple[int, str] | None = None  # that connection, and why it ended
+        self.jog_ended: dict[int, str] = {}  # connections whose jog ended, and why
         # whether a connection is still open (the command server's; none in-process)
         self.connected: Callable[[int], bool] = _no_connection
         self.planner: LanePlanner | None = None

@@ -67,9 +67,11 @@ def _table() -> dict[tuple[DaemonState, Event], DaemonState]:
         table[(armed, Event.EXCAVATE)] = DaemonState.EXCAVATE
         table[(armed, Event.STOP)] = DaemonState.HOLD
     table[(DaemonState.EXCAVATE, Event.DONE)] = DaemonState.HOLD
-    # switching straight between jogging and excavating is refused: stop first
+    # switching straight between jogging and excavating, or from one lane to another, is
+    # refused: stop first
     del table[(DaemonState.JOG, Event.EXCAVATE)]
     del table[(DaemonState.EXCAVATE, Event.JOG)]
+    del table[(DaemonState.EXCAVATE, Event.EXCAVATE)]
     # nothing moves the rake but the weight check until it has passed
     for event in (Event.JOG, Event.EXCAVATE, Event.STOP):
         del table[(DaemonState.CHECKING, event)]

@@ -21,6 +21,11 @@ from rakectl.daemon.states import ARMED_STATES, DaemonState, Event, next_state
 from rakectl.protocol.cia402 import DriveCommand
 
 
+RESET_QUIET_TICKS = 20  # a reset ends no sooner: a foreign SYNC producer shows within it
+RESET_EXTRA_ANSWERS = 2  # TPDO1s beyond the SYNCs it tolerates: one still on its way when
+# the reset forgave the count, one stray frame (a foreign producer at 100 Hz sends 2)
+
+
 class StateChanges(SlackWork):
     """Arm, disarm, stop, e-stop, fault and reset; the loop's state is the subclass's."""
 
@@ -35,8 +40,9 @@ class StateChanges(SlackWork):
     _enabled: bool
     _enable_deadline: int
     _reset_deadline: int
+    _reset_quiet_tick: int = 0
     jog_client: int  # the connection whose requests drive the jog
-    jog_ended: tuple[int, str] | None  # that connection, and why its jog ended
+    jog_ended: dict[int, str]  # the connections whose jog ended, and why
     # excavate requests carried out since start-up: the number of the newest lane, which
     # status names its lane by (one lane told from the next)
     lanes_started: int = 0
@@ -55,7 +61,7 @@ class StateChanges(SlackWork):
             return False
         old, self.state = self.state, new
         if old is DaemonState.JOG and new is not DaemonState.JOG:
-            self.jog_ended = (self.jog_client, reason)
+            self.jog_ended[self.jog_client] = reason
         if old is DaemonState.CHECKING:  # passed, or left unfinished (judged again next arm)
             self.checks.stop()
         if old in ARMED_STATES and new not in ARMED_STATES:
@@ -78,8 +84,15 @@ class StateChanges(SlackWork):
             self._dump("fault")
 
     def estop(self) -> None:
+        """Quick stop, latched until a reset asked after it (one asked before, still
+        waiting for its cause to clear, is called off); a fault's cause stays named."""
+        self._reset_deadline = -1
+        if self.state is DaemonState.ESTOP:  # again: nothing new to latch or dump
+            self.client.command(None, DriveCommand.QUICK_STOP)
+            return
+        cause = self.fault_reason if self.state is DaemonState.FAULT else ""
         self._transition(Event.ESTOP, "operator e-stop")
-        self.fault_reason = "operator e-stop"
+        self.fault_reason = "operator e-stop" + (f" (in fault: {cause})" if cause else "")
         self.client.command(None, DriveCommand.QUICK_STOP)
         self._dump("estop")
 
@@ -111,9 +124,13 @@ class StateChanges(SlackWork):
             self._transition(Event.CHECKED, verdict.message)
 
     def start_reset(self) -> None:
-        """Fault-reset the drives; FAULT/ESTOP → DISARMED once no problem is left (≤ 1 s)."""
+        """Fault-reset the drives; FAULT/ESTOP → DISARMED once no problem is left (≤ 1 s),
+        and no more than ``RESET_EXTRA_ANSWERS`` TPDO1s beyond the SYNCs sent within
+        ``RESET_QUIET_TICKS`` (another SYNC producer still on the bus: the answers counted
+        before are forgiven at the reset, the new ones counted)."""
         self.client.reset_faults()
         self._reset_deadline = self.ticks + round(self.settings.rate_hz)
+        self._reset_quiet_tick = self.ticks + RESET_QUIET_TICKS
 
     def _drive_problems(self) -> str:
         """What the supervision checks see wrong with the drives, in one line."""
@@ -126,7 +143,10 @@ class StateChanges(SlackWork):
         client = self.client
         client.clear_contradicted_emcy()
         if not (client.drive_faults() or client.stale_feedback(limit)
-                or self._heartbeat_lost()):
+                or self._heartbeat_lost()
+                or client.answers_beyond_syncs() > RESET_EXTRA_ANSWERS):
+            if self.ticks < self._reset_quiet_tick:
+                return
             self._reset_deadline = -1
             self.client.command(None, DriveCommand.DISABLE_VOLTAGE)
             self.fault_reason = ""
@@ -134,6 +154,10 @@ class StateChanges(SlackWork):
         elif self.ticks > self._reset_deadline:
             self._reset_deadline = -1
             problems = client.describe_problems(self.heartbeat_clock(), limit)
+            extra = client.answers_beyond_syncs()
+            if not problems and extra > RESET_EXTRA_ANSWERS:
+                problems = [f"{extra} TPDO1s more than the SYNCs sent since the reset: another "
+                            "node sends SYNC on this bus (another CANopen master)"]
             self.fault_reason = "reset failed: " + ("; ".join(problems) or "a drive problem")
             self.event("reset_failed", problems=problems)
 

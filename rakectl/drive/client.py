@@ -309,8 +309,8 @@ class DriveClient(FrameSender):
             if (self._operational and not self._rebooted[j] and not self._unconfigured[j]
                     and self.feedback.nmt_state[j] is NmtState.STOPPED):
                 self.start_node(j)
-        received = self.stats.tpdo_received
-        self._answers_forgiven = max(received[0], received[1]) - self.stats.syncs
+        received = self.stats.tpdo_received  # answers still on their way are no extra:
+        self._answers_forgiven = max(0, max(received[0], received[1]) - self.stats.syncs)
 
     def stop_all(self) -> None:
         """0 V and DISABLE_VOLTAGE to both drives, applied now (RPDO1s, then a SYNC)."""

@@ -285,10 +285,18 @@ def test_a_jog_ended_by_someone_else_is_not_started_again_by_its_own_requests(
     _ticks(rig, 50)
     assert rig.daemon.state is DaemonState.HOLD
     with pytest.raises(CommandRejected, match=f"this jog has ended \\({reason}\\): start a "
-                       "new jog to move again"):
+                       "new jog, on a new connection, to move again"):
         _from(1, JOG_UP, rig)
     assert rig.daemon.state is DaemonState.HOLD  # nothing changed
     assert _from(3, JOG_UP, rig)["state"] == "jog"
+    # Another connection's jog, ended too, did not free A's: its next jog moved the rake.
+    _from(3, b'{"cmd": "stop"}', rig)
+    _ticks(rig, 50)
+    with pytest.raises(CommandRejected, match=f"this jog has ended \\({reason}\\)"):
+        _from(1, JOG_UP, rig)
+    with pytest.raises(CommandRejected, match="this jog has ended \\(operator stop\\)"):
+        _from(3, JOG_UP, rig)
+    assert rig.daemon.state is DaemonState.HOLD
 
 
 def test_a_refusal_names_the_next_step(rig: LockstepRig) -> None:
@@ -372,3 +380,76 @@ def test_a_tpdo1_remapped_by_another_tool_is_named_in_the_fault(rig: LockstepRig
     assert d.fault_reason.startswith("reset failed: ")
     assert ("(its last TPDO1 had 6 bytes, 8 expected: its PDO mapping was changed)"
             in d.fault_reason)
+
+
+def test_an_estop_calls_off_a_reset_asked_before_it(rig: LockstepRig, other: can.BusABC) -> None:
+    """A reset asked in FAULT waits for its cause to clear; an e-stop meanwhile was
+    cleared by that reset once the cause went (DISARMED, no reset after the e-stop). The
+    e-stop latches until a reset asked after it, and keeps the fault's cause named."""
+    _ticks(rig, 100)
+    for _ in range(30):  # SYNCs of the wrong length from another node: EMCY 0x8240 faults
+        _send(other, 0x080, b"")
+        rig.tick()
+    d = rig.daemon
+    assert d.state is DaemonState.FAULT
+    cause = d.fault_reason
+    command(rig, b'{"cmd": "reset"}')  # its cause still there while the SYNCs come
+    for _ in range(100):
+        _send(other, 0x080, b"")
+        rig.tick()
+    assert d.state is DaemonState.FAULT
+    _from(2, b'{"cmd": "estop"}', rig)
+    assert d.fault_reason == f"operator e-stop (in fault: {cause})"
+    _ticks(rig, 1200)  # the cause gone
+    assert d.state is DaemonState.ESTOP
+    _reset(rig)
+    assert d.state is DaemonState.DISARMED, d.fault_reason
+
+
+def test_a_reset_waits_out_a_sync_producer_still_on_the_bus(
+        rig: LockstepRig, other: can.BusABC) -> None:
+    """Another node sends SYNC every millisecond: a fault naming it. A reset while it goes
+    on gave DISARMED at once (the answers counted before were forgiven) and the fault again
+    9 ticks later; it now fails, naming it, and succeeds once the producer is gone."""
+    _arm(rig)
+    counter, d = 0, rig.daemon
+
+    def foreign_syncs(ticks: int) -> None:
+        nonlocal counter
+        for _ in range(ticks):
+            counter = counter % 240 + 1
+            _send(other, 0x080, bytes([counter]))
+            rig.tick()
+
+    foreign_syncs(30)
+    assert d.state is DaemonState.FAULT
+    command(rig, b'{"cmd": "reset"}')
+    foreign_syncs(1100)
+    assert d.state is DaemonState.FAULT
+    assert d.fault_reason.startswith("reset failed: ") and "another node sends SYNC" in \
+        d.fault_reason
+    _reset(rig)
+    assert d.state is DaemonState.DISARMED, d.fault_reason
+
+
+def test_an_excavation_is_not_replaced_by_another_without_a_stop(rig: LockstepRig) -> None:
+    """A second excavate during a lane replaced it, the first lane never ending nor
+    reporting; it is refused, saying to stop first, as jog and excavate are."""
+    from rakectl.errors import CommandRejected
+
+    _arm(rig)
+    lane = (b'{"cmd": "excavate", "reach_far_m": 1.25, "reach_near_m": 1.15, '
+            b'"target_depth_m": 0.005}')
+    assert _from(1, lane, rig)["lane"] == 1
+    _ticks(rig, 200)
+    with pytest.raises(CommandRejected, match="^cannot excavate while excavate: stop first$"):
+        _from(2, lane, rig)
+    with pytest.raises(CommandRejected, match="^cannot jog while excavate: stop first$"):
+        _from(2, JOG_UP, rig)
+    assert rig.daemon.state is DaemonState.EXCAVATE and rig.daemon.lanes_started == 1
+    _from(1, b'{"cmd": "stop"}', rig)
+    with pytest.raises(CommandRejected, match="^cannot arm while hold: it is armed, holding$"):
+        _from(1, b'{"cmd": "arm"}', rig)
+    _from(1, b'{"cmd": "disarm"}', rig)
+    with pytest.raises(CommandRejected, match="^cannot stop while disarmed: nothing moves"):
+        _from(1, b'{"cmd": "stop"}', rig)
