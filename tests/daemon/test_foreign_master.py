@@ -442,14 +442,14 @@ def test_an_excavation_is_not_replaced_by_another_without_a_stop(rig: LockstepRi
             b'"target_depth_m": 0.005}')
     assert _from(1, lane, rig)["lane"] == 1
     _ticks(rig, 200)
-    with pytest.raises(CommandRejected, match="^cannot excavate while excavate: stop first$"):
+    with pytest.raises(CommandRejected, match=r"^cannot excavate while excavate: stop first$"):
         _from(2, lane, rig)
-    with pytest.raises(CommandRejected, match="^cannot jog while excavate: stop first$"):
+    with pytest.raises(CommandRejected, match=r"^cannot jog while excavate: stop first$"):
         _from(2, JOG_UP, rig)
     assert rig.daemon.state is DaemonState.EXCAVATE and rig.daemon.lanes_started == 1
     _from(1, b'{"cmd": "stop"}', rig)
-    with pytest.raises(CommandRejected, match="^cannot arm while hold: it is armed, holding$"):
+    with pytest.raises(CommandRejected, match=r"^cannot arm while hold: it is armed, holding$"):
         _from(1, b'{"cmd": "arm"}', rig)
     _from(1, b'{"cmd": "disarm"}', rig)
-    with pytest.raises(CommandRejected, match="^cannot stop while disarmed: nothing moves"):
+    with pytest.raises(CommandRejected, match=r"^cannot stop while disarmed: nothing moves"):
         _from(1, b'{"cmd": "stop"}', rig)
