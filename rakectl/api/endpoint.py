@@ -6,6 +6,7 @@ daemon's user, the group's members), from the peer's credentials."""
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import grp
 import os
 import pwd
@@ -69,6 +70,29 @@ def listen(path: Path, group: str | None, backlog: int) -> socket.socket:
         raise ApiError(f"cannot set up the command socket {path}: "
                        f"{exc.strerror or exc}{hint}") from exc
     return sock
+
+
+def claim(path: Path) -> int:
+    """An exclusive claim on the daemon of the command socket ``path``, before it touches
+    the bus: ``flock`` on ``<path>.lock``, held by the returned descriptor until it is
+    closed or the process ends however it ends (the kernel releases it). ApiError naming
+    the lock if another process holds it: a daemon started moments before this one, whose
+    socket does not exist until its bring-up has ended, which this one's bring-up would
+    have reset under it."""
+    _prepare_directory(path.parent)
+    lock = path.with_name(path.name + ".lock")
+    try:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o600)
+    except OSError as exc:
+        raise ApiError(f"cannot claim the command socket {path}: {lock}: "
+                       f"{exc.strerror or exc}") from exc
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        raise ApiError(f"another daemon is starting or running with the command socket "
+                       f"{path} (it holds {lock})") from None
+    return fd
 
 
 SUN_PATH_MAX_BYTES = 107  # an AF_UNIX socket's path: sun_path's 108 bytes, its NUL included

@@ -21,7 +21,7 @@ from typing import Any
 import structlog
 
 from rakectl.api.client import socket_path
-from rakectl.api.endpoint import check_endpoint, refuse_if_listening
+from rakectl.api.endpoint import check_endpoint, claim, refuse_if_listening
 from rakectl.api.server import CommandServer
 from rakectl.config.loader import load_settings
 from rakectl.config.service import DaemonSettings
@@ -81,17 +81,23 @@ def measure_reference(daemon: DaemonSettings, notifier: Notifier) -> dict[str, A
 
 
 def run(config: Path | None, overrides: list[str]) -> int:
-    """Run the daemon until SIGTERM/SIGINT or the shutdown command; 0 on a clean stop."""
+    """Run the daemon until SIGTERM, SIGINT, SIGHUP or the shutdown command; 0 on a clean
+    stop."""
     settings = load_settings(config, overrides, root=Settings)
     configure_logging()
     log = structlog.get_logger("rakectl")
     # before the bus: a second daemon's bring-up would reset the first one's drives, and
     # what would refuse the command socket or the dumps must not wait until after it
     path = socket_path(settings.daemon.socket_path or None)
-    refuse_if_listening(path)
     check_endpoint(path, settings.daemon.socket_group or None)
-    dump_dir = _dump_dir(settings)
-    bus = open_bus(settings.bus, receive_ids(settings.drives))
+    claimed = claim(path)  # a daemon starting at the same moment is refused here too
+    try:
+        refuse_if_listening(path)
+        dump_dir = _dump_dir(settings)
+        bus = open_bus(settings.bus, receive_ids(settings.drives))
+    except BaseException:
+        os.close(claimed)
+        raise
     trace: TraceRecorder | None = None
     inputs: InputLog | None = None
     server: CommandServer | None = None
@@ -106,8 +112,8 @@ def run(config: Path | None, overrides: list[str]) -> int:
         def on_signal(signum: int, frame: FrameType | None) -> None:
             daemon.request_stop()
 
-        signal.signal(signal.SIGTERM, on_signal)
-        signal.signal(signal.SIGINT, on_signal)
+        for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):  # HUP: its terminal
+            signal.signal(signum, on_signal)  # closed, as the CLI reads it
         daemon.timing_reference = measure_reference(settings.daemon, notifier)
         log.info("timing_reference", **daemon.timing_reference)
         notifier.status("bringing up the drives")
@@ -138,5 +144,6 @@ def run(config: Path | None, overrides: list[str]) -> int:
                     log.warning("trace_failed", error=f"{type(error).__name__}: {error}")
         with contextlib.suppress(Exception):
             bus.shutdown()
+        os.close(claimed)
     log.info("stopped", **{**daemon.timing.summary(), "ticks": daemon.ticks})
     return 0

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import csv
 import json
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -314,3 +316,36 @@ def test_run_check_refuses_what_bring_up_would_refuse_before_sending() -> None:
     assert done.stderr.strip() == (
         "rakectl: error: motors.r.current_limit_a: r drive (node 1) 0x2002 current limit = "
         "40000 mA is outside 1..32767 of dc_servo_drive.eds")
+
+
+def test_a_daemon_started_while_another_starts_is_refused_before_the_bus(
+        tmp_path: Path) -> None:
+    """Two `rakectl run` on one socket, moments apart: the second passed the check of the
+    socket (which the first binds only once its bring-up has ended), reset the first one's
+    drives in its own bring-up, and left the first faulted for good ("rebooted: bring-up
+    needed"). The first now holds a lock next to the socket from before it opens the bus,
+    and the second is refused at once, naming it. Here no drive answers, so the first
+    waits in its bring-up."""
+    sock = tmp_path / "rakectl.sock"
+    settings = ["--set", f"daemon.socket_path={sock}", "--set", f"daemon.dump_dir={tmp_path}",
+                "--set", "daemon.startup_cyclictest_s=0", "--set", "daemon.boot_timeout_s=5",
+                "--set", f"bus.channel=claim-{tmp_path.name}"]
+    first = subprocess.Popen([sys.executable, "-m", "rakectl", "run", *settings], cwd=ROOT,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        assert first.stderr is not None
+        for line in first.stderr:  # its log: the claim is taken before this line
+            if "timing_reference" in line:
+                break
+        started_s = time.monotonic()
+        second = run_rakectl("run", *settings, timeout_s=60.0)
+        assert second.returncode == 1
+        assert second.stderr.strip().splitlines()[-1] == (
+            f"rakectl: error: another daemon is starting or running with the command socket "
+            f"{sock} (it holds {sock}.lock)")
+        assert "timing_reference" not in second.stderr  # it went no further
+        assert time.monotonic() - started_s < 5.0  # not after a bring-up of its own
+        assert first.poll() is None  # the first one still in its bring-up
+    finally:
+        first.kill()
+        first.wait(10.0)

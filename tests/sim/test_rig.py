@@ -292,6 +292,23 @@ def test_systemd_notify_sequence_and_sigterm(tmp_path: Path,
     assert last["r_state"] != "OPERATION_ENABLED" and last["theta_state"] != "OPERATION_ENABLED"
 
 
+def test_sighup_stops_the_daemon_as_sigterm_does(tmp_path: Path) -> None:
+    """SIGHUP (its terminal closed) ended the daemon at once: no stop, no dump, the drives
+    at 0 V only by their watchdog, the socket left. It stops it as SIGTERM does."""
+    with emulated_bench(tmp_path, EMULATOR, DAEMON) as bench:
+        bench.wait_for_state(["disarmed"], 60.0)
+        bench.request("arm")
+        bench.wait_for_state(["armed"], 10.0)
+        os.kill(bench.request("status")["pid"], signal.SIGHUP)
+        bench.process.wait(20.0)
+        assert bench.process.returncode == 0
+        assert not bench.socket.exists()
+    assert list(tmp_path.glob("rakectl-*-shutdown.csv"))
+    last = _truth(tmp_path)[-1]
+    assert float(last["voltage_r_v"]) == 0.0 and float(last["voltage_theta_v"]) == 0.0
+    assert last["r_state"] != "OPERATION_ENABLED" and last["theta_state"] != "OPERATION_ENABLED"
+
+
 def test_the_start_up_cyclictest_is_the_reference_in_status(tmp_path: Path) -> None:
     """daemon.startup_cyclictest_s: before bring-up the daemon measures the machine's own
     wake-up latency with cyclictest, reports it in status and the journal; without
