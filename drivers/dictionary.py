@@ -155,12 +155,19 @@ class DriveObjects:
             abort = _SDO_ABORT.pack(0x80, 0, 0, SdoAbort.UNKNOWN_COMMAND)
             out.append((self._sdo_response_id, abort))
             return False
-        network.notify(can_id, bytearray(data), now_s)
+        served = True
+        try:
+            network.notify(can_id, bytearray(data), now_s)
+        except Exception:  # canopen's server raises aborting a request it cannot name
+            network.frames.clear()  # (no transfer before it: its index is None)
+            network.frames.append((self._sdo_response_id, _SDO_ABORT.pack(
+                0x80, 0, 0, SdoAbort.UNKNOWN_COMMAND)))
+            served = False
         answer = network.frames[-1][1] if network.frames else b"\x80"
         self._segmented = _segmented_after(ccs, data[0], answer[0])
         out += network.frames
         network.frames.clear()
-        return True
+        return served
 
     # ------------------------------------------------------------------- power-on values
 
