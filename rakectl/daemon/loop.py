@@ -177,7 +177,7 @@ class Daemon(StateChanges):
 
     def tick(self, skipped: int = 0) -> None:
         """One control period: feedback in, voltages out (0 V unless armed and healthy)."""
-        self.ticks += 1 + skipped
+        self.ticks, self.skipped = self.ticks + 1 + skipped, skipped
         client = self.client
         client.receive()
         voltages = (0.0, 0.0)

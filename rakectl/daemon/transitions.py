@@ -40,6 +40,7 @@ class StateChanges(SlackWork):
     _enable_deadline: int
     _reset_deadline: int
     _reset_quiet_tick: int = 0
+    skipped: int = 0  # the periods this tick woke late by
     jog_client: int  # the connection whose requests drive the jog
     jog_ended: dict[int, str]  # the connections whose jog ended, and why
     # excavate requests carried out since start-up: the number of the newest lane, which
@@ -132,10 +133,18 @@ class StateChanges(SlackWork):
         self._reset_quiet_tick = self.ticks + RESET_QUIET_TICKS
 
     def _drive_problems(self) -> str:
-        """What the supervision checks see wrong with the drives, in one line."""
+        """What the supervision checks see wrong with the drives, in one line; after a
+        stall of the loop longer than the drives' command watchdog (this tick woke that
+        late: the process stopped, the machine busy), that stall first, as their cause."""
         limit = self.settings.drives.feedback_timeout_cycles
-        return ("; ".join(self.client.describe_problems(self.heartbeat_clock(), limit))
-                or "drive problem")
+        problems = ("; ".join(self.client.describe_problems(self.heartbeat_clock(), limit))
+                    or "drive problem")
+        stalled_ms = (self.skipped + 1) * 1e3 / self.settings.rate_hz  # without a tick
+        watchdog_ms = self.settings.drives.watchdog_timeout_ms
+        if stalled_ms <= watchdog_ms:
+            return problems
+        return (f"the loop stalled {stalled_ms:.0f} ms, past the drives' {watchdog_ms} ms "
+                f"command watchdog, which stopped them: {problems}")
 
     def _try_reset(self) -> None:
         limit = self.settings.drives.feedback_timeout_cycles

@@ -95,13 +95,14 @@ from rakectl.protocol.nmt import (
     encode_nmt,
 )
 
-RECEIVE_ERRORS_PER_DRAIN = 4  # one bad datagram does not end the drain; a dead bus does
+RECEIVE_ERRORS_PER_DRAIN = 32  # bad datagrams do not end the drain (a burst of 300 held
+# the TPDO1s behind it 25 ticks at 4, a false stale-feedback fault); a dead bus does
 
 
 # =========================================================================== hot path
 
 
-_TPDO1, _TPDO2, _EMCY, _HEARTBEAT, _OWN, _SDO = range(6)
+_TPDO1, _TPDO2, _EMCY, _HEARTBEAT, _SDO, _OWN, _RPDO = range(7)  # _OWN on: its own IDs
 
 
 def _new_message(can_id: int, size: int) -> can.Message:
@@ -146,7 +147,8 @@ class DriveClient(FrameSender):
                             cob_id(FunctionCode.TPDO2, node): (_TPDO2, j),
                             cob_id(FunctionCode.EMCY, node): (_EMCY, j),
                             cob_id(FunctionCode.HEARTBEAT, node): (_HEARTBEAT, j),
-                            cob_id(FunctionCode.SDO_RESPONSE, node): (_SDO, j)}
+                            cob_id(FunctionCode.SDO_RESPONSE, node): (_SDO, j),
+                            cob_id(FunctionCode.RPDO1, node): (_RPDO, j)}
         self._rpdo = [_new_message(cob_id(FunctionCode.RPDO1, node), RPDO1_SIZE) for node in nodes]
         self._sync_counted = drives.sync_counter_overflow > 0  # else SYNC has no data
         self._sync_top = drives.sync_counter_overflow or SYNC_COUNTER_MAX  # counted here
@@ -176,6 +178,7 @@ class DriveClient(FrameSender):
         self._rebooted = [False, False]
         self._left_enabled: list[DriveState | None] = [None, None]
         self._left_status = [0, 0]  # the status it was read with
+        self._foreign_rpdo: list[bytes | None] = [None, None]
         self._nmt_fault = [False, False]
         self._unconfigured = [False, False]
         self._tpdo2_after_emcy = [True, True]  # a TPDO2 came after the drive's last EMCY
@@ -245,7 +248,7 @@ class DriveClient(FrameSender):
                 self._on_odd_frame(msg)
                 continue
             kind_joint = route.get(msg.arbitration_id)
-            if trace is not None and (kind_joint is None or kind_joint[0] != _OWN):
+            if trace is not None and (kind_joint is None or kind_joint[0] < _OWN):
                 trace.record(msg, True)  # an echo of a frame sent is traced once, as sent
             if kind_joint is None:
                 stats.frames_unknown += 1
@@ -263,6 +266,10 @@ class DriveClient(FrameSender):
                     self._on_heartbeat(j, msg.data)
                 elif kind == _SDO:
                     stats.sdo_answers += 1  # to a Roboteq-class power request: the flags tell
+                elif kind == _RPDO and msg.data != self._rpdo[j].data:  # not the echo of the
+                    if trace is not None:  # last one sent (which a drive applies)
+                        trace.record(msg, True)
+                    self._on_foreign_rpdo(j, msg)
                 else:
                     stats.frames_own += 1
             except FrameError:

@@ -143,7 +143,16 @@ class FrameDecoder(DriveSupervision):
         self._fault[j] = (self._state_fault[j] or self._emcy_fault[j] or self._rebooted[j]
                           or self._unconfigured[j]
                           or self._power.lost[j] or self._left_enabled[j] is not None
-                          or self._nmt_fault[j])
+                          or self._nmt_fault[j] or self._foreign_rpdo[j] is not None)
+
+    def _on_foreign_rpdo(self, j: int, msg: can.Message) -> None:
+        """An RPDO1 on drive ``j``'s COB-ID that is not the echo of the last one sent:
+        another node commands the drive (the last RPDO1 before a SYNC is the one it
+        applies), a fault latched until a fault reset (rare: allocates)."""
+        self.stats.foreign_rpdos[j] += 1
+        if self._foreign_rpdo[j] is None:
+            self._foreign_rpdo[j] = bytes(msg.data)
+            self._update_fault(j)
 
     def _power_lost(self, drives: int) -> None:
         """Roboteq-class drives that went off by themselves while asked on (bit j): a fault

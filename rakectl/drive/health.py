@@ -64,6 +64,7 @@ class Stats:
         "bus_off_frames",
         "emcy_received",
         "error_frames",
+        "foreign_rpdos",
         "frames_bad_length",
         "frames_invalid",
         "frames_own",
@@ -94,6 +95,7 @@ class Stats:
         self.frames_invalid = 0  # right length, undecodable content (FrameError)
         self.frames_unknown = 0
         self.frames_own = 0  # echoes of the controller's own frames (udp_multicast)
+        self.foreign_rpdos = [0, 0]  # RPDO1s on a drive's COB-ID this controller did not send
         self.error_frames = 0
         self.bus_off_frames = 0
         self.emcy_received = 0
@@ -145,6 +147,8 @@ class DriveSupervision:
     _power: PowerRequests  # its lost: a Roboteq-class drive went off by itself while on
     _left_enabled: list[DriveState | None]  # the state a drive left OPERATION ENABLED for
     _left_status: list[int]  # ... and the status it was read with
+    _foreign_rpdo: list[bytes | None]  # the first RPDO1 another node sent the drive, latched
+    last_receive_error: Exception | None  # the bus's, in the drain
     _nmt_fault: list[bool]  # a heartbeat not OPERATIONAL once the drives were started
     _unconfigured: list[bool]  # one said PRE-OPERATIONAL since: bring-up needed (latched)
     _answers_forgiven: int  # TPDO1s beyond the SYNCs sent, counted before the last reset
@@ -195,6 +199,11 @@ class DriveSupervision:
                 problems.append(f"{label}: left OPERATION ENABLED for {state_name(left)} while "
                                 "armed (not by this daemon: another CANopen master, or the "
                                 f"drive itself){self._flags(self._left_status[joint])}")
+            foreign = self._foreign_rpdo[joint]
+            if foreign is not None:
+                problems.append(f"{label}: an RPDO1 on its COB-ID 0x{0x200 + node:03X} that this "
+                                f"daemon did not send (data {foreign.hex()}): another node "
+                                "commands the drive (another CANopen master)")
             nmt_state = fb.nmt_state[joint]
             latched = self._unconfigured[joint] and nmt_state is not NmtState.PRE_OPERATIONAL
             if self._nmt_fault[joint]:
@@ -229,6 +238,10 @@ class DriveSupervision:
                                    " its PDO mapping was changed)" if bad else ""))
             if now_s - self._heard_s[joint] > self._heartbeat_timeout_s:
                 problems.append(f"{label}: no heartbeat for {now_s - self._heard_s[joint]:.3f} s")
+        stale = max(fb.stale_cycles) >= limit_cycles
+        if stale and self.stats.receive_errors:  # what held the TPDO1s back, perhaps
+            problems.append(f"the bus could not decode {self.stats.receive_errors} "
+                            f"receptions so far (the last: {self.last_receive_error})")
         return problems
 
 

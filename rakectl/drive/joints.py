@@ -45,9 +45,11 @@ def drive_label(joint: Joint, node_id: int) -> str:
 
 
 def receive_ids(drives: DrivesSettings) -> tuple[int, ...]:
-    """COB-IDs the controller receives: TPDO1, TPDO2, EMCY, heartbeat and SDO response per drive."""
+    """COB-IDs the controller receives: TPDO1, TPDO2, EMCY, heartbeat and SDO response per
+    drive, and its RPDO1, which only another node sends (socketcan does not hand a socket
+    its own frames): another master commanding the drive."""
     functions = (FunctionCode.TPDO1, FunctionCode.TPDO2, FunctionCode.EMCY,
-                 FunctionCode.HEARTBEAT, FunctionCode.SDO_RESPONSE)
+                 FunctionCode.HEARTBEAT, FunctionCode.SDO_RESPONSE, FunctionCode.RPDO1)
     return tuple(cob_id(f, node) for node in node_ids(drives) for f in functions)
 
 

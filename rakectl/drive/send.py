@@ -104,6 +104,7 @@ class FrameSender(FrameDecoder):
                 self._controlword[j] = self._controlword_after[j] = command.value
             if command is DriveCommand.FAULT_RESET:
                 self._left_enabled[j] = None  # judged again from the next arming on
+                self._foreign_rpdo[j] = None  # judged again from the reset on
                 self._update_fault(j)
             self._command[j] = command
 

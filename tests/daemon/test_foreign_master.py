@@ -453,3 +453,41 @@ def test_an_excavation_is_not_replaced_by_another_without_a_stop(rig: LockstepRi
     _from(1, b'{"cmd": "disarm"}', rig)
     with pytest.raises(CommandRejected, match=r"^cannot stop while disarmed: nothing moves"):
         _from(1, b'{"cmd": "stop"}', rig)
+
+
+def test_another_masters_rpdo1_is_a_fault_named(rig: LockstepRig, other: can.BusABC) -> None:
+    """Another node sends the θ drive RPDO1s of its own (8 V, enabled), as a second master
+    would: the drive applies the last RPDO1 before a SYNC, its own whenever it comes
+    after the daemon's (8 V on two ticks in a run of the emulated bench), and nothing but
+    the echo counters said so. Now the first one not sent by this daemon is a fault naming
+    it; a reset once it has stopped clears it."""
+    from rakectl.protocol.codec import encode_rpdo
+
+    _arm(rig)
+    d = rig.daemon
+    _send(other, 0x202, encode_rpdo(8000, 0x0F))
+    rig.tick()
+    assert d.state is DaemonState.FAULT
+    assert ("θ drive (node 2): an RPDO1 on its COB-ID 0x202 that this daemon did not send "
+            f"(data {encode_rpdo(8000, 0x0F).hex()}): another node commands the drive "
+            "(another CANopen master)") in d.fault_reason
+    assert d.client.stats.foreign_rpdos == [0, 1]
+    _reset(rig)
+    assert d.state is DaemonState.DISARMED, d.fault_reason
+
+
+def test_a_stall_past_the_drives_watchdog_is_named_as_the_cause(rig: LockstepRig) -> None:
+    """The loop stopped for 200 ms (the process stopped, the machine busy): the drives'
+    watchdog stops them, and the fault named only what the drives then said ('left
+    OPERATION ENABLED ... another CANopen master, or the drive itself', EMCY 0x8250).
+    It now names the stall first, as their cause."""
+    _arm(rig)
+    for _ in range(200):  # 200 ms of the drives' time without a tick
+        rig.now_s += 0.001
+        rig.emulator.service(0.0)
+    d = rig.daemon
+    d.tick(skipped=199)  # the loop's wake-up, 200 periods late
+    assert d.state is DaemonState.FAULT
+    assert d.fault_reason.startswith("the loop stalled 200 ms, past the drives' 3 ms command "
+                                     "watchdog, which stopped them: "), d.fault_reason
+    assert "EMCY 0x8250" in d.fault_reason

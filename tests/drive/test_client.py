@@ -151,9 +151,11 @@ def sync(counter: int) -> tuple[int, bytes]:
 # =========================================================================== IDs and decoding
 
 
-def test_receive_ids_are_the_drives_transmissions() -> None:
-    assert sorted(receive_ids(DRIVES)) == [0x081, 0x082, 0x181, 0x182, 0x281, 0x282,
-                                           0x581, 0x582, 0x701, 0x702]
+def test_receive_ids_are_the_drives_transmissions_and_their_rpdo1s() -> None:
+    """The drives' transmissions, and their RPDO1s: only another master sends those to
+    this controller (socketcan does not hand a socket its own frames)."""
+    assert sorted(receive_ids(DRIVES)) == [0x081, 0x082, 0x181, 0x182, 0x201, 0x202, 0x281,
+                                           0x282, 0x581, 0x582, 0x701, 0x702]
     assert sorted(own_ids(DRIVES)) == [0x000, 0x080, 0x201, 0x202, 0x601, 0x602, 0x70A]
 
 
@@ -490,7 +492,7 @@ def test_bus_arguments_per_interface() -> None:
     socketcan = canbus.bus_kwargs(BusSettings(interface=BusInterface.SOCKETCAN,
                                               channel="can0"), ids)
     assert socketcan["can_filters"][0] == {"can_id": 0x081, "can_mask": 0x7FF, "extended": False}
-    assert len(socketcan["can_filters"]) == 10
+    assert len(socketcan["can_filters"]) == 12
     udp = canbus.bus_kwargs(BusSettings(interface=BusInterface.UDP_MULTICAST,
                                         channel="239.74.163.2"), ids)
     port = udp.pop("port")

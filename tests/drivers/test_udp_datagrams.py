@@ -6,7 +6,8 @@ Before: one such datagram ended the emulator's process (``could not unpack recei
 message``), and one during the drives' bring-up ended the bring-up's notifier thread,
 which then reported "no heartbeat or boot-up within 2 s" with both drives running. Now
 the emulator counts them (``unreadable``) and serves on; the bring-up counts them and
-completes.
+completes; and the daemon's drain reads on past a burst of 30 (it ended after 4, and a
+burst of 300 held the TPDO1s behind it into a false stale-feedback fault).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ PROBE = textwrap.dedent("""
     from rakectl.config.settings import MotorsSettings
     from rakectl.drive.bringup import run_bring_up
     from rakectl.drive.canbus import open_bus
+    from rakectl.drive.client import DriveClient
     from rakectl.drive.joints import receive_ids
 
     GROUP = "239.74.163.11"
@@ -59,9 +61,9 @@ PROBE = textwrap.dedent("""
         emulator.service(0.05)
     print("RESULT emulator unreadable", emulator.stats.bad.counts[BadInput.UNREADABLE])
 
-    stop = threading.Event()
+    stop, served = threading.Event(), threading.Event()
     def serve():
-        while not stop.is_set():
+        while not served.is_set():
             emulator.service(0.005)
     def pester():
         while not stop.is_set():
@@ -76,8 +78,22 @@ PROBE = textwrap.dedent("""
     try:
         infos = run_bring_up(controller, drives, MotorsSettings(), 2.0)
         print("RESULT bring-up", [info.node_id for info in infos])
+        stop.set()
+        threads[1].join()  # the pestering ends; the drives are served on
+        client = DriveClient(controller, drives, MotorsSettings(), rate_hz=1000.0)
+        while client.receive():
+            pass
+        heard, errors = client.stats.heartbeats_received, client.stats.receive_errors
+        for _ in range(30):
+            inject(BAD[0])
+        inject(msgpack.packb(frame, use_bin_type=True))  # r's heartbeat, behind them
+        time.sleep(0.05)
+        client.receive()  # one drain: it read on past the 30 (it ended after 4 before)
+        print("RESULT one drain", client.stats.receive_errors - errors,
+              client.stats.heartbeats_received - heard >= 1)
     finally:
         stop.set()
+        served.set()
         for thread in threads:
             thread.join()
         controller.shutdown()
@@ -92,4 +108,5 @@ def test_datagrams_that_are_no_frame_are_counted_and_served_past() -> None:
     assert done.returncode == 0, done.stderr
     results = [line.removeprefix("RESULT ") for line in done.stdout.splitlines()
                if line.startswith("RESULT ")]  # the emulator logs to stdout too
-    assert results == ["emulator unreadable 4", "bring-up [1, 2]", "emulator served on True"]
+    assert results == ["emulator unreadable 4", "bring-up [1, 2]", "one drain 30 True",
+                       "emulator served on True"]
