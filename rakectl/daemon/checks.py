@@ -42,6 +42,7 @@ class ArmingChecks:
         self.weight_result: WeightResult | None = None  # the last one's
         self.mount_check: MountCheck | None = None  # runs once the weight passed
         self.mount_result: MountResult | None = None
+        self.interrupted = ""  # why the last checks left unfinished were, "" if none
 
     @property
     def weight_passed(self) -> bool:
@@ -61,7 +62,7 @@ class ArmingChecks:
 
     def start(self, reach_m: float, depth_m: float) -> str:
         """Build the checks not yet passed, from this pose; the reason for CHECKING."""
-        s = self._settings
+        s, self.interrupted = self._settings, ""
         if not self.weight_passed:
             self.weight_check = WeightCheck(s.selftest, s.clamp, s.motors.r, s.motors.theta,
                                             self._dt_s, reach_m, depth_m)
@@ -71,8 +72,11 @@ class ArmingChecks:
         return "weight check first" if self.weight_check is not None else \
             "tine-mount check first"
 
-    def stop(self) -> None:
-        """Leaving CHECKING: what did not end is judged again at the next arming."""
+    def stop(self, reason: str = "") -> None:
+        """Leaving CHECKING (``reason``: why): what did not end is judged again at the next
+        arming, and :attr:`interrupted` says why it did not end."""
+        if self.weight_check is not None or self.mount_check is not None:
+            self.interrupted = reason or "left unfinished"
         self.weight_check = self.mount_check = None
 
     def step(self, fb: Feedback, reach_m: float, depth_m: float

@@ -25,7 +25,7 @@ from rakectl.daemon.loop import Daemon
 from rakectl.daemon.recorder import DumpError
 from rakectl.daemon.states import ARMED_STATES, DaemonState, Event, next_state
 from rakectl.daemon.timing import timing_verdict
-from rakectl.errors import CommandRejected, KinematicsError
+from rakectl.errors import CommandRejected, ConfigError, KinematicsError
 
 Reply = Mapping[str, Any]
 # a lane's parameters as status says them: those an excavate request gives (the configured
@@ -75,8 +75,8 @@ def _checks(daemon: Daemon) -> tuple[dict[str, Any], dict[str, Any]]:
         weight_reply = {"passed": weight.passed, "weight_n": _finite(weight.weight_n),
                         "expected_n": weight.expected_n, "message": weight.message}
     else:
-        weight_reply = {"passed": None, "message": "not run" if selftest.enabled
-                        else "disabled (selftest.enabled: false)"}
+        weight_reply = {"passed": None, "message": _not_run(checks.interrupted)
+                        if selftest.enabled else "disabled (selftest.enabled: false)"}
     if checks.mount_check is not None:
         mount_reply: dict[str, Any] = {"passed": None, "message": "running" if
                                        checks.weight_check is None else "after the weight check"}
@@ -90,10 +90,17 @@ def _checks(daemon: Daemon) -> tuple[dict[str, Any], dict[str, Any]]:
                        "side_at_least": side.at_least, "ratio": _finite(mount.ratio),
                        "message": mount.message}
     else:
-        mount_reply = {"passed": None, "message": "not run" if selftest.enabled and selftest.press
+        mount_reply = {"passed": None, "message": _not_run(checks.interrupted)
+                       if selftest.enabled and selftest.press
                        else "disabled (selftest.press: false)" if selftest.enabled
                        else "disabled (selftest.enabled: false)"}
     return weight_reply, mount_reply
+
+
+def _not_run(interrupted: str) -> str:
+    """A check without a verdict, not running: interrupted (naming why), or not run yet."""
+    return (f"interrupted ({interrupted}): runs at the next arming" if interrupted
+            else "not run")
 
 
 def _tip(daemon: Daemon) -> dict[str, float | None]:
@@ -206,7 +213,16 @@ def _jog(daemon: Daemon, request: Request) -> Reply:
 def _excavate(daemon: Daemon, request: Request) -> Reply:
     _require(daemon, Event.EXCAVATE, "excavate")
     given: dict[str, Any] = {k: v for k, v in request.args.items() if isinstance(v, float)}
-    lane = dataclasses.replace(daemon.settings.lane, **given)
+    base = daemon.settings.lane
+    for name, top in (("depth_step_m", base.max_depth_step_m),
+                      ("stroke_speed_m_per_s", base.max_stroke_speed_m_per_s)):
+        if base.adaptive and given.get(name, 0.0) > top:  # the lane would cap it unsaid
+            raise CommandRejected(f"cannot excavate: {name} {given[name]:g} is above this "
+                                  f"adaptive lane's largest, {top:g} (lane.max_{name})")
+    try:
+        lane = dataclasses.replace(base, **given)
+    except ConfigError as error:  # the lane's own cross-checks
+        raise CommandRejected(f"cannot excavate: {error}") from None
     ws = daemon.workspace
     for reach, depth in ((lane.reach_far_m, -lane.clearance_m),
                          (lane.reach_near_m, lane.target_depth_m),

@@ -172,8 +172,15 @@ class SlackWork:
         self.events.add(name, fields)
 
     def _dump(self, reason: str) -> Path:
+        """A dump named after now, the tick and ``reason``; a second one of the same tick
+        and reason (two requests between ticks) gets a number, not the same file."""
         stamp = time.strftime("%Y%m%d-%H%M%S")
-        path = self.dump_dir / f"rakectl-{stamp}-{self.ticks}-{reason}.csv"
+        base = f"rakectl-{stamp}-{self.ticks}-{reason}"
+        taken = {writer.path for writer in self._dumps}
+        path, n = self.dump_dir / f"{base}.csv", 1
+        while path in taken or path.exists():
+            n += 1
+            path = self.dump_dir / f"{base}-{n}.csv"
         return self.dump_to(path)
 
     def dump_to(self, path: Path, open_now: bool = False) -> Path:

@@ -63,9 +63,10 @@ class StateChanges(SlackWork):
         if old is DaemonState.JOG and new is not DaemonState.JOG:
             self.jog_ended[self.jog_client] = reason
         if old is DaemonState.CHECKING:  # passed, or left unfinished (judged again next arm)
-            self.checks.stop()
+            self.checks.stop(reason)
         if old in ARMED_STATES and new not in ARMED_STATES:
             self._enabled = False
+            self.controller.requested_v = (0.0, 0.0)  # nothing asked until armed again
             self.client.command(None, DriveCommand.QUICK_STOP if new is DaemonState.ESTOP
                                 else DriveCommand.DISABLE_VOLTAGE)
         self.event("state", old=old.name, new=new.name, reason=reason)

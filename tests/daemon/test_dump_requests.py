@@ -53,3 +53,23 @@ def test_a_dump_path_that_cannot_take_a_new_file_is_refused_naming_why(tmp_path:
         assert list(rig.daemon.dump_failures) == []
     finally:
         rig.close()
+
+
+def test_two_dumps_asked_between_two_ticks_are_two_files(tmp_path: Path) -> None:
+    """Two dump requests without a path between two ticks were named alike (the time,
+    the tick, the reason): both replies named one file and the second dump failed. The
+    second gets a number."""
+    rig = LockstepRig(tmp_path)
+    try:
+        rig.bring_up()
+        rig.until(DaemonState.DISARMED, 3000)
+        first = command(rig, b'{"cmd": "dump"}')["path"]
+        second = command(rig, b'{"cmd": "dump"}')["path"]
+        assert isinstance(first, str) and isinstance(second, str)
+        assert second == first.removesuffix(".csv") + "-2.csv"
+        while rig.daemon.pending_dumps():
+            rig.daemon._work_on_dump(1.0)  # what the slack does between ticks
+        assert Path(first).is_file() and Path(second).is_file()
+        assert command(rig, b'{"cmd": "status"}')["dumps"] == {"pending": [], "failed": []}
+    finally:
+        rig.close()

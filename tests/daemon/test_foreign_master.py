@@ -491,3 +491,53 @@ def test_a_stall_past_the_drives_watchdog_is_named_as_the_cause(rig: LockstepRig
     assert d.fault_reason.startswith("the loop stalled 200 ms, past the drives' 3 ms command "
                                      "watchdog, which stopped them: "), d.fault_reason
     assert "EMCY 0x8250" in d.fault_reason
+
+
+def test_status_asks_no_voltage_outside_the_armed_states(rig: LockstepRig) -> None:
+    """The requested voltages kept their last armed values after a disarm or an e-stop
+    (-0.67 V on θ in ESTOP, the applied ones 0): nothing is asked once disarmed."""
+    _arm(rig)
+    held = _from(1, b'{"cmd": "status"}', rig)["voltages"]
+    assert isinstance(held, dict) and held["requested_theta_v"] != 0.0  # holding the rake
+    for request in (b'{"cmd": "disarm"}', b'{"cmd": "estop"}'):
+        _from(1, request, rig)
+        _ticks(rig, 5)
+        voltages = _from(1, b'{"cmd": "status"}', rig)["voltages"]
+        assert voltages == {"requested_r_v": 0.0, "requested_theta_v": 0.0,
+                            "applied_r_v": 0.0, "applied_theta_v": 0.0}
+        if request == b'{"cmd": "disarm"}':
+            _arm(rig)
+
+
+def test_checks_an_estop_interrupted_say_so(rig: LockstepRig) -> None:
+    """An e-stop during the checks before arming: status said "not run"; it says they
+    were interrupted, and why, and they run at the next arming."""
+    assert _from(1, b'{"cmd": "arm"}', rig)["state"] == "checking"
+    _ticks(rig, 100)
+    _from(1, b'{"cmd": "estop"}', rig)
+    weight = _from(1, b'{"cmd": "status"}', rig)["weight_check"]
+    assert weight == {"passed": None, "message": "interrupted (operator e-stop): runs at the "
+                      "next arming"}
+    _reset(rig)
+    assert _from(1, b'{"cmd": "arm"}', rig)["state"] == "checking"
+    weight = _from(1, b'{"cmd": "status"}', rig)["weight_check"]
+    assert weight == {"passed": None, "message": "running"}
+
+
+@pytest.mark.parametrize(("arg", "value", "top"), [("stroke_speed_m_per_s", 1.0, 0.15),
+                                                   ("depth_step_m", 0.1, 0.04)])
+def test_an_adaptive_lane_refuses_what_it_would_cap_naming_the_setting(
+        rig: LockstepRig, arg: str, value: float, top: float) -> None:
+    """An adaptive lane (the rig's) took a stroke speed of 1 m/s and capped it at 0.15
+    unsaid, status showing 1.0; a depth step of 0.1 m was refused with the settings' own
+    words. Both are refused now, naming the lane's setting."""
+    from rakectl.errors import CommandRejected
+
+    _arm(rig)
+    lane = (b'{"cmd": "excavate", "reach_far_m": 1.25, "reach_near_m": 1.15, '
+            b'"target_depth_m": 0.05, "' + arg.encode() + b'": ' + str(value).encode() + b"}")
+    with pytest.raises(CommandRejected) as refused:
+        _from(1, lane, rig)
+    assert str(refused.value) == (f"cannot excavate: {arg} {value:g} is above this adaptive "
+                                  f"lane's largest, {top:g} (lane.max_{arg})")
+    assert rig.daemon.state is DaemonState.ARMED and rig.daemon.lanes_started == 0
