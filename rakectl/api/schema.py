@@ -123,9 +123,10 @@ _SPECS = (
                 "until a `reset` asked after it (one asked before, still waiting for a fault's "
                 "cause to clear, is called off; the fault's cause stays named)."),
     CommandSpec(ApiCommand.RESET, "Clear a latched emergency stop or fault; stays disarmed. "
-                "It ends once no drive problem is left and no sooner than 20 ms (another SYNC "
-                "producer still on the bus shows within them); after 1 s, `reset failed` "
-                "naming what is left."),
+                "It ends once no drive problem is left and no sooner than 20 loop periods (a "
+                "SYNC producer of 100 Hz or more still on the bus shows within them; a slower "
+                "one faults the daemon again once 10 answers are extra); after 1 s, `reset "
+                "failed` naming what is left."),
     CommandSpec(ApiCommand.DUMP, "Write the flight recorder's recent history to a file.", (
         Arg("path", ArgKind.STRING, "File to write, on the daemon's machine. Default: a new "
             "file in the daemon's state directory."),)),

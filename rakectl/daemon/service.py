@@ -90,9 +90,9 @@ def run(config: Path | None, overrides: list[str]) -> int:
     # what would refuse the command socket or the dumps must not wait until after it
     path = socket_path(settings.daemon.socket_path or None)
     check_endpoint(path, settings.daemon.socket_group or None)
-    claimed = claim(path)  # a daemon starting at the same moment is refused here too
+    refuse_if_listening(path)  # a running daemon, named as such
+    claimed = claim(path)  # one starting at the same moment, refused here
     try:
-        refuse_if_listening(path)
         dump_dir = _dump_dir(settings)
         bus = open_bus(settings.bus, receive_ids(settings.drives))
     except BaseException:

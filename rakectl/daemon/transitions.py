@@ -20,7 +20,7 @@ from rakectl.daemon.slack import SlackWork
 from rakectl.daemon.states import ARMED_STATES, DaemonState, Event, next_state
 from rakectl.protocol.cia402 import DriveCommand
 
-RESET_QUIET_TICKS = 20  # a reset ends no sooner: a foreign SYNC producer shows within it
+RESET_QUIET_TICKS = 20  # a reset ends no sooner: a SYNC producer of 100 Hz or more shows
 RESET_EXTRA_ANSWERS = 2  # TPDO1s beyond the SYNCs it tolerates: one still on its way when
 # the reset forgave the count, one stray frame (a foreign producer at 100 Hz sends 2)
 

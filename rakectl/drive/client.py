@@ -150,6 +150,7 @@ class DriveClient(FrameSender):
                             cob_id(FunctionCode.SDO_RESPONSE, node): (_SDO, j),
                             cob_id(FunctionCode.RPDO1, node): (_RPDO, j)}
         self._rpdo = [_new_message(cob_id(FunctionCode.RPDO1, node), RPDO1_SIZE) for node in nodes]
+        self._rpdo_before = [bytearray(m.data) for m in self._rpdo]  # the one sent before
         self._sync_counted = drives.sync_counter_overflow > 0  # else SYNC has no data
         self._sync_top = drives.sync_counter_overflow or SYNC_COUNTER_MAX  # counted here
         self._sync_msg = _new_message(SYNC_COB_ID, 1 if self._sync_counted else 0)
@@ -266,8 +267,9 @@ class DriveClient(FrameSender):
                     self._on_heartbeat(j, msg.data)
                 elif kind == _SDO:
                     stats.sdo_answers += 1  # to a Roboteq-class power request: the flags tell
-                elif kind == _RPDO and msg.data != self._rpdo[j].data:  # not the echo of the
-                    if trace is not None:  # last one sent (which a drive applies)
+                elif kind == _RPDO and msg.data != self._rpdo[j].data and \
+                        msg.data != self._rpdo_before[j]:  # not the echo of one of the last
+                    if trace is not None:  # two sent (udp_multicast's may come a tick late)
                         trace.record(msg, True)
                     self._on_foreign_rpdo(j, msg)
                 else:
@@ -316,8 +318,10 @@ class DriveClient(FrameSender):
             if (self._operational and not self._rebooted[j] and not self._unconfigured[j]
                     and self.feedback.nmt_state[j] is NmtState.STOPPED):
                 self.start_node(j)
-        received = self.stats.tpdo_received  # answers still on their way are no extra:
-        self._answers_forgiven = max(0, max(received[0], received[1]) - self.stats.syncs)
+        received = self.stats.tpdo_received  # negative after SYNCs went unanswered: the
+        # count starts from 0 again (an answer on its way then reads as one extra, which
+        # the reset's check allows for)
+        self._answers_forgiven = max(received[0], received[1]) - self.stats.syncs
 
     def stop_all(self) -> None:
         """0 V and DISABLE_VOLTAGE to both drives, applied now (RPDO1s, then a SYNC)."""

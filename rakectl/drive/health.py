@@ -241,7 +241,7 @@ class DriveSupervision:
         stale = max(fb.stale_cycles) >= limit_cycles
         if stale and self.stats.receive_errors:  # what held the TPDO1s back, perhaps
             problems.append(f"the bus could not decode {self.stats.receive_errors} "
-                            f"receptions so far (the last: {self.last_receive_error})")
+                            f"receptions since start-up (the last: {self.last_receive_error})")
         return problems
 
 

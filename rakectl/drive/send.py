@@ -85,6 +85,7 @@ class FrameSender(FrameDecoder):
     _controlword: list[int]  # goes out with the next send()
     _controlword_after: list[int]  # ... and from the one after on
     _controlword_sent: list[int]
+    _rpdo_before: list[bytearray]
 
     def command(self, joint: Joint | None, command: DriveCommand) -> None:
         """Send ``command``'s controlword to one drive (None: both) from the next send() on.
@@ -126,6 +127,9 @@ class FrameSender(FrameDecoder):
         NonFiniteError for a NaN or infinite voltage, before anything is sent.
         """
         rpdo, controlword, sent = self._rpdo, self._controlword, self._controlword_sent
+        before = self._rpdo_before  # what the last send carried: its echo may come late
+        before[0][:] = rpdo[0].data
+        before[1][:] = rpdo[1].data
         if self._roboteq:
             lost = self._power.send(self.feedback.state, self.feedback.statusword)
             if lost:

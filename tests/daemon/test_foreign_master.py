@@ -541,3 +541,35 @@ def test_an_adaptive_lane_refuses_what_it_would_cap_naming_the_setting(
     assert str(refused.value) == (f"cannot excavate: {arg} {value:g} is above this adaptive "
                                   f"lane's largest, {top:g} (lane.max_{arg})")
     assert rig.daemon.state is DaemonState.ARMED and rig.daemon.lanes_started == 0
+
+
+def test_a_sync_producer_after_a_reset_from_lost_answers_is_found_at_once(
+        rig: LockstepRig, other: can.BusABC) -> None:
+    """600 TPDO1s lost (a bus outage, stale feedback), a reset, then another node sends
+    SYNC every millisecond: the count of answers beyond the SYNCs starts from 0 at the
+    reset, so the producer faults the daemon within its 10 extra answers (with the count
+    kept from before the reset, 600 below 0, it took 612 ticks)."""
+    _arm(rig)
+    bus, d = rig.controller_bus, rig.daemon
+    receive = bus.recv
+
+    def lossy(timeout: float | None = None) -> can.Message | None:
+        msg = receive(timeout)
+        while msg is not None and msg.arbitration_id in (0x181, 0x182):
+            msg = receive(timeout)
+        return msg
+
+    bus.recv = lossy  # type: ignore[method-assign]
+    _ticks(rig, 600)
+    bus.recv = receive  # type: ignore[method-assign]
+    assert d.state is DaemonState.FAULT and "no TPDO1" in d.fault_reason
+    _reset(rig)
+    assert d.state is DaemonState.DISARMED, d.fault_reason
+    counter, ticks = 0, 0
+    while d.state is not DaemonState.FAULT and ticks < 60:
+        counter = counter % 240 + 1
+        _send(other, 0x080, bytes([counter]))
+        rig.tick()
+        ticks += 1
+    assert d.state is DaemonState.FAULT and "another node sends SYNC" in d.fault_reason
+    assert ticks <= 20

@@ -1129,3 +1129,25 @@ def test_watchdog_fault_and_fault_reset_against_the_emulator(rig: Rig) -> None:
     assert not rig.client.drive_faults()
     enable(rig, 6)
     assert fb.state == [DriveState.OPERATION_ENABLED] * 2
+
+
+def test_the_echo_of_an_rpdo1_a_tick_late_is_not_another_masters() -> None:
+    """udp_multicast hands the controller its own frames back; the echo of one tick's
+    RPDO1 may come after the next tick's was sent. Neither is another master's; a frame
+    the controller did not send is (python-can's virtual bus echoing as udp does)."""
+    channel = f"test-rpdo-echo-{id(MOTORS)}"
+    bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=True)
+    other = can.Bus(interface="virtual", channel=channel)
+    try:
+        client = DriveClient(bus, DRIVES, MOTORS, rate_hz=1000.0)
+        client.send(1.0, -1.0)
+        client.send(2.0, -2.0)  # the first one's echo not yet read
+        client.receive()
+        assert client.stats.frames_own == 4 and not client.drive_faults()
+        other.send(can.Message(arbitration_id=0x201, is_extended_id=False,
+                               data=codec.encode_rpdo(5000, 0x0F)))
+        client.receive()
+        assert client.stats.foreign_rpdos == [1, 0] and client.drive_faults()
+    finally:
+        other.shutdown()
+        bus.shutdown()
