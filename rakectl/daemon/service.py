@@ -51,6 +51,11 @@ def configure_logging() -> None:
     )
 
 
+class _StopDuringStartUp(Exception):  # a stop asked, not an error
+    """SIGTERM, SIGINT or SIGHUP before the loop runs (the drives' bring-up waiting for
+    drives that do not answer, cyclictest): the start-up ends there, exit status 0."""
+
+
 def _dump_dir(settings: Settings) -> Path:
     configured = settings.daemon.dump_dir or os.environ.get("STATE_DIRECTORY", "").split(":")[0]
     path = Path(configured) if configured else Path.cwd()
@@ -109,15 +114,24 @@ def run(config: Path | None, overrides: list[str]) -> int:
         daemon = Daemon(settings, client, notifier, dump_dir)
         daemon.trace, daemon.inputs = trace, inputs
 
+        starting = [True]  # before the loop, a stop ends the start-up where it is
+
         def on_signal(signum: int, frame: FrameType | None) -> None:
             daemon.request_stop()
+            if starting[0]:
+                starting[0] = False
+                raise _StopDuringStartUp(signal.Signals(signum).name)
 
         for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):  # HUP: its terminal
             signal.signal(signum, on_signal)  # closed, as the CLI reads it
-        daemon.timing_reference = measure_reference(settings.daemon, notifier)
-        log.info("timing_reference", **daemon.timing_reference)
-        notifier.status("bringing up the drives")
-        daemon.bring_up()
+        try:
+            daemon.timing_reference = measure_reference(settings.daemon, notifier)
+            log.info("timing_reference", **daemon.timing_reference)
+            notifier.status("bringing up the drives")
+            daemon.bring_up()
+        except _StopDuringStartUp as stop:  # the drives were never enabled
+            log.info("stopped", during="start-up", signal=str(stop))
+            return 0
         report = apply_rt(RtMode(settings.daemon.rt_mode.value), _rt_request(settings))
         for warning in report.warnings:
             log.warning("realtime", problem=warning)
@@ -131,6 +145,7 @@ def run(config: Path | None, overrides: list[str]) -> int:
             log.warning("clamp_warning", reason=gap)
         freeze_gc()
         gc.disable()  # no collection in the loop: the slack collects young generations
+        starting[0] = False  # from here, a stop is the loop's: 0 V, drives disabled, a dump
         daemon.run()
     finally:
         gc.enable()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import signal
 import subprocess
 import sys
 import time
@@ -349,3 +350,29 @@ def test_a_daemon_started_while_another_starts_is_refused_before_the_bus(
     finally:
         first.kill()
         first.wait(10.0)
+
+
+def test_a_stop_during_the_drives_bring_up_ends_it_with_status_0(tmp_path: Path) -> None:
+    """SIGTERM while the bring-up waited for drives that do not answer (`systemctl stop`
+    with the drives off) was held until the bring-up timed out, then the daemon exited 1
+    ('no heartbeat or boot-up'), past systemd's 5 s stop timeout with two drives. The
+    start-up ends at the signal, status 0; nothing was enabled."""
+    settings = ["--set", f"daemon.socket_path={tmp_path / 'rakectl.sock'}",
+                "--set", f"daemon.dump_dir={tmp_path}", "--set", "daemon.startup_cyclictest_s=0",
+                "--set", "daemon.boot_timeout_s=20", "--set", f"bus.channel=stop-{tmp_path.name}"]
+    daemon = subprocess.Popen([sys.executable, "-m", "rakectl", "run", *settings], cwd=ROOT,
+                              stderr=subprocess.PIPE, text=True)
+    try:
+        assert daemon.stderr is not None
+        for line in daemon.stderr:
+            if "timing_reference" in line:
+                break
+        time.sleep(0.5)  # into the bring-up's waits
+        daemon.send_signal(signal.SIGTERM)
+        started_s = time.monotonic()
+        assert daemon.wait(10.0) == 0
+        assert time.monotonic() - started_s < 5.0  # not the 20 s of the bring-up's timeout
+        assert '"during": "start-up"' in daemon.stderr.read()
+    finally:
+        daemon.kill()
+        daemon.wait(10.0)
