@@ -2,8 +2,10 @@
 
 The operator's client sends a velocity every 100 ms; each command is good for
 ``deadman_s``. The reference moves at the commanded velocity, limited in
-speed and in acceleration (both ways: a stop decelerates, it does not jerk),
-and never leaves the workspace: near a joint limit (its end stop, where a drive
+speed and in acceleration (both ways: a commanded zero, and the dead-man's stop,
+decelerate; the operator's ``stop`` holds the reference where it is at once, about
+1 mm of overshoot at 0.1 m/s, and a change of space steps it), and never leaves the
+workspace: near a joint limit (its end stop, where a drive
 faults on the hit) it stops ``LIMIT_MARGIN`` inside it. It waits
 for the tip: while the measured tip (:meth:`Jog.observe`) is more than
 ``max_lag_m`` from the reference, a step that would take it further is not
