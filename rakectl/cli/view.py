@@ -85,6 +85,7 @@ def cmd_view(args: argparse.Namespace) -> int:
             print(f"rakectl: error: view: --write-layout {args.write_layout} is a directory, "
                   "not a file", file=sys.stderr)
             return 2
+        check_layout(args.write_layout)
         args.write_layout.write_text(json.dumps(json.loads(build()), indent=1,
                                                 ensure_ascii=False) + "\n")
         print(f"view: layout written to {args.write_layout}", file=sys.stderr)
@@ -97,6 +98,10 @@ def cmd_view(args: argparse.Namespace) -> int:
         raise ConfigError(f"view: --rate-hz must be within 1..200, got {args.rate_hz:g}")
     if args.seconds is not None and not args.seconds > 0.0:
         raise ConfigError(f"view: --seconds must be > 0, got {args.seconds:g}")
+    if args.record is not None:  # a session's recording is never replaced
+        from rakectl.view.record import check_output
+
+        check_output(args.record, "view: --record", replace_mcap=False)
     objects = objects_of(args.emulator_config)  # a bad file fails before anything starts
     context = foxglove.Context()
     stream = StatusStream(socket_path(args.socket), Publisher(context), args.rate_hz, objects,
@@ -134,12 +139,29 @@ def cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+def check_layout(path: Path) -> None:
+    """ConfigError unless ``path`` can take the layout: an existing file only if it is a
+    layout written before (JSON with Foxglove's ``panelType``), in a directory that
+    exists."""
+    if not path.parent.is_dir():
+        raise ConfigError(f"view: --write-layout {path}: no directory {str(path.parent)!r}")
+    if path.exists():
+        try:
+            earlier = path.read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError):
+            earlier = ""
+        if not (earlier.lstrip().startswith("{") and '"panelType"' in earlier):
+            raise ConfigError(f"view: --write-layout {path} exists and is not a layout: it "
+                              "is never replaced; choose another name")
+
+
 def cmd_mcap(args: argparse.Namespace) -> int:
     import csv
 
     from rakectl.view.record import (
         DUMP_KEYS,
         TELEMETRY_KEYS,
+        check_output,
         dump_to_mcap,
         telemetry_to_mcap,
         truth_to_mcap,
@@ -153,6 +175,7 @@ def cmd_mcap(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise ConfigError(f"mcap: cannot read {args.csv}: {exc.strerror or exc}") from exc
     out = args.out or args.csv.with_suffix(".mcap")
+    check_output(out, "mcap: -o" if args.out else "mcap: the output", source=args.csv)
     objects = objects_of(args.emulator_config)
     if all(k in header for k in DUMP_KEYS):
         rows = dump_to_mcap(args.csv, out, args.every, objects)

@@ -52,6 +52,29 @@ def recording(path: Path) -> Iterator[Publisher]:
     partial.replace(path)  # whole, or not there: an earlier file stays until then
 
 
+MCAP_MAGIC = b"\x89MCAP"  # the first bytes of every MCAP file
+
+
+def check_output(path: Path, option: str, source: Path | None = None,
+                 replace_mcap: bool = True) -> None:
+    """ConfigError naming ``option`` unless ``path`` can take a new file: not a directory,
+    not ``source`` (the file read), not an existing file other than an MCAP (which, made
+    from the file it is read from, is made again; ``replace_mcap`` False: not that
+    either), in a directory that exists."""
+    if path.name in ("", ".", "..") or path.is_dir():
+        raise ConfigError(f"{option} {path} is a directory, not a file")
+    if source is not None and path.resolve() == source.resolve():
+        raise ConfigError(f"{option} {path} is the file it reads: it would be replaced")
+    if path.exists():
+        with path.open("rb") as f:
+            mcap = f.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+        if not (mcap and replace_mcap):
+            raise ConfigError(f"{option} {path} exists" + (" and is not an MCAP file" if not
+                              mcap else "") + ": it is never replaced; choose another name")
+    if not path.parent.is_dir():
+        raise ConfigError(f"{option} {path}: no directory {str(path.parent)!r}")
+
+
 def check_columns(path: Path, needed: Iterable[str]) -> None:
     """Refuse a CSV without these columns, naming the first missing ones."""
     try:

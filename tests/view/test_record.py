@@ -83,6 +83,34 @@ def test_a_file_that_is_neither_a_dump_nor_a_truth_is_refused(tmp_path: Path,
     assert "cannot read" in capsys.readouterr().err
 
 
+def test_an_output_that_would_replace_what_is_not_a_recording_is_refused(
+        tmp_path: Path, capsys: Any) -> None:
+    """`mcap X.csv -o X.csv` replaced the CSV with the MCAP (exit 0); `-o DIR` gave a
+    traceback or left a `.partial`; `view --record` replaced a session's recording. Each
+    is one line now, exit 2, the file untouched; an MCAP made from the CSV before is made
+    again."""
+    _dump(tmp_path / "dump.csv", 5)
+    source = (tmp_path / "dump.csv").read_bytes()
+    notes = tmp_path / "notes.txt"
+    notes.write_text("kept")
+    for out, why in ((tmp_path / "dump.csv", "is the file it reads: it would be replaced"),
+                     (tmp_path, "is a directory, not a file"),
+                     (notes, "exists and is not an MCAP file: it is never replaced")):
+        assert main(["mcap", str(tmp_path / "dump.csv"), "-o", str(out)]) == 2
+        assert f"rakectl: error: mcap: -o {out} {why}" in capsys.readouterr().err
+    assert (tmp_path / "dump.csv").read_bytes() == source and notes.read_text() == "kept"
+    assert not list(tmp_path.glob("*.partial"))
+    assert main(["mcap", str(tmp_path / "dump.csv")]) == 0
+    assert main(["mcap", str(tmp_path / "dump.csv")]) == 0  # made again from the CSV
+    assert main(["view", "--record", str(tmp_path / "dump.mcap"), "--seconds", "1"]) == 2
+    assert ("rakectl: error: view: --record " + str(tmp_path / "dump.mcap") + " exists: it is "
+            "never replaced; choose another name") in capsys.readouterr().err
+    assert main(["view", "--write-layout", str(notes)]) == 2  # replaced any file before
+    assert "exists and is not a layout" in capsys.readouterr().err and notes.read_text() == "kept"
+    assert main(["view", "--write-layout", str(tmp_path / "layout.json")]) == 0
+    assert main(["view", "--write-layout", str(tmp_path / "layout.json")]) == 0  # a layout
+
+
 STATUS: dict[str, Any] = {
     "state": "excavate", "fault": None, "ticks": 12345,
     "joints": {"r_m": 1.2, "theta_rad": 0.5, "current_r_a": 0.1, "current_theta_a": 0.2},
