@@ -129,6 +129,8 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     from rakectl.sim.simulate import run, write_results
 
     settings = load_settings(args.scenario, args.overrides, root=Scenario)
+    if args.out.exists() and not args.out.is_dir():  # said before the work, not after it
+        raise ConfigError(f"simulate: --out {args.out} is not a directory")
     if args.plot:
         from rakectl.sim.plot import pyplot
 
@@ -141,6 +143,9 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
             raise ConfigError("simulate: --mcap needs plant kind rake (the rake's pose)")
     result = run(settings, progress=Progress(f"simulating {args.scenario.name}"))
     write_results(result, args.out)
+    for asked, name in ((args.plot, "plot.png"), (args.mcap, "telemetry.mcap")):
+        if not asked:  # a previous run's, which this run's telemetry would sit beside
+            (args.out / name).unlink(missing_ok=True)
     if args.plot:
         _plot(settings, result, args.out / "plot.png", args.scenario.name)
     if args.mcap:
@@ -228,6 +233,8 @@ def _cmd_files(args: argparse.Namespace) -> int:
         print(root)
         return 0
     sources = {"config": root / "config", "systemd": root / "systemd", "eds": EDS_DIR}
+    if args.copy.exists() and not args.copy.is_dir():
+        raise ConfigError(f"files: --copy {args.copy} is not a directory")
     for name in sources:
         if (args.copy / name).exists():
             raise ConfigError(f"files: {args.copy / name} exists; copy into an empty directory")

@@ -19,6 +19,17 @@ ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "config" / "scenarios" / "paper-fig5.yaml"
 
 
+def test_simulate_again_into_a_directory_leaves_no_earlier_plot_beside_it(
+        tmp_path: Path) -> None:
+    """A run into a directory of an earlier one left that run's plot (and MCAP) beside the
+    new telemetry, as if they were its."""
+    assert run_rakectl("simulate", str(PAPER), "--out", str(tmp_path), "--plot").returncode == 0
+    assert (tmp_path / "plot.png").exists()
+    assert run_rakectl("simulate", str(PAPER), "--out", str(tmp_path)).returncode == 0
+    assert not (tmp_path / "plot.png").exists()
+    assert (tmp_path / "telemetry.csv").exists() and (tmp_path / "summary.json").exists()
+
+
 def test_simulate_the_paper_writes_telemetry_summary_and_plot(tmp_path: Path) -> None:
     done = run_rakectl("simulate", str(PAPER), "--out", str(tmp_path), "--plot", "--json")
     assert done.returncode == 0, done.stderr
@@ -124,6 +135,11 @@ def test_pass_through_commands_read_their_own_options(command: str) -> None:
      "rakectl: error: fuzz: --out /etc/passwd is not a directory"),
     (("view", "--write-layout", "/tmp"),
      "rakectl: error: view: --write-layout /tmp is a directory, not a file"),
+    # a raw errno, exit 1, before (simulate's after the whole run)
+    (("files", "--copy", "/etc/passwd"), "rakectl: error: files: --copy /etc/passwd is not a "
+     "directory"),
+    (("simulate", str(PAPER), "--out", "/etc/passwd"), "rakectl: error: simulate: --out "
+     "/etc/passwd is not a directory"),
 ])
 def test_unknown_options_elsewhere_are_one_line_errors(argv: tuple[str, ...],
                                                       expected: str) -> None:
