@@ -123,7 +123,10 @@ def read_marks(path: Path) -> list[Mark]:
     out = []
     for i, item in enumerate(marks):
         try:
-            mark = Mark(*(float(item[k]) for k in ("reach_m", "tines_height_max_m", "error_m")))
+            values = [item[k] for k in ("reach_m", "tines_height_max_m", "error_m")]
+            if any(isinstance(v, bool) or not isinstance(v, int | float) for v in values):
+                raise TypeError  # YAML's true or '1.1' is no number of a mark
+            mark = Mark(*(float(v) for v in values))
         except (TypeError, KeyError, ValueError, OverflowError):
             raise ConfigError(f"{path}: marks[{i}]: expected reach_m, tines_height_max_m and "
                               f"error_m numbers, got {item!r}") from None
@@ -198,15 +201,18 @@ def mark(args: argparse.Namespace) -> int:
 
 
 def show(args: argparse.Namespace) -> int:
-    points = survey_points(read_marks(args.file))
-    if not points:
-        raise ConfigError(f"{args.file}: no marks: `rakectl survey mark` adds them")
-    settings: Settings = load_settings(args.config)
-    for i, point in enumerate(points):  # each option's declared bounds, as the loader's
+    marks = read_marks(args.file)
+    for i, one in enumerate(marks):  # each option's declared bounds, as the loader's,
+        point = one.point  # named by the file's mark
         for f in dataclasses.fields(SurveyPoint):
             problem = f.metadata["bounds"].violation(getattr(point, f.name))
             if problem:
-                raise ConfigError(f"{args.file}: descent.survey[{i}].{f.name} {problem}")
+                raise ConfigError(f"{args.file}: marks[{i}]: descent.survey's {f.name} "
+                                  f"{problem}")
+    points = survey_points(marks)
+    if not points:
+        raise ConfigError(f"{args.file}: no marks: `rakectl survey mark` adds them")
+    settings: Settings = load_settings(args.config)
     descent = dataclasses.replace(settings.descent, survey=points)
     for dotted, message in descent_checks(descent, settings.clamp.force_limit_n,
                                           settings.clamp.model_margin):

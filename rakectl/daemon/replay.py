@@ -138,6 +138,7 @@ class ReplayBus(can.BusABC):
         while self.position < start and self._next is not None:
             self._take()
         if self.position < start:
+            self.shutdown()  # python-can warns of a bus dropped unshut
             raise TraceError(f"{self.position} frames in the trace, but its inputs say the "
                              f"loop began after frame {start}: not this run's trace")
         self._failures = failures

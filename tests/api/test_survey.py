@@ -121,6 +121,11 @@ def test_a_point_above_the_ceiling_is_named_and_nothing_is_printed(tmp_path: Pat
      "marks[0]: expected reach_m"),  # past any float
     ("marks:\n  - {reach_m: 1.0, tines_height_max_m: 0.0, error_m: -0.005}\n",
      "marks[0]: error_m must be within 0–0.05 m, as `survey mark` takes it, got -0.005"),
+    # taken as 1.0 and 1.1 m before
+    ("marks:\n  - {reach_m: true, tines_height_max_m: 0.0, error_m: 0.001}\n",
+     "marks[0]: expected reach_m"),
+    ("marks:\n  - {reach_m: '1.1', tines_height_max_m: 0.0, error_m: 0.001}\n",
+     "marks[0]: expected reach_m"),
 ])
 def test_a_bad_marks_file_is_named_and_not_written(tmp_path: Path, text: str,
                                                    message: str) -> None:
@@ -133,14 +138,16 @@ def test_a_bad_marks_file_is_named_and_not_written(tmp_path: Path, text: str,
 
 
 @pytest.mark.parametrize(("mark", "message"), [
-    (_mark(-1.0, 0.0), "descent.survey[0].reach_m must be >= 0, got -1"),
-    (_mark(1.0, -3.0), "descent.survey[0].height_m must be >= -0.5, got -2.999"),
+    (_mark(-1.0, 0.0), "marks[1]: descent.survey's reach_m must be >= 0, got -1"),
+    (_mark(1.0, -3.0), "marks[1]: descent.survey's height_m must be >= -0.5, got -2.999"),
 ])
 def test_a_point_out_of_its_declared_bounds_is_named_and_nothing_is_printed(
         tmp_path: Path, mark: survey.Mark, message: str) -> None:
     """``show`` judges each point by the bounds the loader would: a block it printed is
-    one the daemon loads."""
+    one the daemon loads. The mark is named as the file has it (the second here: the
+    sorted block's first, which the message named before)."""
     marks = tmp_path / "survey.yaml"
+    survey.append_mark(marks, _mark(9.0, 0.0))
     survey.append_mark(marks, mark)
     done = run_rakectl("survey", "show", "--file", str(marks))
     assert done.returncode == 2 and done.stdout == ""

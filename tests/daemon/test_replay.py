@@ -553,3 +553,19 @@ def test_a_run_on_roboteq_class_drives_is_reproduced_frame_for_frame(tmp_path: P
     assert result.reproduced == _sent_after(trace, start) > 1000
     for state in ("DISARMED", "CHECKING", "ARMED", "JOG", "ESTOP"):
         assert state in result.states, result.states
+
+
+def test_a_trace_shorter_than_its_inputs_start_is_one_line(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """A trace of another run (fewer frames than its inputs say came before the loop): the
+    refusal was followed by python-can's 'ReplayBus was not properly shut down'."""
+    import gc
+
+    from rakectl.daemon.replay import ReplayBus
+    from rakectl.errors import TraceError
+
+    with pytest.raises(TraceError, match="0 frames in the trace, but its inputs say the loop "
+                       "began after frame 406: not this run's trace"):
+        ReplayBus(iter([]), 406, {}, None)
+    gc.collect()
+    assert "not properly shut down" not in caplog.text
