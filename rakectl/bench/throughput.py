@@ -88,8 +88,8 @@ def measure_throughput(seed: int = SEED, first: int = FIRST, cases: int = CASES,
         figures.cpu_s += cpu_s
         figures.simulated_s += simulated_s
         if progress is not None:
-            progress(f"case {seed}/{index} ({result.kind}): {simulated_s:.1f} s "
-                     f"simulated in {cpu_s:.1f} s of CPU")
+            progress(f"case {index - first + 1} of {cases}, {seed}/{index} ({result.kind}): "
+                     f"{simulated_s:.1f} s simulated in {cpu_s:.1f} s of CPU")
     figures.wall_s = time.perf_counter() - wall_start
     return figures
 

@@ -303,3 +303,20 @@ def test_the_excavation_on_a_local_cluster_gives_the_local_pools_figures(
             for field in dataclasses.fields(ours.series):
                 assert np.array_equal(getattr(theirs.series, field.name),
                                       getattr(ours.series, field.name)), field.name
+
+
+def test_the_campaign_benchmark_quick_runs_a_few_cases_and_counts_them(tmp_path: Path) -> None:
+    """`bench --campaign --quick` ran the full --cases (60) with each physics, and its
+    progress gave no count. --quick runs QUICK_CAMPAIGN_CASES, each line says which of
+    how many, and the section goes where --report says (out/bench by default)."""
+    from rakectl.cli.bench import QUICK_CAMPAIGN_CASES
+    from tests.cli_run import run_rakectl
+
+    done = run_rakectl("bench", "--campaign", "--quick", "--report", str(tmp_path),
+                       timeout_s=600.0)
+    assert done.returncode == 0, done.stderr
+    progress = done.stdout + done.stderr
+    last = f"case {QUICK_CAMPAIGN_CASES} of {QUICK_CAMPAIGN_CASES}, "
+    assert progress.count(last) == 2  # the Python physics, then the compiled
+    assert f"case {QUICK_CAMPAIGN_CASES + 1} of" not in progress
+    assert (tmp_path / BENCHMARKS_FILE).is_file()
