@@ -11,9 +11,10 @@ physics if it is due. Tests call it between their own sends; :meth:`Emulator.run
 Filters pass only SYNC, NMT, the drives' RPDO1 and SDO requests and heartbeats (not
 udp_multicast's echo of its own): the kernel's on socketcan, else :meth:`Emulator.service`'s
 (python-can's own returns None from ``recv(0)`` at a frame that fails it, holding back
-those behind). A frame nobody listens to, or a remote, error, extended-ID or FD frame,
-is counted in :attr:`Emulator.stats`, bad content by the drives; logged at most once per
-second per kind (structlog ``bad_frame``).
+those behind); what they drop is not counted, as a drive's acceptance filter counts
+nothing. What they pass that nobody listens to, a remote, error or FD frame, and what
+the bus cannot decode, is counted in :attr:`Emulator.stats`, bad content by the drives;
+logged at most once per second per kind (structlog ``bad_frame``).
 
 Time. Both drives share one physics step per control period (the arm couples
 the joints). LOCKSTEP: each valid SYNC advances the physics by exactly one

@@ -1,7 +1,9 @@
 """The command socket's file and its peers: where the daemon listens, in a directory
 only root or its own user owns, mode 0660 in the socket's group; a stale socket that
 nobody listens on is replaced, anything else refused; and who may connect (root, the
-daemon's user, the group's members), from the peer's credentials."""
+daemon's user, the group's members), from the peer's credentials. Before the bus is
+opened: :func:`check_endpoint` (what :func:`listen` would refuse) and :func:`claim`
+(``<socket>.lock``, against a daemon or a dry run starting at the same moment)."""
 
 from __future__ import annotations
 
@@ -16,7 +18,7 @@ import struct
 from pathlib import Path
 
 from rakectl.api.schema import Peer
-from rakectl.errors import ApiError
+from rakectl.errors import ApiError, ConfigError
 
 _SO_PEERGROUPS = getattr(socket, "SO_PEERGROUPS", 59)  # Linux >= 4.13; 59 in asm-generic
 
@@ -100,13 +102,16 @@ SUN_PATH_MAX_BYTES = 107  # an AF_UNIX socket's path: sun_path's 108 bytes, its 
 
 def check_endpoint(path: Path, group: str | None) -> None:
     """What :func:`listen` would refuse, judged without touching anything: a path longer
-    than AF_UNIX takes, a group that does not exist (ApiError naming it). The daemon asks
-    before the drives' bring-up, and ``rakectl run --check`` too."""
+    than AF_UNIX takes, a group that does not exist (ConfigError naming the setting). The
+    daemon asks before the drives' bring-up, and ``rakectl run --check`` too."""
     size = len(os.fsencode(path))
     if size > SUN_PATH_MAX_BYTES:
-        raise ApiError(f"the command socket's path {path} is {size} bytes long; AF_UNIX "
-                       f"takes at most {SUN_PATH_MAX_BYTES}")
-    _group_id(group)
+        raise ConfigError(f"daemon.socket_path: the command socket's path {path} is {size} "
+                          f"bytes long; AF_UNIX takes at most {SUN_PATH_MAX_BYTES}")
+    try:
+        _group_id(group)
+    except ApiError as error:
+        raise ConfigError(f"daemon.socket_group: {error}") from None
 
 
 def _group_id(group: str | None) -> int | None:

@@ -94,6 +94,8 @@ def _lane_arg(name: str, required: bool) -> Arg:
     """An excavate argument declared by the lane option of the same name in settings."""
     meta = {f.name: f for f in dataclasses.fields(LaneSettings)}[name].metadata
     doc = meta["doc"] if required else f"{meta['doc']} Default: the configured lane.{name}."
+    if name in ("depth_step_m", "stroke_speed_m_per_s"):
+        doc += f" On an adaptive lane, at most lane.max_{name}."
     return Arg(name, ArgKind.NUMBER, doc, meta["unit"], meta["bounds"], required=required)
 
 
@@ -123,10 +125,10 @@ _SPECS = (
                 "until a `reset` asked after it (one asked before, still waiting for a fault's "
                 "cause to clear, is called off; the fault's cause stays named)."),
     CommandSpec(ApiCommand.RESET, "Clear a latched emergency stop or fault; stays disarmed. "
-                "It ends once no drive problem is left and no sooner than 20 loop periods (a "
-                "SYNC producer of 100 Hz or more still on the bus shows within them; a slower "
-                "one faults the daemon again once 10 answers are extra); after 1 s, `reset "
-                "failed` naming what is left."),
+                "It ends once no drive problem is left and no sooner than 30 loop periods (at "
+                "the robot's 1 kHz a SYNC producer of 100 Hz or more still on the bus shows "
+                "within them; a slower one faults the daemon again once 10 answers are "
+                "extra); after 1 s, `reset failed` naming what is left."),
     CommandSpec(ApiCommand.DUMP, "Write the flight recorder's recent history to a file.", (
         Arg("path", ArgKind.STRING, "File to write, on the daemon's machine. Default: a new "
             "file in the daemon's state directory."),)),

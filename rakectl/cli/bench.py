@@ -39,7 +39,7 @@ def add_parser(sub: argparse._SubParsersAction[Any]) -> None:
     bench.add_argument("--quick", action="store_true", help="short phases and a short lane: "
                        "a check that it all runs, not figures")
     bench.add_argument("--cases", type=int, default=60,
-                       help="campaign cases to time (--campaign, --all)")
+                       help="campaign cases to time (--campaign, --all; --quick runs a few)")
     bench.add_argument("--workers", type=int, default=2, help="processes for excavation runs")
     bench.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT|local:N",
                        help="run the excavation runs on a Dask cluster (the [cluster] extra): "

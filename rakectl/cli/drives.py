@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -42,12 +43,19 @@ def cmd_drives(args: argparse.Namespace) -> int:
 
     settings = load_settings(args.config, args.overrides, root=Settings)
     _refuse_if_the_daemon_runs(settings.daemon.socket_path)
-    bus = open_bus(settings.bus, receive_ids(settings.drives))
-    try:
-        infos = run_bring_up(bus, settings.drives, settings.motors,
-                             settings.daemon.boot_timeout_s, start=False)
+    from rakectl.api.client import socket_path
+    from rakectl.api.endpoint import claim
+
+    claimed = claim(socket_path(settings.daemon.socket_path or None))  # a daemon starting
+    try:  # (not answering yet) holds it: its drives are left alone
+        bus = open_bus(settings.bus, receive_ids(settings.drives))
+        try:
+            infos = run_bring_up(bus, settings.drives, settings.motors,
+                                 settings.daemon.boot_timeout_s, start=False)
+        finally:
+            bus.shutdown()
     finally:
-        bus.shutdown()
+        os.close(claimed)
     reports = [report(info, drive_parameters(info.joint, settings.drives, settings.motors),
                       eds_file(settings.drives, info.joint), settings.drives.profile.value)
                for info in infos]

@@ -57,7 +57,8 @@ def _add_simulate(sub: argparse._SubParsersAction[Parser]) -> None:
     p.add_argument("scenario", type=Path, help="scenario YAML file (see config/scenarios/)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override one option, e.g. --set estimator.delay_s=0.02 (repeatable)")
-    p.add_argument("--out", type=Path, required=True, help="directory for telemetry and summary")
+    p.add_argument("--out", type=Path, required=True, help="directory for telemetry and summary "
+                   "(an earlier run's plot or MCAP there is removed when this run makes none)")
     p.add_argument("--plot", action="store_true", help="also write DIR/plot.png")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON line")
     p.add_argument("--mcap", action="store_true", help="also write DIR/telemetry.mcap (plant "
@@ -78,9 +79,9 @@ def _build_parser() -> tuple[Parser, dict[str, Callable[[argparse.Namespace], in
     run.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                      help="override one option (repeatable)")
     run.add_argument("--check", action="store_true",
-                     help="check the configuration as the daemon loads it, say what it would "
-                     "drive and exit (0: it loads; 2: it does not, naming the key); opens "
-                     "nothing")
+                     help="check the configuration as the daemon loads it (the command "
+                     "socket's path and group on this machine too), say what it would drive "
+                     "and exit (0: it loads; 2: it does not, naming the key); opens nothing")
     sub.add_parser("emulator", help="the emulated drives and physics (bench set-ups); "
                    "its options: rakectl emulator --help", add_help=False)
     client = Parser(add_help=False)

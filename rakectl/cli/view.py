@@ -98,7 +98,7 @@ def cmd_view(args: argparse.Namespace) -> int:
         raise ConfigError(f"view: --rate-hz must be within 1..200, got {args.rate_hz:g}")
     if args.seconds is not None and not args.seconds > 0.0:
         raise ConfigError(f"view: --seconds must be > 0, got {args.seconds:g}")
-    if args.record is not None:  # a session's recording is never replaced
+    if args.record is not None:  # an earlier recording is never replaced
         from rakectl.view.record import check_output
 
         check_output(args.record, "view: --record", replace_mcap=False)

@@ -109,6 +109,9 @@ def _apply_override(tree: dict[str, Any], assignment: str) -> None:
     if not sep or not key.strip():
         raise ConfigError(f"{where}: expected dotted.key=value")
     try:
+        composed = yaml.compose(text, Loader=yaml.SafeLoader)
+        if composed is not None:  # what a file refuses (tags, merge keys, an alias to a
+            _plain(where, composed)  # collection around it), refused here as well
         value = yaml.safe_load(text)
     except yaml.YAMLError:
         value = text

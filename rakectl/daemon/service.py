@@ -2,8 +2,12 @@
 
 The only place that reads the configuration and the environment, opens the
 CAN bus, installs signal handlers, sets up real time and talks to systemd.
-SIGTERM and SIGINT only record the request; the loop ends its tick, sends
-0 V with the drives disabled, dumps the flight recorder and returns 0.
+SIGTERM, SIGINT and SIGHUP only record the request once the drives are up; the loop
+ends its tick, sends 0 V with the drives disabled, dumps the flight recorder and
+returns 0. Before (cyclictest, the drives' bring-up, nothing enabled yet) a stop ends
+the start-up where it is, status 0. Before the bus is opened the daemon checks its
+command socket (``check_endpoint``), refuses one a daemon listens on and claims it
+(``claim``: ``<socket>.lock``, held until the process ends).
 """
 
 from __future__ import annotations
@@ -129,6 +133,7 @@ def run(config: Path | None, overrides: list[str]) -> int:
             log.info("timing_reference", **daemon.timing_reference)
             notifier.status("bringing up the drives")
             daemon.bring_up()
+            starting[0] = False  # from here a stop is the loop's (it stops at its first tick)
         except _StopDuringStartUp as stop:  # the drives were never enabled
             log.info("stopped", during="start-up", signal=str(stop))
             return 0
@@ -145,7 +150,6 @@ def run(config: Path | None, overrides: list[str]) -> int:
             log.warning("clamp_warning", reason=gap)
         freeze_gc()
         gc.disable()  # no collection in the loop: the slack collects young generations
-        starting[0] = False  # from here, a stop is the loop's: 0 V, drives disabled, a dump
         daemon.run()
     finally:
         gc.enable()

@@ -20,7 +20,8 @@ from rakectl.daemon.slack import SlackWork
 from rakectl.daemon.states import ARMED_STATES, DaemonState, Event, next_state
 from rakectl.protocol.cia402 import DriveCommand
 
-RESET_QUIET_TICKS = 20  # a reset ends no sooner: a SYNC producer of 100 Hz or more shows
+RESET_QUIET_TICKS = 30  # a reset ends no sooner: a SYNC producer of 100 Hz or more shows
+# (3 extra answers at the robot's 1 kHz, more than RESET_EXTRA_ANSWERS)
 RESET_EXTRA_ANSWERS = 2  # TPDO1s beyond the SYNCs it tolerates: one still on its way when
 # the reset forgave the count, one stray frame (a foreign producer at 100 Hz sends 2)
 

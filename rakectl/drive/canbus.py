@@ -18,8 +18,10 @@ Receive filters, per interface:
   matching frames wait behind it: the drive client's drain ("recv(0) until
   None") would stop early every tick, behind the echo of its own SYNC on
   ``udp_multicast``. The drive client classifies frames itself instead:
-  echoes of its own IDs are counted as such and ignored, anything else is
-  counted as unknown. ``udp_multicast`` is opened with ``fd=False`` (classic
+  echoes of its own IDs are counted as such and ignored (an RPDO1 that is none
+  of the last two it sent is another master's: a fault), anything else is
+  counted as unknown. The bring-up's network sees only 11-bit data frames
+  (:class:`CanopenFrames`). ``udp_multicast`` is opened with ``fd=False`` (classic
   CAN) on a port derived from its group address (:attr:`BusSettings.udp_port`:
   benches on different groups do not hear each other) and needs ``msgpack``;
   only ever use it inside a private network namespace (docs/development.md).

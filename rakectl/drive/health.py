@@ -245,7 +245,7 @@ class DriveSupervision:
         return problems
 
 
-_EMCY_CAUSES: dict[int, str] = {  # what an EMCY's code says of its cause, where it is ours
+_EMCY_CAUSES: dict[int, str] = {  # what an EMCY's code says of its cause on this bus
     EmcyCode.SYNC_DATA_LENGTH: " (a SYNC of a length the drive does not take: another node "
     "sends SYNC, or drives.sync_counter_overflow is not the drive's)"}
 

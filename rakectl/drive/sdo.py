@@ -9,7 +9,7 @@ DriveFault too, ``CommsTimeout`` when no answer comes, ``BusError`` when the bus
 a frame. A transfer that meets an answer of another kind is made again, twice at most:
 canopen empties its answer queue only before it sends, so the late answer to a request
 it had repeated is otherwise taken for the next request's (``Unexpected response
-0x60``, or ``Node returned a value for 0x1018:01 instead``); a segmented upload that
+0x60``: a download's answer to a reading of the same object); a segmented upload that
 lost a segment is started again. An answer that names another object than the one
 asked (an abort, an upload's or a download's first answer: they carry the index) is
 not taken as the transfer's (:class:`AnswerGate`): a late abort of an object asked

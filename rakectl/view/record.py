@@ -60,7 +60,7 @@ def check_output(path: Path, option: str, source: Path | None = None,
     """ConfigError naming ``option`` unless ``path`` can take a new file: not a directory,
     not ``source`` (the file read), not an existing file other than an MCAP (which, made
     from the file it is read from, is made again; ``replace_mcap`` False: not that
-    either), in a directory that exists."""
+    either); a directory that does not exist is made."""
     if path.name in ("", ".", "..") or path.is_dir():
         raise ConfigError(f"{option} {path} is a directory, not a file")
     if source is not None and path.resolve() == source.resolve():
@@ -71,8 +71,6 @@ def check_output(path: Path, option: str, source: Path | None = None,
         if not (mcap and replace_mcap):
             raise ConfigError(f"{option} {path} exists" + (" and is not an MCAP file" if not
                               mcap else "") + ": it is never replaced; choose another name")
-    if not path.parent.is_dir():
-        raise ConfigError(f"{option} {path}: no directory {str(path.parent)!r}")
 
 
 def check_columns(path: Path, needed: Iterable[str]) -> None:

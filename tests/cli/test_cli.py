@@ -294,10 +294,11 @@ def test_run_check_loads_the_configuration_as_the_daemon_does() -> None:
 
 
 @pytest.mark.parametrize(("setting", "expected"), [
-    ("daemon.socket_group=no-such-group-here", "rakectl: error: the command socket's group "
-     "'no-such-group-here' does not exist (create it with systemd-sysusers or groupadd)"),
-    ("daemon.socket_path=/run/" + "s" * 110, "rakectl: error: the command socket's path "
-     "/run/" + "s" * 110 + " is 115 bytes long; AF_UNIX takes at most 107"),
+    ("daemon.socket_group=no-such-group-here", "rakectl: error: daemon.socket_group: the "
+     "command socket's group 'no-such-group-here' does not exist (create it with "
+     "systemd-sysusers or groupadd)"),
+    ("daemon.socket_path=/run/" + "s" * 110, "rakectl: error: daemon.socket_path: the command "
+     "socket's path /run/" + "s" * 110 + " is 115 bytes long; AF_UNIX takes at most 107"),
 ])
 def test_a_command_socket_the_daemon_cannot_make_is_refused_before_the_bus(
         tmp_path: Path, setting: str, expected: str) -> None:
@@ -306,10 +307,10 @@ def test_a_command_socket_the_daemon_cannot_make_is_refused_before_the_bus(
     before it opens the bus (over the same interface and channel, no emulator: nothing
     answers, so a bring-up would have timed out instead)."""
     check = run_rakectl("run", "--check", "--set", setting)
-    assert check.returncode == 1 and check.stderr.strip() == expected
+    assert check.returncode == 2 and check.stderr.strip() == expected  # a setting's problem
     done = run_rakectl("run", "--set", setting, "--set", f"daemon.dump_dir={tmp_path}",
                        "--set", "daemon.startup_cyclictest_s=0")
-    assert done.returncode == 1
+    assert done.returncode == 2
     assert done.stderr.strip().splitlines()[-1] == expected
 
 
@@ -362,6 +363,9 @@ def test_a_daemon_started_while_another_starts_is_refused_before_the_bus(
             f"{sock} (it holds {sock}.lock)")
         assert "timing_reference" not in second.stderr  # it went no further
         assert time.monotonic() - started_s < 5.0  # not after a bring-up of its own
+        dry_run = run_rakectl("drives", *settings[:-6], *settings[-2:], timeout_s=60.0)
+        assert dry_run.returncode == 1  # the dry run's bring-up would reset them as well
+        assert dry_run.stderr.strip().splitlines()[-1] == second.stderr.strip().splitlines()[-1]
         assert first.poll() is None  # the first one still in its bring-up
     finally:
         first.kill()

@@ -159,6 +159,11 @@ def test_missing_file_is_one_line(tmp_path: Path) -> None:
         ("rate_hz=fast", "rate_hz must be a number, got 'fast'"),
         ("impedance=3", "impedance must be a section"),
         ("desired_force_n=120", "desired_force_n must be <= 90, got 120"),
+        # what a file refuses: a merge key was merged, a recursive alias a RecursionError
+        ("lane={<<: {depth_step_m: 0.02}}", "unsupported YAML: could not determine a "
+         "constructor for the tag 'tag:yaml.org,2002:merge'"),
+        ("lane=&a [*a]", "a value that contains itself"),
+        ("drives.r_node_id=010", "drives.r_node_id: '010' has a leading zero"),
     ],
 )
 def test_bad_overrides_are_named(override: str, expected: str) -> None:

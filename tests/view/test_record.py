@@ -86,7 +86,7 @@ def test_a_file_that_is_neither_a_dump_nor_a_truth_is_refused(tmp_path: Path,
 def test_an_output_that_would_replace_what_is_not_a_recording_is_refused(
         tmp_path: Path, capsys: Any) -> None:
     """`mcap X.csv -o X.csv` replaced the CSV with the MCAP (exit 0); `-o DIR` gave a
-    traceback or left a `.partial`; `view --record` replaced a session's recording. Each
+    traceback or left a `.partial`; `view --record` replaced an earlier recording. Each
     is one line now, exit 2, the file untouched; an MCAP made from the CSV before is made
     again."""
     _dump(tmp_path / "dump.csv", 5)
