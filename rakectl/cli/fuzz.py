@@ -145,8 +145,15 @@ def human(report: Report) -> str:
     lines += [f"unsafe: {case}" for case in s["over_limit"]]
     lines.append(f"worst: {s['worst_case']} → ground {report.worst.f_true_z_max_n:.1f} N, "
                  f"mine {report.worst.f_mine_max_n:.1f} N")
+    whole = report.directory
+    if whole is not None:
+        lines.append(f"the directory holds {len(whole.results)} results in all ("
+                     f"{merged_title(whole.results)}): unsafe {len(whole.unsafe)}, worst "
+                     f"{whole.summary()['worst_case']} → ground {whole.worst.f_true_z_max_n:.1f} N,"
+                     f" mine {whole.worst.f_mine_max_n:.1f} N")
     if report.worst_case_path:
-        lines.append(f"worst case written to {report.worst_case_path}")
+        lines.append(f"worst case written to {report.worst_case_path}"
+                     + (" (the directory's)" if whole is not None else ""))
     return "\n".join(lines)
 
 
@@ -290,6 +297,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("rakectl: error: fuzz: --trace and --replay each run one case: give one of them",
               file=sys.stderr)
         return 2
+    if args.seed < 0:  # numpy's generator takes none (a traceback before)
+        print(f"rakectl: error: fuzz: --seed must be >= 0, got {args.seed}", file=sys.stderr)
+        return 2
     if args.replay is not None:
         return _replay_main(args.replay, args.json, args.mcap)
     if args.trace is not None:
@@ -333,7 +343,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         declared = ", sites declared" if declares_sites(Family(args.family),
                                                         args.declared_site) else ""
         span = f"seed {args.seed}, cases {args.first}..{args.first + args.scenarios - 1}"
-        _plot(report, args.out, f"{span} ({args.family}{declared})")
+        if report.directory is not None:  # the plots stand for the whole directory
+            _plot(report.directory, args.out, merged_title(report.directory.results))
+        else:
+            _plot(report, args.out, f"{span} ({args.family}{declared})")
     print(human(report))
     figures = report.summary()
     if args.compare is not None:

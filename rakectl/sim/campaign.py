@@ -250,7 +250,8 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
              executor: Executor | None = None, family: Family = Family.RANDOM,
              declared_site: bool = False) -> Report:
     """Run cases ``first`` … ``first + scenarios − 1`` of ``seed``; write the worst one
-    (the largest force on the ground or on a mine) to ``out_dir``.
+    (the largest force on the ground or on a mine) to ``out_dir``: the worst of all the
+    results there, where earlier parts left more (:attr:`Report.directory`).
 
     With ``out_dir``, each case's result is appended to :data:`RESULTS_FILE` there as it
     finishes, and a case already in that file (same seed and index) is not run again: an
@@ -289,8 +290,12 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
     report = _report(scenarios, results, time.perf_counter() - started, len(done))
     if out_dir is None:
         return report
-    path = write_case(out_dir / WORST_CASE_FILE, report.worst_case, report.worst)
-    return dataclasses.replace(report, worst_case_path=str(path))
+    everything = list({key(r): r for r in read_results(out_dir)}.values())  # every part's
+    directory = _report(len(everything), everything, 0.0, 0) \
+        if len(everything) > len(results) else None  # (a run's results are all in it)
+    kept = directory or report  # the directory's worst case is never replaced by a better
+    path = write_case(out_dir / WORST_CASE_FILE, kept.worst_case, kept.worst)
+    return dataclasses.replace(report, worst_case_path=str(path), directory=directory)
 
 
 def merged(out_dirs: Sequence[Path]) -> tuple[Report, dict[Path, int]]:

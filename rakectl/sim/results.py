@@ -73,6 +73,9 @@ class Report:
     wall_time_s: float
     worst_case_path: str = ""
     resumed: int = 0  # cases read back from an earlier run's results, not run again
+    # all the results in the run's directory, where it holds more than this run's (a
+    # campaign run in parts): their worst is the worst-case file's, their plots the plots
+    directory: Report | None = None
 
     @property
     def f_true_z_max_n(self) -> float:
@@ -156,9 +159,15 @@ class Report:
 
 def read_results(path: Path) -> list[CaseResult]:
     """Every result in the results file ``path`` (a line cut short by an interruption,
-    or one that is not a result, is left out); :class:`OSError` if it cannot be read."""
+    or one that is not a result, is left out); :class:`OSError` if it cannot be read,
+    or is not UTF-8 text."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as error:  # an OSError's kind of failure: not a results file
+        raise OSError(f"{path} is not UTF-8 text ({error.reason} at byte {error.start})") \
+            from None
     found = []
-    for line in path.read_text(encoding="utf-8").splitlines():
+    for line in text.splitlines():
         try:
             found.append(result_from_dict(json.loads(line)))
         except (ValueError, TypeError, KeyError):

@@ -125,6 +125,8 @@ def test_pass_through_commands_read_their_own_options(command: str) -> None:
     (("fuzz", "--scenarios", "0"),
      "rakectl: error: fuzz: --scenarios and --workers must be >= 1, --first >= 0"),
     (("fuzz", "--plot"), "rakectl: error: fuzz: --plot needs --out DIR"),
+    (("fuzz", "--seed", "-1", "--scenarios", "2"),  # numpy's traceback before
+     "rakectl: error: fuzz: --seed must be >= 0, got -1"),
     (("emulator", "--interface", "foo"),
      "rakectl emulator: error: argument --interface: invalid choice: 'foo'"),
     # read as the current directory before, which the daemon refused as "a file is there"

@@ -563,3 +563,22 @@ def test_a_campaign_streams_its_results_and_resumes_where_it_stopped(tmp_path: P
     assert edge.resumed == 0 and edge.results[0].family == "edge"  # not seed 3's random case
     assert campaign.campaign(1, seed=3, workers=1, out_dir=tmp_path,
                              family=cases.Family.EDGE).resumed == 1
+
+
+def test_a_part_run_into_a_campaigns_directory_keeps_its_worst_case(tmp_path: Path) -> None:
+    """A campaign run in parts into one directory: each part wrote the worst of its own
+    cases over the directory's worst-case file (a 204 N edge case replaced by a safe one,
+    exit 0) and redrew the plots from its cases alone. The file is the worst of all the
+    results there, and the report says what the directory holds."""
+    from rakectl.cli.fuzz import human
+    from rakectl.sim.case_files import read_case_file
+
+    whole = campaign.campaign(4, seed=3, workers=1)
+    parts = [campaign.campaign(2, seed=3, workers=1, out_dir=tmp_path, first=first)
+             for first in (0, 2)]
+    assert parts[0].directory is None  # the directory held its results alone
+    last = parts[1]
+    assert last.directory is not None and len(last.directory.results) == 4
+    _, kept = read_case_file(tmp_path / campaign.WORST_CASE_FILE)
+    assert kept is not None and (kept.seed, kept.index) == (whole.worst.seed, whole.worst.index)
+    assert "the directory holds 4 results in all" in human(last)
