@@ -34,6 +34,7 @@ from rakectl.sim.cases import CommandKind, Family, FuzzCase, generate
 from rakectl.sim.compare import Key, key, read_results
 from rakectl.sim.injection import FaultyRakeLoop, HoldReference, JogReference, PlungeReference
 from rakectl.sim.parallel import Executor, LocalExecutor
+from rakectl.sim.progress import Progress
 from rakectl.sim.rake_plant import RakeLoop
 from rakectl.sim.results import (
     RESULTS_FILE,
@@ -274,6 +275,8 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
     sink = open_results(out_dir) if out_dir is not None and jobs else None
     try:
         if progress is not None and results:
+            if isinstance(progress, Progress):  # its pace: the cases run now alone
+                progress.skip(len(results))
             progress(len(results), scenarios)
         pool = executor if executor is not None else LocalExecutor(workers)
         for result in pool.map_unordered(_run_index, jobs):
