@@ -275,6 +275,7 @@ def _merge_main(args: argparse.Namespace) -> int:
         return 2
     for out_dir, n in counts.items():
         print(f"merged: {n} results from {out_dir}")
+    print(f"merged: {merged_title(report.results)}: each table row counts them together")
     if args.plot:
         args.out.mkdir(parents=True, exist_ok=True)
         _plot(report, args.out, merged_title(report.results))

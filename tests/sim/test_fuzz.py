@@ -313,6 +313,9 @@ def test_the_cli_merges_finished_campaigns_into_one_report(
     assert fuzz_cli.main(["--merge", str(a), str(b), "--json"]) == 0
     text = capsys.readouterr().out
     assert f"merged: 25 results from {a}" in text and f"merged: 35 results from {b}" in text
+    # the text named no seed nor family, only the plots did
+    assert f"merged: seed {CI_SEED} (random), merged: each table row counts them together" \
+        in text
     figures = json.loads(text.strip().splitlines()[-1])
     assert figures["merged"] == {str(a): 25, str(b): 35}
     assert figures["scenarios"] == CI_SAMPLE and figures["by_kind"] == ci_sample.by_kind()
