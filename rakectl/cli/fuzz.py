@@ -247,6 +247,8 @@ def merged_title(results: Sequence[CaseResult]) -> str:
             f"({'; '.join(families)}), merged")
 
 
+# a campaign's own options, which --replay and --trace (one case) do not take
+_NOT_WITH_ONE_CASE = ("scenarios", "first", "workers", "scheduler", "out", "plot", "compare")
 # what chooses or runs cases: a merge reads the cases its directories hold
 _NOT_WITH_MERGE = ("scenarios", "seed", "first", "family", "declared_site", "workers",
                    "scheduler", "compare", "replay", "trace", "mcap")
@@ -301,6 +303,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.seed < 0:  # numpy's generator takes none (a traceback before)
         print(f"rakectl: error: fuzz: --seed must be >= 0, got {args.seed}", file=sys.stderr)
         return 2
+    if args.replay is not None or args.trace is not None:  # one case: a campaign's options
+        defaults = _parser().parse_args([])  # would be taken for ones it ran with
+        ignored = ("seed", "family", "declared_site") if args.replay is not None else ()
+        given = ["--" + name.replace("_", "-") for name in (*_NOT_WITH_ONE_CASE, *ignored)
+                 if getattr(args, name) != getattr(defaults, name)]
+        if given:
+            one = "--replay" if args.replay is not None else "--trace"
+            print(f"rakectl: error: fuzz: {one} runs one case; {', '.join(given)} cannot go "
+                  "with it", file=sys.stderr)
+            return 2
     if args.replay is not None:
         return _replay_main(args.replay, args.json, args.mcap)
     if args.trace is not None:
@@ -331,6 +343,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not earlier:
             print(f"rakectl: error: fuzz: --compare {args.compare}: its {RESULTS_FILE} holds no "
                   "case's result", file=sys.stderr)
+            return 2
+        sites = declares_sites(Family(args.family), args.declared_site)
+        wanted = range(args.first, args.first + args.scenarios)
+        if not any(r.seed == args.seed and r.index in wanted and r.family == args.family
+                   and r.declared_site == sites for r in earlier):
+            print(f"rakectl: error: fuzz: --compare {args.compare} holds none of these cases "
+                  f"(it holds {merged_title(earlier).removesuffix(', merged')}): nothing to "
+                  "compare with", file=sys.stderr)
             return 2
     executor = executor_for(args.scheduler, args.workers)
     try:

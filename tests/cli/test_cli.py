@@ -125,6 +125,10 @@ def test_pass_through_commands_read_their_own_options(command: str) -> None:
     (("fuzz", "--scenarios", "0"),
      "rakectl: error: fuzz: --scenarios and --workers must be >= 1, --first >= 0"),
     (("fuzz", "--plot"), "rakectl: error: fuzz: --plot needs --out DIR"),
+    (("fuzz", "--replay", "case.json", "--out", "x", "--plot"),  # ignored before
+     "rakectl: error: fuzz: --replay runs one case; --out, --plot cannot go with it"),
+    (("fuzz", "--trace", "3", "--compare", "x"),
+     "rakectl: error: fuzz: --trace runs one case; --compare cannot go with it"),
     (("fuzz", "--seed", "-1", "--scenarios", "2"),  # numpy's traceback before
      "rakectl: error: fuzz: --seed must be >= 0, got -1"),
     (("emulator", "--interface", "foo"),

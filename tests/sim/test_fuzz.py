@@ -292,6 +292,11 @@ def test_the_cli_compares_a_finished_campaign_with_an_earlier_run(
     assert fuzz_cli.main([*argv[:6], "--out", str(fresh), "--compare", str(empty)]) == 2
     assert f"--compare {empty}: its {results.RESULTS_FILE} holds no case's result" in \
         capsys.readouterr().err
+    # another seed's directory: 'outcomes changed: none', exit 0, before
+    other_seed = ["--scenarios", "2", "--seed", str(CI_SEED + 1)]
+    assert fuzz_cli.main([*other_seed, "--out", str(fresh), "--compare", str(out)]) == 2
+    assert (f"--compare {out} holds none of these cases (it holds seed {CI_SEED} (random)): "
+            "nothing to compare with") in capsys.readouterr().err
     assert not fresh.exists()  # refused before the campaign
 
 
