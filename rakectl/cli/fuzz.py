@@ -266,6 +266,10 @@ def _merge_main(args: argparse.Namespace) -> int:
         print("rakectl: error: fuzz: --merge takes --plot and --out together (the figures are "
               "written to --out DIR) or neither", file=sys.stderr)
         return 2
+    if args.plot and (args.out / RESULTS_FILE).exists():
+        print(f"rakectl: error: fuzz: --merge --out {args.out} holds a campaign's results: its "
+              "plots are that campaign's; write the merged ones elsewhere", file=sys.stderr)
+        return 2
     if args.plot:
         from rakectl.sim.plot import pyplot
 

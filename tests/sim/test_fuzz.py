@@ -378,6 +378,12 @@ def test_the_cli_plots_merged_campaigns_together(
     runs = [results.result_from_dict(json.loads(line)) for line in [*lines, *moved]]
     assert fuzz_cli.merged_title(runs) == f"seeds {CI_SEED}, {CI_SEED + 1} (random), merged"
     assert fuzz_cli.merged_title(runs[:3]) == f"seed {CI_SEED} (random), merged"
+    # into a campaign's own directory: its plots were replaced by the merge's, before
+    assert fuzz_cli.main(["--merge", str(out), str(tmp_path / "b"), "--plot",
+                          "--out", str(tmp_path / "b")]) == 2
+    assert "holds a campaign's results: its plots are that campaign's" in \
+        capsys.readouterr().err
+    assert sorted(p.name for p in (tmp_path / "b").iterdir()) == [results.RESULTS_FILE]
 
 
 def test_the_table_gives_refused_sites_a_column_only_where_there_are_any() -> None:
