@@ -6,8 +6,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from rakectl.api.schema import api_reference
-from rakectl.cli.docs import configuration_reference
+from rakectl.cli.docs import api_reference, configuration_reference
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()

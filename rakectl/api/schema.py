@@ -5,8 +5,8 @@ One JSON object per line (UTF-8) each way. A request is ``{"cmd": NAME, ARG: VAL
 with an optional ``"id"`` (string or integer) that the reply echoes; a reply is
 ``{"ok": true, …}`` or ``{"ok": false, "error": "<one sentence>"}``. Commands and
 their arguments are declared once, in :data:`COMMANDS`: validation and
-:func:`api_reference` both read that table. A request that fails validation never
-reaches the handler.
+:func:`rakectl.cli.docs.api_reference` both read that table. A request that fails
+validation never reaches the handler.
 """
 
 from __future__ import annotations
@@ -373,39 +373,6 @@ def _coerce(arg: Arg, value: Any) -> tuple[ArgValue, str | None]:
         return "", (f"{arg.name} must be a non-empty string of at most {arg.max_chars} "
                     f"characters without NUL, got {show(value)}")
     return value, None
-
-
-def api_reference() -> str:
-    """Markdown reference of the protocol and every command, from :data:`COMMANDS`."""
-    lines = [
-        "One JSON object per line, UTF-8, on the Unix socket (default "
-        f"`{SERVICE_RUNTIME_DIR / SOCKET_NAME}` for the service). Request: "
-        '`{"cmd": "<command>", <arguments>…}`, optionally with `"id"` (an integer or a string), '
-        'echoed in the reply. Reply: `{"ok": true, …}` or `{"ok": false, "error": "…"}`. '
-        f"A request is at most {MAX_REQUEST_BYTES} bytes; a larger one is answered with an "
-        "error and the connection is closed. An invalid request changes nothing. Peers must be "
-        "root, the daemon's user or members of the socket's group.", "",
-        "| command | arguments | meaning |", "|---|---|---|",
-    ]
-    for spec in COMMANDS.values():
-        args = ", ".join(f"`{a.name}`" if a.required else f"[`{a.name}`]" for a in spec.args)
-        lines.append(f"| `{spec.command}` | {args or '—'} | {spec.doc} |")
-    for spec in COMMANDS.values():
-        if spec.args:
-            lines += ["", f"#### `{spec.command}`", "", spec.doc, "", *_arg_table(spec.args)]
-    return "\n".join(lines)
-
-
-def _arg_table(args: tuple[Arg, ...]) -> list[str]:
-    rows = ["| argument | type | required | unit | bounds | meaning |", "|---|---|---|---|---|---|"]
-    for a in args:
-        kind = " \\| ".join(f"`{c}`" for c in a.choices) if a.choices else a.kind.value
-        need = "yes" if a.required else (f"no (default {a.default:g})"
-                                        if a.default is not None else "no")
-        when = f" Only with {a.only_with[0]}={a.only_with[1]}." if a.only_with else ""
-        rows.append(f"| `{a.name}` | {kind} | {need} | {a.unit} | {a.bounds.describe()} "
-                    f"| {a.doc}{when} |")
-    return rows
 
 
 Handler = Callable[[Request], Mapping[str, Any]]

@@ -40,11 +40,11 @@ from rakectl.api.schema import (
     Peer,
     Refusal,
     Request,
-    api_reference,
     decode_request,
     show,
 )
 from rakectl.api.server import EVICT_IDLE_S, CommandServer
+from rakectl.cli.docs import api_reference
 from rakectl.errors import ApiError, CommandRejected, DaemonUnreachable, RakeError
 
 JOG_TASK = {"cmd": "jog", "space": "task", "reach_m_per_s": 0.1}
