@@ -305,15 +305,24 @@ def test_the_excavation_on_a_local_cluster_gives_the_local_pools_figures(
                                       getattr(ours.series, field.name)), field.name
 
 
-def test_the_campaign_benchmark_quick_runs_a_few_cases_and_counts_them(tmp_path: Path) -> None:
+def test_the_campaign_benchmark_quick_runs_a_few_cases_and_counts_them(
+        tmp_path: Path, physics_build: Path) -> None:
     """`bench --campaign --quick` ran the full --cases (60) with each physics, and its
     progress gave no count. --quick runs QUICK_CAMPAIGN_CASES, each line says which of
-    how many, and the section goes where --report says (out/bench by default)."""
-    from rakectl.cli.bench import QUICK_CAMPAIGN_CASES
-    from tests.cli_run import run_rakectl
+    how many, and the section goes where --report says (out/bench by default). The
+    compiled physics is the test run's own build (the benchmark builds into the cache it
+    is given: the run's empty one would then not be empty for the tests after it)."""
+    import os
+    import subprocess
+    import sys
 
-    done = run_rakectl("bench", "--campaign", "--quick", "--report", str(tmp_path),
-                       timeout_s=600.0)
+    from rakectl.cli.bench import QUICK_CAMPAIGN_CASES
+    from tests.cli_run import ROOT
+
+    done = subprocess.run(
+        [sys.executable, "-m", "rakectl", "bench", "--campaign", "--quick", "--report",
+         str(tmp_path)], capture_output=True, text=True, timeout=600.0, cwd=ROOT,
+        env={**os.environ, "RAKECTL_PHYSICS_CACHE": str(physics_build)})
     assert done.returncode == 0, done.stderr
     progress = done.stdout + done.stderr
     last = f"case {QUICK_CAMPAIGN_CASES} of {QUICK_CAMPAIGN_CASES}, "
