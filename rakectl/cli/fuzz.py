@@ -254,10 +254,15 @@ _NOT_WITH_MERGE = ("scenarios", "seed", "first", "family", "declared_site", "wor
                    "scheduler", "compare", "replay", "trace", "mcap")
 
 
-def _merge_main(args: argparse.Namespace) -> int:
+def _given(args: argparse.Namespace, names: Sequence[str]) -> list[str]:
+    """Which of these options ``args`` gives other than their defaults, as flags."""
     defaults = _parser().parse_args([])
-    given = ["--" + name.replace("_", "-") for name in _NOT_WITH_MERGE
-             if getattr(args, name) != getattr(defaults, name)]
+    return ["--" + name.replace("_", "-") for name in names
+            if getattr(args, name) != getattr(defaults, name)]
+
+
+def _merge_main(args: argparse.Namespace) -> int:
+    given = _given(args, _NOT_WITH_MERGE)
     if given:
         print(f"rakectl: error: fuzz: --merge reads finished campaigns and runs nothing; "
               f"{', '.join(given)} cannot go with it", file=sys.stderr)
@@ -308,10 +313,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"rakectl: error: fuzz: --seed must be >= 0, got {args.seed}", file=sys.stderr)
         return 2
     if args.replay is not None or args.trace is not None:  # one case: a campaign's options
-        defaults = _parser().parse_args([])  # would be taken for ones it ran with
         ignored = ("seed", "family", "declared_site") if args.replay is not None else ()
-        given = ["--" + name.replace("_", "-") for name in (*_NOT_WITH_ONE_CASE, *ignored)
-                 if getattr(args, name) != getattr(defaults, name)]
+        given = _given(args, (*_NOT_WITH_ONE_CASE, *ignored))  # it would seem run with
         if given:
             one = "--replay" if args.replay is not None else "--trace"
             print(f"rakectl: error: fuzz: {one} runs one case; {', '.join(given)} cannot go "

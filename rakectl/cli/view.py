@@ -81,10 +81,6 @@ def cmd_view(args: argparse.Namespace) -> int:
 
         from rakectl.view.layout import build
 
-        if args.write_layout.is_dir():
-            print(f"rakectl: error: view: --write-layout {args.write_layout} is a directory, "
-                  "not a file", file=sys.stderr)
-            return 2
         check_layout(args.write_layout)
         args.write_layout.write_text(json.dumps(json.loads(build()), indent=1,
                                                 ensure_ascii=False) + "\n")
@@ -140,9 +136,11 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 
 def check_layout(path: Path) -> None:
-    """ConfigError unless ``path`` can take the layout: an existing file only if it is a
-    layout written before (JSON with Foxglove's ``panelType``), in a directory that
-    exists."""
+    """ConfigError unless ``path`` can take the layout: not a directory, an existing file
+    only if it is a layout written before (JSON with Foxglove's ``panelType``), in a
+    directory that exists."""
+    if path.is_dir():
+        raise ConfigError(f"view: --write-layout {path} is a directory, not a file")
     if not path.parent.is_dir():
         raise ConfigError(f"view: --write-layout {path}: no directory {str(path.parent)!r}")
     if path.exists():

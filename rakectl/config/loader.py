@@ -109,10 +109,11 @@ def _apply_override(tree: dict[str, Any], assignment: str) -> None:
     if not sep or not key.strip():
         raise ConfigError(f"{where}: expected dotted.key=value")
     try:
-        composed = yaml.compose(text, Loader=yaml.SafeLoader)
-        if composed is not None:  # what a file refuses (tags, merge keys, an alias to a
-            _plain(where, composed)  # collection around it), refused here as well
-        value = yaml.safe_load(text)
+        composed = yaml.compose(text, Loader=yaml.SafeLoader)  # parsed once, then
+        value = None  # refused as a file refuses it (tags, merge keys, an alias to a
+        if composed is not None:  # collection around it), else constructed as safe_load
+            _plain(where, composed)  # does
+            value = yaml.constructor.SafeConstructor().construct_document(composed)
     except yaml.YAMLError:
         value = text
     parts = key.strip().split(".")

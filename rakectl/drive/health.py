@@ -173,6 +173,10 @@ class DriveSupervision:
         received, syncs = self.stats.tpdo_received, self.stats.syncs
         return max(received[0], received[1]) - syncs - self._answers_forgiven
 
+    def _answers_beyond(self, j: int) -> int:
+        """:meth:`answers_beyond_syncs` of drive ``j`` alone (off the hot path)."""
+        return self.stats.tpdo_received[j] - self.stats.syncs - self._answers_forgiven
+
     def heartbeat_lost(self, now_s: float) -> bool:
         """A drive's heartbeat is older than the heartbeat timeout at ``now_s`` (same clock).
 
@@ -223,8 +227,7 @@ class DriveSupervision:
                 problems.append(f"{label}: rebooted (boot-up heartbeat): bring-up needed")
             if self._power.lost[joint]:
                 problems.append(f"{label}: its power stage went off by itself{flags}")
-            extra, other = (self.stats.tpdo_received[j] - self.stats.syncs
-                            - self._answers_forgiven for j in (joint, 1 - joint))
+            extra, other = self._answers_beyond(joint), self._answers_beyond(1 - joint)
             if extra > FOREIGN_SYNC_ANSWERS:  # a foreign SYNC is answered by both drives
                 problems.append(f"{label}: {extra} TPDO1s more than the SYNCs sent: " + (
                     "another node sends SYNC on this bus (another CANopen master)"
