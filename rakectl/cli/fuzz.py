@@ -12,6 +12,7 @@ from pathlib import Path
 from rakectl.bench.sections import markdown_table
 from rakectl.cli.usage import Parser
 from rakectl.limits import FORCE_LIMIT_N
+from rakectl.sim import chain
 from rakectl.sim.campaign import campaign, declares_sites, merged, replay
 from rakectl.sim.case_files import read_case_file
 from rakectl.sim.cases import Family
@@ -57,7 +58,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, default=None,
                    help=f"directory for {WORST_CASE_FILE} and {RESULTS_FILE} (each case's "
                    "result as it finishes; cases already there are not run again: a "
-                   "campaign resumes, or is run in parts into one directory)")
+                   "campaign resumes, or is run in parts into one directory; results of "
+                   "another version of the code there are refused)")
     p.add_argument("--plot", action="store_true",
                    help=f"with --out: also write OUT/{FORCES_PLOT} (how many cases read at least "
                    "each force, by what carried it, by fault and by command, against the "
@@ -87,8 +89,9 @@ def _parser() -> argparse.ArgumentParser:
                    "directories as one (several seeds, or one seed run in parts): the "
                    "largest forces, the cases over the limit and the table by command, "
                    "fault and supervision; exit status as a campaign's. A case found in "
-                   "two of them is refused. With --plot --out DIR, the figures of all of "
-                   "them together are written to DIR")
+                   "two of them, or results of two versions of the code, are refused. "
+                   "With --plot --out DIR, the figures of all of them together are written "
+                   "to DIR")
     p.add_argument("--mcap", type=Path, default=None, metavar="OUT.mcap",
                    help="with --replay: record the replay as MCAP (and its telemetry as "
                    "OUT.csv next to it; the [view] extra; docs/viewer.md)")
@@ -100,7 +103,7 @@ def banner(args: argparse.Namespace, runs_on: str, physics: str) -> str:
     declared = declares_sites(Family(args.family), args.declared_site)
     site = ", sites declared, descent limiter on" if declared else ""
     return (f"fuzz: cases {args.first}..{args.first + args.scenarios - 1} of seed "
-            f"{args.seed} ({args.family}{site}) on {runs_on}; {physics}")
+            f"{args.seed} ({args.family}{site}) on {runs_on}; {physics}; code {chain.digest()}")
 
 
 TABLE_COLUMNS = ("cases", "n", "ground, largest (N)", "mine, plate or side, largest (N)",
@@ -127,7 +130,7 @@ def human(report: Report) -> str:
             if s["resumed"] else ""
         ran = (f"{s['scenarios']} scenarios in {s['wall_time_s']:.0f} s "
                f"({s['scenarios_per_min']:.0f}/min{resumed})")
-    lines = [ran,
+    lines = [ran, f"code that ran them: {chain.counted(r.chain for r in report.results)}",
              f"largest true vertical force on the ground: {s['f_true_z_max_n']:.1f} N "
              f"(limit {FORCE_LIMIT_N:g} N)",
              f"largest force on a mine: plate {s['f_mine_plate_max_n']:.1f} N, side "
@@ -190,13 +193,16 @@ def _replay_main(path: Path, as_json: bool, mcap: Path | None = None) -> int:
             writer.writerows(rows)
         telemetry_to_mcap(telemetry, mcap, objects=boxes(case.ground.objects))
         print(f"replay {path}: recorded as {mcap} (telemetry {telemetry})", file=sys.stderr)
-    same = recorded is None or now == recorded
-    out = {"replayed": str(path), "same": same, "safe": now.safe, **now.to_dict()}
+    same = recorded is None or now.same_as(recorded)
+    code = "" if recorded is None or recorded.chain == now.chain else \
+        f" (recorded on code {chain.name(recorded.chain)}, run on {now.chain})"
+    out = {"replayed": str(path), "same": same, "safe": now.safe, **now.to_dict(),
+           "recorded_chain": None if recorded is None else recorded.chain}
     print(json.dumps(out) if as_json else
           f"replay {path}: ground {now.f_true_z_max_n:.1f} N, mine {now.f_mine_max_n:.1f} N, "
           f"{now.ticks_over_limit} ticks over, mine activated {now.mine_activated}; "
           + ("no recorded result" if recorded is None else
-             "same result" if same else "DIFFERENT result"))
+             "same result" if same else "DIFFERENT result") + code)
     return 0 if same and now.safe else 1
 
 
@@ -365,6 +371,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         report = campaign(args.scenarios, args.seed, args.workers, args.out, Progress("fuzz"),
                           first=args.first, executor=executor, family=Family(args.family),
                           declared_site=args.declared_site)
+    except chain.MixedChains as e:
+        print(f"rakectl: error: fuzz: {e}", file=sys.stderr)
+        return 2
     finally:
         executor.close()
     if args.plot:

@@ -29,6 +29,7 @@ from rakectl.core.clamp import VoltageClamp
 from rakectl.core.lane import LanePlanner
 from rakectl.core.supervision import ForceLevel
 from rakectl.limits import FORCE_LIMIT_N
+from rakectl.sim import chain
 from rakectl.sim.case_files import read_case_file, write_case
 from rakectl.sim.cases import CommandKind, Family, FuzzCase, generate
 from rakectl.sim.compare import Key, key, read_results
@@ -198,7 +199,7 @@ def _result(case: FuzzCase, loop: FaultyRakeLoop, reference: Reference,
                       f_root_side_max_n=peak(Contact.ROOT, "peak_side_n"),
                       supervised=case.supervised, stalled_ticks=loop.stalled_ticks,
                       watchdog_tripped=loop.watchdog_tripped, family=str(case.family),
-                      declared_site=case.declared_site)
+                      declared_site=case.declared_site, chain=chain.digest())
 
 
 def _kind(case: FuzzCase) -> str:
@@ -209,7 +210,8 @@ def _kind(case: FuzzCase) -> str:
 def _refused(case: FuzzCase, why: str) -> CaseResult:
     return CaseResult(case.seed, case.index, _kind(case), 0.0, 0.0, 0, False, False, 0.0,
                       case.faults.kinds(), 0, 0, 0, 0, "", supervised=case.supervised,
-                      family=str(case.family), declared_site=case.declared_site, refused=why)
+                      family=str(case.family), declared_site=case.declared_site, refused=why,
+                      chain=chain.digest())
 
 
 # --------------------------------------------------------------------------- campaign
@@ -262,7 +264,12 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
     rakectl.sim.parallel) instead of ``workers`` local processes. ``family``: how the
     cases are drawn (:class:`~rakectl.sim.cases.Family`). ``declared_site``: each case's
     site declared and the descent limiter on (rakectl.sim.site), as the mapped family's
-    always are; a site it would refuse counts as refused, not run."""
+    always are; a site it would refuse counts as refused, not run.
+
+    :class:`~rakectl.sim.chain.MixedChains`, before any case runs, if ``out_dir``'s results
+    came from another version of the code and cases are left to run; or, as it happens,
+    if a worker runs another version (a cluster's node): results of two versions are
+    not one campaign's (:mod:`rakectl.sim.chain`)."""
     if scenarios < 1:
         raise ValueError("scenarios must be >= 1")
     declared_site = declares_sites(family, declared_site)
@@ -272,6 +279,9 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
         if out_dir is not None else {}
     results: list[CaseResult] = list(done.values())
     jobs = [(seed, i, str(family), declared_site) for i in wanted if i not in done]
+    code = chain.digest()
+    if out_dir is not None and jobs:
+        _refuse_other_chains(out_dir, code)
     sink = open_results(out_dir) if out_dir is not None and jobs else None
     try:
         if progress is not None and results:
@@ -280,6 +290,11 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
             progress(len(results), scenarios)
         pool = executor if executor is not None else LocalExecutor(workers)
         for result in pool.map_unordered(_run_index, jobs):
+            if result.chain != code:
+                raise chain.MixedChains(
+                    f"case {result.seed}/{result.index} ran on other code "
+                    f"({chain.name(result.chain)}; this process runs {code}): every worker "
+                    "must run this version")
             results.append(result)
             if sink is not None:
                 sink.write(json.dumps(result.to_dict()) + "\n")
@@ -301,12 +316,27 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
     return dataclasses.replace(report, worst_case_path=str(path), directory=directory)
 
 
+def _refuse_other_chains(out_dir: Path, code: str) -> None:
+    """:class:`~rakectl.sim.chain.MixedChains` if ``out_dir``'s results file holds results
+    of code other than ``code``."""
+    path = out_dir / RESULTS_FILE
+    others = [r.chain for r in read_results(out_dir) if r.chain != code] \
+        if path.is_file() else []
+    if others:
+        raise chain.MixedChains(
+            f"{path} holds results of other code: {chain.counted(others)}; this code is "
+            f"{code}. One campaign's results come from one version: run into a new --out "
+            f"(with --compare {out_dir}, to see what the change moved)")
+
+
 def merged(out_dirs: Sequence[Path]) -> tuple[Report, dict[Path, int]]:
     """The finished campaigns in ``out_dirs`` (each a ``--out`` directory) as one report,
     and how many results each gave: several seeds, or one seed run in parts into several
     directories, judged and tabled together. Nothing runs. :class:`ValueError` naming the
     directory that has no results or is given twice, or the case found in two of them
-    (its results could come from two chains: merged, it would count twice)."""
+    (its results could come from two chains: merged, it would count twice);
+    :class:`~rakectl.sim.chain.MixedChains` (a ValueError) if the results came from more
+    than one version of the code."""
     found: dict[Key, tuple[Path, CaseResult]] = {}
     counts: dict[Path, int] = {}
     for out_dir in out_dirs:
@@ -324,6 +354,11 @@ def merged(out_dirs: Sequence[Path]) -> tuple[Report, dict[Path, int]]:
                                  f"{found[k][0]} and {out_dir}")
             found[k] = (out_dir, r)
         counts[out_dir] = len(here)
+    chains = {r.chain for _, r in found.values()}
+    if len(chains) > 1:
+        raise chain.MixedChains("results of more than one version of the code: " + "; ".join(
+            f"{d}: {chain.counted(r.chain for where, r in found.values() if where == d)}"
+            for d in counts) + " (one campaign's results come from one version)")
     results = sorted((r for _, r in found.values()),
                      key=lambda r: (r.family, r.declared_site, r.seed, r.index))
     return _report(len(results), results, 0.0, len(results)), counts

@@ -5,8 +5,9 @@ A change to the emulator, the controller or the runner is judged by running the
 campaign again (docs/safety.md, "Results"); what the safety case then states about
 the change is this: how many results differ, which outcomes changed, and the largest
 moves of each force. Results are matched by seed, index, family and whether the site
-was declared; a result is the same only if every field is (the runs are
-deterministic, so an unchanged chain gives each case's result to the bit).
+was declared; a result is the same only if every field is but the code that ran it
+(the runs are deterministic, so an unchanged chain gives each case's result to the
+bit). Which versions of the code ran each side is said (:mod:`rakectl.sim.chain`).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from rakectl.sim import chain
 from rakectl.sim.results import RESULTS_FILE, CaseResult
 from rakectl.sim.results import read_results as results_in
 
@@ -72,6 +74,8 @@ class Comparison:
     differ: tuple[int, ...]  # indices of the cases whose results differ in any field
     outcomes: tuple[OutcomeChange, ...]
     largest: dict[str, tuple[Move, ...]]  # per force, the largest moves, by size
+    chains: tuple[str, ...] = ()  # the code that ran this run's cases
+    other_chains: tuple[str, ...] = ()  # the code that ran the other run's, of those compared
 
     @property
     def compared(self) -> int:
@@ -85,12 +89,14 @@ def compare(results: Iterable[CaseResult], others: Iterable[CaseResult],
     ours = sorted(results, key=lambda r: (r.seed, r.index))
     missing, differ, outcomes = [], [], []
     moves: dict[str, list[Move]] = {force: [] for force in FORCES}
+    other_chains: set[str] = set()
     for now in ours:
         then = before.get(key(now))
         if then is None:
             missing.append(now.index)
             continue
-        if now == then:
+        other_chains.add(then.chain)
+        if now.same_as(then):
             continue
         differ.append(now.index)
         outcomes += [OutcomeChange(now.index, name, getattr(then, name), getattr(now, name))
@@ -101,7 +107,8 @@ def compare(results: Iterable[CaseResult], others: Iterable[CaseResult],
                 moves[force].append(Move(now.index, force, b, a))
     largest = {force: tuple(sorted(found, key=lambda m: -abs(m.change_n))[:keep])
                for force, found in moves.items()}
-    return Comparison(len(ours), tuple(missing), tuple(differ), tuple(outcomes), largest)
+    return Comparison(len(ours), tuple(missing), tuple(differ), tuple(outcomes), largest,
+                      tuple(sorted({r.chain for r in ours})), tuple(sorted(other_chains)))
 
 
 def describe(comparison: Comparison, other: str) -> list[str]:
@@ -110,6 +117,11 @@ def describe(comparison: Comparison, other: str) -> list[str]:
     lines = [f"against {other}: {c.compared} of {c.cases} cases there, {len(c.differ)} "
              f"differ, {c.compared - len(c.differ)} the same to the bit"
              + (f"; {len(c.missing)} not there" if c.missing else "")]
+    ran = ", ".join(map(chain.name, c.chains))
+    if c.other_chains:  # (of the cases compared)
+        lines.append(f"code: the same ({ran})" if c.other_chains == c.chains else
+                     f"code: this run {ran}, there " + ", ".join(map(chain.name,
+                                                                     c.other_chains)))
     lines.append("outcomes changed: " + (", ".join(
         f"{o.index} {o.outcome} {o.before!r} -> {o.after!r}" for o in c.outcomes)
         if c.outcomes else "none"))
@@ -124,6 +136,7 @@ def summary(comparison: Comparison) -> dict[str, Any]:
     """The comparison as plain data (``--json``)."""
     c = comparison
     return {"cases": c.cases, "compared": c.compared, "missing": list(c.missing),
+            "chains": list(c.chains), "other_chains": list(c.other_chains),
             "differ": len(c.differ), "differ_indices": list(c.differ),
             "outcomes_changed": [dataclasses.asdict(o) for o in c.outcomes],
             "largest_moves": {force: [dataclasses.asdict(m) for m in found]

@@ -44,6 +44,7 @@ class CaseResult:
     family: str = str(Family.RANDOM)  # how the case was drawn (rakectl.sim.cases.Family)
     declared_site: bool = False  # its site declared, the descent limiter on (sim.site)
     refused: str = ""  # why the daemon would refuse that declaration at load: nothing ran
+    chain: str = ""  # the code that ran it (rakectl.sim.chain.digest); "" if not recorded
 
     @property
     def safe(self) -> bool:
@@ -54,6 +55,11 @@ class CaseResult:
     @property
     def f_mine_max_n(self) -> float:
         return max(self.f_mine_plate_max_n, self.f_mine_side_max_n)
+
+    def same_as(self, other: CaseResult) -> bool:
+        """Whether ``other`` is this result to the bit in every field but the code that
+        ran it (an unchanged chain gives each case's result to the bit)."""
+        return dataclasses.replace(other, chain=self.chain) == self
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -149,6 +155,7 @@ class Report:
                 "by_kind": self.by_kind(),
                 "worst": self.worst.to_dict(), "worst_case": self.worst_case.describe(),
                 "worst_case_path": self.worst_case_path, "wall_time_s": self.wall_time_s,
+                "chains": sorted({r.chain for r in results}),  # the code that ran them
                 "resumed": self.resumed,  # read back, not run: the rate counts the others
                 "scenarios_per_min": 60.0 * (self.scenarios - self.resumed)
                 / max(self.wall_time_s, 1e-9)}

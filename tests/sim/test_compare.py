@@ -30,7 +30,18 @@ def test_a_run_compared_with_itself_differs_nowhere(pinned: list[CaseResult]) ->
     assert all(moves == () for moves in c.largest.values())
     assert describe(c, "DIR") == [
         "against DIR: 60 of 60 cases there, 0 differ, 60 the same to the bit",
-        "outcomes changed: none"]
+        "code: the same (unrecorded)", "outcomes changed: none"]
+
+
+def test_results_of_other_code_the_same_to_the_bit_are_the_same(pinned: list[CaseResult]
+                                                                 ) -> None:
+    """What another version of the code ran (rakectl.sim.chain) is compared as the
+    figures go; the code of each side is said."""
+    ours = [dataclasses.replace(r, chain="0123456789ab") for r in pinned]
+    c = compare(ours, pinned)
+    assert (c.compared, c.differ, c.chains, c.other_chains) == (60, (), ("0123456789ab",), ("",))
+    assert describe(c, "DIR")[1] == "code: this run 0123456789ab, there unrecorded"
+    assert (summary(c)["chains"], summary(c)["other_chains"]) == (["0123456789ab"], [""])
 
 
 def test_moves_changed_outcomes_and_missing_cases_are_named(pinned: list[CaseResult]) -> None:
@@ -60,7 +71,7 @@ def test_moves_changed_outcomes_and_missing_cases_are_named(pinned: list[CaseRes
     lines = describe(found, "DIR")
     assert lines[0] == "against DIR: 59 of 60 cases there, 3 differ, 56 the same to the bit; " \
         "1 not there"
-    assert lines[1] == (f"outcomes changed: 9703 safe False -> True, 9710 watchdog_tripped "
+    assert lines[2] == (f"outcomes changed: 9703 safe False -> True, 9710 watchdog_tripped "
                         f"{not b.watchdog_tripped!r} -> {b.watchdog_tripped!r}")
     assert f"largest moves, ground: 9703 95.0 -> {a.f_true_z_max_n:.1f} N" in lines
     figures = summary(found)
