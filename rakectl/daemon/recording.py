@@ -156,6 +156,7 @@ class Inputs:
     failures: dict[int, SendFailure]  # by attempt
     end: End | None
     complete_until_tick: int | None  # entries were lost after this tick
+    last_tick: int = 0  # the tick of the last entry
 
 
 MAX_COUNT = 2 ** 53  # ticks, frames, attempts: far beyond any run
@@ -278,6 +279,7 @@ def read_inputs(path: Path) -> Inputs:
             last_tick = after
         ticks_of_lines.append(after)
     inputs.heartbeat_lost = frozenset(lost)
+    inputs.last_tick = max(ticks_of_lines)
     return inputs
 
 

@@ -307,6 +307,11 @@ def replay(trace: Path, settings: Settings, inputs_path: Path | None = None) -> 
                                          "cut short")
             except _Diverged as diverged:
                 result.mismatch = f"tick {daemon.ticks}, {diverged.message}"
+                if end is None and daemon.ticks > inputs.last_tick:  # (a killed run's file
+                    # holds every entry, flushed as written, and its trace ends there too)
+                    result.mismatch += (f" (its inputs {inputs.path} have no end entry: "
+                                        "the run was killed, or the file was cut short; "
+                                        f"their last entry is at tick {inputs.last_tick})")
             except _Replayed as stopped:
                 result.incomplete = stopped.message
             daemon.events.flush(daemon.state.name)

@@ -432,6 +432,16 @@ def test_failed_sends_are_recorded_and_fail_again_in_the_replay(tmp_path: Path) 
                                if e["kind"] != "send_failed"))
     diverged = replay(trace, settings, without)
     assert not diverged.ok and diverged.mismatch.startswith(f"tick {failed[0]['tick']}, ")
+    assert "no end entry" not in diverged.mismatch
+
+    cut = tmp_path / "cut.jsonl"  # cut short by hand before the arm command: no end entry
+    arm = next(i for i, e in enumerate(entries) if e["kind"] == "command")
+    cut.write_text("".join(json.dumps(e) + "\n" for e in entries[:arm]))
+    last = max([0, *(e.get("after_tick", e.get("tick", 0)) for e in entries[1:arm])])
+    diverged = replay(trace, settings, cut)
+    assert not diverged.ok and diverged.mismatch.endswith(
+        f" (its inputs {cut} have no end entry: the run was killed, or the file was cut "
+        f"short; their last entry is at tick {last})"), diverged.mismatch
 
 
 def test_a_trace_whose_ring_overflowed_is_replayed_up_to_its_first_lost_frame(
