@@ -10,7 +10,7 @@ from drivers.ground_params import GroundParams
 from drivers.mechanics import ArmParams
 from rakectl.config.declare import section, setting
 from rakectl.config.service import BusSettings
-from rakectl.config.settings import GeometrySettings
+from rakectl.config.settings import GeometrySettings, node_id_clashes
 from rakectl.core.motor_model import R_MOTOR_DEFAULT, THETA_MOTOR_DEFAULT, MotorParams
 from rakectl.protocol.files import DriveProfile
 
@@ -110,8 +110,9 @@ class EmulatorConfig:
         if not g.theta_max_rad > g.theta_min_rad:
             errors.append(("geometry.theta_max_rad",
                            f"must be > geometry.theta_min_rad ({g.theta_min_rad:g})"))
-        if len({d.r_node_id, d.theta_node_id, d.controller_node_id}) < 3:
-            errors.append(("drives.theta_node_id", "node-IDs of drives and controller must differ"))
+        errors.extend(node_id_clashes({"drives.r_node_id": d.r_node_id,
+                                       "drives.theta_node_id": d.theta_node_id,
+                                       "drives.controller_node_id": d.controller_node_id}))
         if not g.r_min_m < d.start_r_m < g.r_max_m:
             errors.append(("drives.start_r_m", "must lie strictly inside geometry.r_min_m.."
                            "geometry.r_max_m (at a limit the hard stop would fault the drive)"))

@@ -175,8 +175,10 @@ def survey_points(marks: Sequence[Mark]) -> tuple[SurveyPoint, ...]:
 
 
 def survey_yaml(points: Sequence[SurveyPoint]) -> str:
-    """The configuration's ``descent.survey`` block."""
-    lines = ["descent:", "  survey:"]
+    """The configuration's ``descent.survey`` block, with how to paste it."""
+    lines = ["# descent.survey: paste as it is, or, where the configuration has a descent:",
+             "# section already, the survey: lines alone into that section",
+             "descent:", "  survey:"]
     lines += [f"    - {{reach_m: {p.reach_m:.6f}, height_m: {p.height_m:.6f}}}" for p in points]
     return "\n".join(lines) + "\n"
 

@@ -26,12 +26,13 @@ from typing import Any
 
 from rakectl.api.client import Client
 from rakectl.config.files import config_dir
+from rakectl.config.settings import CYCLE_BITS
 from rakectl.daemon.cyclictest import run_cyclictest
 from rakectl.errors import RakeError
 from rakectl.sim.rig import Bench, emulated_bench, namespaces_unavailable
 
 FRAME_OVERHEAD_BITS = 47  # a standard-ID data frame without stuffing: 47 + 8 × data bytes
-BUS_BITS_PER_CYCLE = 55 + 2 * 111 + 2 * 79  # SYNC + 2 TPDO1 + 2 RPDO1, with frame overhead
+BUS_BITS_PER_CYCLE = CYCLE_BITS  # SYNC + 2 TPDO1 + 2 RPDO1, with frame overhead
 # the daemon's settings over config/rakectl-emulated.yaml: real-time set up, its failures
 # reported (the header says what was applied). Not enforce: enforce arms only with a drive
 # watchdog the clamp carries (the robot's 3 ms), and on a shared machine a stall of a few

@@ -287,17 +287,20 @@ def _check_config(config: Path | None, overrides: list[str]) -> int:
     """``rakectl run --check``: the configuration loaded and cross-checked as the daemon
     loads it, and what bring-up would write checked against the drives' EDS limits (a
     ConfigError names the key), the command socket's path and group as the daemon checks
-    them before bring-up, then what the daemon would drive."""
+    them before bring-up, where it writes (its dumps, its bus trace), then what the daemon
+    would drive."""
     from rakectl.api.client import socket_path
     from rakectl.api.endpoint import check_endpoint
     from rakectl.config.loader import load_settings
     from rakectl.config.service import RtModeSetting
     from rakectl.config.settings import Settings, held_command_gap
+    from rakectl.daemon.places import check_places
     from rakectl.drive.profiles import check_parameter_ranges
 
     s = load_settings(config, overrides, root=Settings)
     check_parameter_ranges(s.drives, s.motors)  # bring-up's own check, before it sends
     check_endpoint(socket_path(s.daemon.socket_path or None), s.daemon.socket_group or None)
+    places = check_places(s)
     d = s.drives
     print(f"{config or '<defaults>'}: the configuration loads")
     print(f"  bus {s.bus.interface.value}:{s.bus.channel} at {s.bus.bitrate} bit/s; drives "
@@ -307,6 +310,7 @@ def _check_config(config: Path | None, overrides: list[str]) -> int:
               if s.selftest.enabled else "none (selftest.enabled: false)")
     print(f"  force limit {s.clamp.force_limit_n:g} N; checks before arming: {checks}; "
           f"surveyed points: {len(s.descent.survey)}")
+    print(f"  {'; '.join(places)}")
     gap = held_command_gap(s)
     if gap:
         refusal = ("arming is refused" if s.daemon.rt_mode is RtModeSetting.ENFORCE else

@@ -56,9 +56,13 @@ def setting(
     ge: float | None = None,
     lt: float | None = None,
     le: float | None = None,
+    whole_items: bool = False,
 ) -> Any:
-    """Declare an option: default, documentation, unit and bounds in one place."""
-    meta = {"doc": doc, "unit": unit, "bounds": Bounds(gt=gt, ge=ge, lt=lt, le=le)}
+    """Declare an option: default, documentation, unit and bounds in one place.
+    ``whole_items``: a list of sections each of whose items must give every option (no
+    item's option defaults: a survey point missing its height is refused, not put at 0)."""
+    meta = {"doc": doc, "unit": unit, "bounds": Bounds(gt=gt, ge=ge, lt=lt, le=le),
+            "whole_items": whole_items}
     if isinstance(default, tuple):
         return field(default_factory=lambda: default, metadata=meta)
     return field(default=default, metadata=meta)

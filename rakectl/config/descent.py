@@ -74,7 +74,8 @@ class DescentSettings:
         (), "The undisturbed surface along the reach, surveyed: points in increasing reach, "
         "none above ceiling_m; between two consecutive points the higher stands for the "
         "surface. Within its span it is the map's top where no pass has been, ceiling_m "
-        "outside it (empty: ceiling_m everywhere).")
+        "outside it (empty: ceiling_m everywhere). Each point gives both its reach_m and "
+        "its height_m.", whole_items=True)
     side_reach_m: float = setting(
         0.01, "How far along the reach an object's edge can push descending tines (a mine's "
         "rim 3 mm, a stone's edge 5 mm) plus the reach's error.", unit="m", ge=0.005, le=0.1)

@@ -200,7 +200,11 @@ _INFINITE = re.compile(r"[-+]?\.(inf|Inf|INF)|\.(nan|NaN|NAN)")
 _HEX_OCTAL = re.compile(r"[-+]?0(x[0-9a-fA-F]+|o[0-7]+)")
 
 
-def _build(cls: type[T], tree: Mapping[str, Any], prefix: str, where: str) -> T:
+def _build(cls: type[T], tree: Mapping[str, Any], prefix: str, where: str,
+           base: T | None = None, whole: bool = False) -> T:
+    """A ``cls`` from ``tree``; an option it does not give takes ``base``'s value (the
+    section's default as its parent declares it: the r motor's, not the class's), else
+    the class's default; with ``whole`` every option must be given."""
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
     for key, (key_where, _) in tree.items():
@@ -211,23 +215,34 @@ def _build(cls: type[T], tree: Mapping[str, Any], prefix: str, where: str) -> T:
     kwargs: dict[str, Any] = {}
     for name, f in fields.items():
         if name not in tree:
-            if not has_default(f):
+            if whole or not has_default(f):
                 raise ConfigError(f"{where}: {prefix}{name} is required")
+            if base is not None and f.init:
+                kwargs[name] = getattr(base, name)
             continue
         key_where, raw = tree[name]
-        kwargs[name] = _field_value(hints[name], raw, prefix + name, key_where, f)
+        kwargs[name] = _field_value(hints[name], raw, prefix + name, key_where, f,
+                                    getattr(base, name) if base is not None else _default(f))
     try:
         return cls(**kwargs)
     except ConfigError as exc:  # a section's own cross-field check
         raise ConfigError(f"{where}: {prefix.rstrip('.') or 'settings'}: {exc}") from None
 
 
-def _field_value(tp: Any, raw: Any, dotted: str, where: str, f: dataclasses.Field[Any]) -> Any:
+def _default(f: dataclasses.Field[Any]) -> Any:
+    """The field's declared default (a section's as its parent declares it), or None."""
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return None if f.default is dataclasses.MISSING else f.default
+
+
+def _field_value(tp: Any, raw: Any, dotted: str, where: str, f: dataclasses.Field[Any],
+                 default: Any = None) -> Any:
     origin = typing.get_origin(tp)
     if dataclasses.is_dataclass(tp):
         if not isinstance(raw, dict):
             raise ConfigError(f"{where}: {dotted} must be a section (a mapping of options)")
-        return _build(tp, raw, dotted + ".", where)  # type: ignore[arg-type]
+        return _build(tp, raw, dotted + ".", where, default)  # type: ignore[arg-type]
     if origin is tuple:
         item_tp = typing.get_args(tp)[0]
         if not isinstance(raw, list):
@@ -247,7 +262,8 @@ def _list_item(tp: Any, raw: Any, dotted: str, where: str, f: dataclasses.Field[
     if dataclasses.is_dataclass(tp):
         if not isinstance(raw, dict):
             raise ConfigError(f"{where}: {dotted} must be a section (a mapping of options)")
-        return _build(tp, raw, dotted + ".", where)  # type: ignore[arg-type]
+        return _build(tp, raw, dotted + ".", where,  # type: ignore[arg-type]
+                      whole=bool(f.metadata.get("whole_items")))
     if not isinstance(raw, _Value):
         raise ConfigError(f"{where}: {dotted} must be a single value")
     return _coerce(tp, raw, dotted, f.metadata.get("bounds"))

@@ -26,13 +26,14 @@ def _show(value: Any) -> str:
 
 
 def rows(cls: type, prefix: str = "", instance: Any = None,
-         skip: Collection[str] = ()) -> Iterator[tuple[str, ...]]:
+         skip: Collection[str] = (), required: bool = False) -> Iterator[tuple[str, ...]]:
     """(key, type, default, unit, bounds, doc) for every option below ``cls``.
 
     Defaults are read from ``instance`` (the section's default as its parent
     declares it, e.g. the r motor's), else from a default-constructed ``cls``.
     Top-level fields named in ``skip`` are left out (a root that extends another
-    documents only what it adds).
+    documents only what it adds); ``required``: the items of a list whose every item
+    gives each option (``whole_items``), with no default.
     """
     hints = typing.get_type_hints(cls)
     if instance is None:
@@ -47,10 +48,12 @@ def rows(cls: type, prefix: str = "", instance: Any = None,
             yield from rows(tp, f"{prefix}{f.name}.", value)  # type: ignore[arg-type]
             continue
         bounds = f.metadata.get("bounds")
-        yield (f"{prefix}{f.name}", _type_name(tp), _show(value), f.metadata.get("unit", ""),
-               bounds.describe() if bounds else "", f.metadata.get("doc", ""))
+        yield (f"{prefix}{f.name}", _type_name(tp), "required" if required else _show(value),
+               f.metadata.get("unit", ""), bounds.describe() if bounds else "",
+               f.metadata.get("doc", ""))
         if item is not None and dataclasses.is_dataclass(item):
-            yield from rows(item, f"{prefix}{f.name}[].")  # type: ignore[arg-type]
+            yield from rows(item, f"{prefix}{f.name}[].",  # type: ignore[arg-type]
+                            required=bool(f.metadata.get("whole_items")))
 
 
 def table(cls: type, prefix: str = "", skip: Collection[str] = ()) -> str:

@@ -39,11 +39,17 @@ class BusSettings:
     interface: BusInterface = setting(BusInterface.VIRTUAL, "python-can interface.")
     channel: str = setting("rakectl", "Channel: vcan0/can0 for socketcan, a group address "
                            "(239.74.163.2) for udp_multicast, any name for virtual.")
-    bitrate: int = setting(1_000_000, "Nominal bit rate (set on the link for socketcan).",
-                           unit="bit/s", ge=125_000, le=1_000_000)
+    bitrate: int = setting(1_000_000, "The link's bit rate, which rakectl does not set "
+                           "(80-can0.network's BitRate=, or ip link): the loop's frames "
+                           "must take at most 60 % of it.", unit="bit/s", ge=125_000,
+                           le=1_000_000)
     trace_path: str = setting("", "Record every frame to this candump .log file, and what "
                               "else decides the frames sent to FILE.inputs.jsonl, for "
                               "`rakectl replay`; empty: off.")
+    trace_keep: int = setting(3, "Earlier runs' traces kept at start, the last as "
+                              "TRACE.1 (and TRACE.1.inputs.jsonl), the one before as "
+                              "TRACE.2 …; 0: each start overwrites the last run's.",
+                              ge=0, le=100)
 
     @property
     def udp_port(self) -> int:

@@ -13,6 +13,7 @@ See :mod:`rakectl.config.declare` for how; names carry their units (``_m``, ``_s
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -35,6 +36,14 @@ from rakectl.config.service import (
 from rakectl.core.kinematics import Workspace, inverse
 from rakectl.errors import KinematicsError
 from rakectl.limits import FORCE_LIMIT_N
+
+# A control cycle's frames on the bus with their 47 bits of frame overhead, before bit
+# stuffing: SYNC (1 B, 55 bits), 2 TPDO1 (8 B, 111 bits), 2 RPDO1 (4 B, 79 bits; a
+# Roboteq-class drive's is shorter). docs/can-bus.md, "Bus load".
+CYCLE_BITS = 55 + 2 * 111 + 2 * 79
+# The most of the bus the cycle may take before stuffing: worst-case stuffing adds about a
+# fifth, and heartbeats, TPDO2, EMCY and SDO need the rest
+MAX_BUS_LOAD = 0.6
 
 # re-exported: the declaration functions (rakectl.config.declare) and the control
 # sections (rakectl.config.motion, rakectl.config.machine, rakectl.config.safety)
@@ -114,8 +123,17 @@ def cross_checks(s: Settings) -> list[tuple[str, str]]:
         errors.append(("supervision.hard_force_n",
                        f"must be > supervision.caution_force_n ({caution:g})"))
     d = s.drives
-    if len({d.r_node_id, d.theta_node_id, d.controller_node_id}) < 3:
-        errors.append(("drives.theta_node_id", "node-IDs of drives and controller must differ"))
+    ids = {"drives.r_node_id": d.r_node_id, "drives.theta_node_id": d.theta_node_id,
+           "drives.controller_node_id": d.controller_node_id}
+    errors.extend(node_id_clashes(ids))
+    load = CYCLE_BITS * s.rate_hz / s.bus.bitrate
+    if load > MAX_BUS_LOAD:  # named by the bit rate where it is below the robot's
+        key, value = (("bus.bitrate", f"{s.bus.bitrate} bit/s") if s.bus.bitrate < 1_000_000
+                      else ("rate_hz", f"{s.rate_hz:g} Hz"))
+        errors.append((key, f"{value}: a cycle's {CYCLE_BITS} bits at {s.rate_hz:g} Hz take "
+                       f"{100 * load:.0f} % of a {s.bus.bitrate} bit/s bus before bit "
+                       f"stuffing (at most {100 * MAX_BUS_LOAD:.0f} %; the robot runs 1000 Hz "
+                       "on 1 Mbit/s)"))
     if d.sync_counter_overflow == 1:
         errors.append(("drives.sync_counter_overflow",
                        "must be 0 (SYNC without counter) or 2 … 240 (CiA 301), got 1"))
@@ -160,6 +178,14 @@ def press_depth_m(selftest: SelfTestSettings, clamp: ClampSettings, sideways: bo
 def anvil_side_reach_m(selftest: SelfTestSettings) -> float:
     """The reach of the anvil's near side, the face the sideways press meets."""
     return selftest.anvil_reach_m - 0.5 * selftest.anvil_width_m
+
+
+def node_id_clashes(ids: dict[str, int]) -> list[tuple[str, str]]:
+    """(key, message) for each two of these node-ID options that are equal, both named."""
+    return [(key, f"and {other} are both {node}: the drives' and the controller's node-IDs "
+                  "must differ")
+            for (key, node), (other, other_node) in itertools.combinations(ids.items(), 2)
+            if node == other_node]
 
 
 def _press_checks(s: Settings) -> list[tuple[str, str]]:

@@ -233,5 +233,6 @@ def open_inputs(settings: BusSettings) -> InputLog | None:
     try:
         file = open(path, "w", encoding="utf-8")  # noqa: SIM115 (closed by InputLog.close)
     except OSError as error:
-        raise BusError(f"cannot open the trace's inputs {str(path)!r}: {error}") from error
+        raise BusError(f"bus.trace_path: cannot open the trace's inputs {str(path)!r}: "
+                       f"{error}") from error
     return InputLog(file)

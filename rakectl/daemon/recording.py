@@ -29,7 +29,8 @@ from rakectl.errors import ConfigError, TraceError
 # Options that change nothing the loop sends: where things are, how the process is set up
 # and the figures only the wall-clock checks before arming read (replayed as carried out).
 UNCOMPARED = frozenset({
-    "bus.interface", "bus.channel", "bus.bitrate", "bus.trace_path", "daemon.rt_priority",
+    "bus.interface", "bus.channel", "bus.bitrate", "bus.trace_path", "bus.trace_keep",
+    "daemon.rt_priority",
     "daemon.cpu", "daemon.socket_path", "daemon.socket_group", "daemon.dump_dir",
     "daemon.recorder_s", "daemon.stats_interval_s", "daemon.startup_cyclictest_s",
     "daemon.arm_timing_s", "daemon.arm_max_latency_p99_us", "daemon.arm_max_late_share",

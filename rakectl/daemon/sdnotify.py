@@ -49,6 +49,12 @@ class Notifier:
     def stopping(self) -> bool:
         return self.notify("STOPPING=1")
 
+    def extend_start(self, seconds: float, status: str) -> bool:
+        """A start-up phase that may take up to ``seconds``: systemd's start timeout
+        (TimeoutStartSec) is extended to that from now (EXTEND_TIMEOUT_USEC, systemd 236
+        and later), so that the phase ends with the daemon's own word on it."""
+        return self.notify(f"EXTEND_TIMEOUT_USEC={round(seconds * 1e6)}", _status(status))
+
     def watchdog(self, ticks: int | None = None) -> bool:
         """Send WATCHDOG=1; given the loop's tick counter, only if it advanced since."""
         if ticks is not None:

@@ -34,8 +34,10 @@ from rakectl.daemon.cyclictest import run_cyclictest
 from rakectl.daemon.handlers import make_handler
 from rakectl.daemon.inputs import InputLog, open_inputs
 from rakectl.daemon.loop import Daemon
+from rakectl.daemon.places import keep_earlier_traces, make_dump_dir
 from rakectl.daemon.rt import RtMode, RtRequest, apply_rt, freeze_gc
 from rakectl.daemon.sdnotify import Notifier
+from rakectl.drive.bringup import CONFIGURE_ATTEMPTS
 from rakectl.drive.canbus import TraceRecorder, open_bus, open_trace
 from rakectl.drive.client import DriveClient
 from rakectl.drive.joints import receive_ids
@@ -60,16 +62,26 @@ class _StopDuringStartUp(Exception):  # a stop asked, not an error
     drives that do not answer, cyclictest): the start-up ends there, exit status 0."""
 
 
-def _dump_dir(settings: Settings) -> Path:
-    configured = settings.daemon.dump_dir or os.environ.get("STATE_DIRECTORY", "").split(":")[0]
-    path = Path(configured) if configured else Path.cwd()
-    path.mkdir(parents=True, exist_ok=True)
-    return path
-
-
 def _rt_request(settings: Settings) -> RtRequest:
     d = settings.daemon
     return RtRequest(priority=d.rt_priority, cpus=frozenset({d.cpu}) if d.cpu >= 0 else None)
+
+
+# added to each start-up phase's own bound: the process's work around it (an SDO
+# transfer's timeouts, cyclictest's start), a machine under load
+START_PHASE_MARGIN_S = 30.0
+
+
+# the bring-up's waits of up to daemon.boot_timeout_s each, one after another: each
+# drive's boot-up after a reset (again from the reset if it restarts, CONFIGURE_ATTEMPTS
+# times), each drive's heartbeat saying OPERATIONAL after NMT start, and the loop's first
+# valid feedback from both
+BRING_UP_WAITS = 2 * CONFIGURE_ATTEMPTS + 2 + 1
+
+
+def bring_up_bound_s(daemon: DaemonSettings) -> float:
+    """How long bring-up and the loop's first valid feedback may take before READY."""
+    return BRING_UP_WAITS * daemon.boot_timeout_s + START_PHASE_MARGIN_S
 
 
 def measure_reference(daemon: DaemonSettings, notifier: Notifier) -> dict[str, Any]:
@@ -78,7 +90,8 @@ def measure_reference(daemon: DaemonSettings, notifier: Notifier) -> dict[str, A
     seconds = daemon.startup_cyclictest_s
     if seconds <= 0.0:
         return {"reason": "not measured (daemon.startup_cyclictest_s: 0)"}
-    notifier.status(f"measuring the machine's wake-up latency (cyclictest, {seconds:g} s)")
+    notifier.extend_start(seconds + START_PHASE_MARGIN_S,
+                          f"measuring the machine's wake-up latency (cyclictest, {seconds:g} s)")
     reasons: list[str] = []
     result = run_cyclictest(seconds, priority=daemon.rt_priority, why_not=reasons.append)
     if result is None:
@@ -101,18 +114,25 @@ def run(config: Path | None, overrides: list[str]) -> int:
     check_endpoint(path, settings.daemon.socket_group or None)
     refuse_if_listening(path)  # a running daemon, named as such
     claimed = claim(path)  # one starting at the same moment, refused here
-    try:
-        dump_dir = _dump_dir(settings)
-        bus = open_bus(settings.bus, receive_ids(settings.drives))
-    except BaseException:
-        os.close(claimed)
-        raise
     trace: TraceRecorder | None = None
     inputs: InputLog | None = None
-    server: CommandServer | None = None
     try:
+        dump_dir = make_dump_dir(settings)
+        kept = keep_earlier_traces(settings)  # the run before, kept for its incident
         trace = open_trace(settings.bus)
         inputs = open_inputs(settings.bus)  # what a replay needs besides the trace
+        bus = open_bus(settings.bus, receive_ids(settings.drives))
+    except BaseException:
+        for recording in (trace, inputs):
+            if recording is not None:
+                with contextlib.suppress(OSError):
+                    recording.close()
+        os.close(claimed)
+        raise
+    if kept:
+        log.info("trace_kept", last_run=str(kept[0]), kept=len(kept))
+    server: CommandServer | None = None
+    try:
         client = DriveClient(bus, settings.drives, settings.motors, settings.rate_hz, trace)
         notifier = Notifier.from_environ(os.environ)
         daemon = Daemon(settings, client, notifier, dump_dir)
@@ -131,7 +151,7 @@ def run(config: Path | None, overrides: list[str]) -> int:
         try:
             daemon.timing_reference = measure_reference(settings.daemon, notifier)
             log.info("timing_reference", **daemon.timing_reference)
-            notifier.status("bringing up the drives")
+            notifier.extend_start(bring_up_bound_s(settings.daemon), "bringing up the drives")
             daemon.bring_up()
             starting[0] = False  # from here a stop is the loop's (it stops at its first tick)
         except _StopDuringStartUp as stop:  # the drives were never enabled

@@ -200,7 +200,8 @@ def open_trace(settings: BusSettings, capacity: int = DEFAULT_TRACE_CAPACITY,
     try:
         writer = can.CanutilsLogWriter(settings.trace_path, channel=channel)
     except OSError as error:
-        raise BusError(f"cannot open CAN trace {settings.trace_path!r}: {error}") from error
+        raise BusError(f"bus.trace_path: cannot open the CAN trace {settings.trace_path!r}: "
+                       f"{error}") from error
     return TraceRecorder(writer, channel, capacity)
 
 

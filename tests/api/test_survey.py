@@ -98,6 +98,11 @@ def test_show_prints_the_configuration_the_daemon_loads(tmp_path: Path) -> None:
     loaded: Settings = load_settings(config)
     assert [(p.reach_m, p.height_m) for p in loaded.descent.survey] == [
         (0.8, -0.003), (1.0, 0.007), (1.2, 0.011)]
+    lines = done.stdout.splitlines()  # its survey: lines, into a descent: section there
+    assert lines[0].startswith("#") and lines[2] == "descent:"
+    config.write_text("descent:\n  ceiling_m: 0.05\n" + "\n".join(lines[3:]) + "\n")
+    loaded = load_settings(config)
+    assert loaded.descent.ceiling_m == 0.05 and len(loaded.descent.survey) == 3
 
 
 def test_a_point_above_the_ceiling_is_named_and_nothing_is_printed(tmp_path: Path) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -206,3 +207,70 @@ def test_reference_lists_every_option_with_unit_and_bounds() -> None:
     text = configuration_reference()
     assert "| impedance.damping_ns_per_m | float | `13300` | N·s/m | > 0, ≤ 1e+08 |" in text
     assert "| plant.kind | first_order \\| rake | `first_order` |" in text
+
+
+def test_a_section_given_in_part_keeps_its_declared_defaults(tmp_path: Path) -> None:
+    """One option of the r motor (or of θ's loop, or of the emulated r motor) set: the
+    others stay the section's default as its parent declares it. They were the class's
+    (θ's geared motor for r: 2.7× the r joint's length per count, its clamp on θ's
+    model), with --check passing."""
+    from drivers.settings import EmulatorConfig
+
+    defaults = Settings()
+    settings = load_settings(_write(tmp_path, "motors:\n  r:\n    supply_voltage_v: 24.0\n"
+                                    "joint_control:\n  theta:\n    kp_v_per_unit: 1300\n"))
+    assert settings.motors.r == defaults.motors.r
+    assert settings.motors.r.lead_m_per_rev == 0.01 and settings.motors.r.gear_ratio == 1.0
+    assert settings.joint_control.theta == dataclasses.replace(
+        defaults.joint_control.theta, kp_v_per_unit=1300.0)
+    assert settings.joint_control.theta.kff_v_s_per_unit == 7.0
+    overridden = load_settings(None, ("motors.theta.current_limit_a=8",))
+    assert overridden.motors.theta == dataclasses.replace(defaults.motors.theta,
+                                                          current_limit_a=8.0)
+    emulator = load_settings(None, ("physics.motor_r.current_noise_a=0.01",),
+                             root=EmulatorConfig)
+    assert emulator.physics.motor_r == dataclasses.replace(EmulatorConfig().physics.motor_r,
+                                                           current_noise_a=0.01)
+
+
+def test_a_survey_point_gives_both_its_reach_and_its_height(tmp_path: Path) -> None:
+    """A point missing its height was put at 0 m (below a raised surface: the tines
+    allowed deeper than the bound), one missing its reach at 1 m, and `{}` was a point."""
+    for text, missing in (("[{reach_m: 0.9}]", "descent.survey[0].height_m"),
+                          ("[{reach_m: 0.9, height_m: 0.01}, {height_m: 0.01}]",
+                           "descent.survey[1].reach_m"),
+                          ("[{}]", "descent.survey[0].reach_m")):
+        path = _write(tmp_path, f"descent:\n  survey: {text}\n")
+        assert _error(path) == f"{path}:2: {missing} is required"
+    path = _write(tmp_path, "descent:\n  survey: [{reach_m: 0.9, height_m: 0.01}]\n")
+    assert load_settings(path).descent.survey[0].height_m == 0.01
+
+
+def test_node_ids_that_clash_are_both_named(tmp_path: Path) -> None:
+    """Every clash read `drives.theta_node_id node-IDs … must differ`, whichever was set
+    (the emulator's configuration too)."""
+    from drivers.settings import EmulatorConfig
+
+    path = _write(tmp_path, "drives:\n  r_node_id: 2\n")
+    assert _error(path) == (f"{path}:2: drives.r_node_id and drives.theta_node_id are both "
+                            "2: the drives' and the controller's node-IDs must differ")
+    assert _error(None, ("drives.theta_node_id=1",)).endswith(
+        "drives.r_node_id and drives.theta_node_id are both 1: the drives' and the "
+        "controller's node-IDs must differ")
+    with pytest.raises(ConfigError, match=r"drives\.r_node_id and drives\.controller_node_id "
+                       r"are both 10: "):
+        load_settings(None, ("drives.r_node_id=10",), root=EmulatorConfig)
+
+
+def test_a_bit_rate_the_cycle_would_crowd_is_refused() -> None:
+    """The link's rate is set outside rakectl; the option says what it is, and the 1 kHz
+    cycle's 435 bits at 500 kbit/s would take 87 % of the bus before bit stuffing."""
+    assert _error(None, ("bus.bitrate=500000",)) == (
+        "--set bus.bitrate=500000: bus.bitrate 500000 bit/s: a cycle's 435 bits at 1000 Hz "
+        "take 87 % of a 500000 bit/s bus before bit stuffing (at most 60 %; the robot runs "
+        "1000 Hz on 1 Mbit/s)")
+    assert _error(None, ("rate_hz=1500",)) == (  # named by what changed
+        "--set rate_hz=1500: rate_hz 1500 Hz: a cycle's 435 bits at 1500 Hz take 65 % of a "
+        "1000000 bit/s bus before bit stuffing (at most 60 %; the robot runs 1000 Hz on "
+        "1 Mbit/s)")
+    assert load_settings(None, ("bus.bitrate=500000", "rate_hz=500")).bus.bitrate == 500000

@@ -7,8 +7,9 @@ READY only after bring-up and the first valid feedback, the command socket for g
 rakectl and no one else, a stalled loop caught by WatchdogSec and restarted with the
 drives stopped by their own watchdog meanwhile, a clean `systemctl stop` (0 V, drives
 disabled, a recorder dump, exit 0), the operator's flow from the CLI after a start, the
-robot's real-time settings under the sandbox, and the structured journal. The tests run
-in order and share the installation.
+robot's real-time settings under the sandbox, the structured journal, and drives that
+never answer named by the daemon, its start timeout extended for the bring-up. The tests
+run in order and share the installation.
 """
 
 from __future__ import annotations
@@ -279,3 +280,30 @@ def test_journal_is_structured(installed: None) -> None:
     assert own and all(e.get("_SYSTEMD_UNIT") == "rakectl.service" for e in own)
     for name in ("timing_reference", "started", "state", "recorder_dumped", "stopped"):
         assert events(entries, name), f"no {name!r} line in the journal"
+
+
+def test_a_drive_that_never_answers_is_named_not_timed_out(installed: None) -> None:
+    """The drives off (the emulator stopped) and a start timeout of 10 s (a drop-in)
+    shorter than the bring-up's 30 s wait for them (config/rakectl-vcan.yaml): the
+    daemon extends systemd's start timeout for its bring-up, so the journal names the
+    drive that never answered; before, systemd ended the start at its timeout and the
+    daemon's own line never came."""
+    drop_in = Path("/run/systemd/system/rakectl.service.d/short-start.conf")
+    drop_in.parent.mkdir(parents=True, exist_ok=True)
+    drop_in.write_text("[Service]\nTimeoutStartSec=10s\nRestart=no\n")
+    sh("systemctl daemon-reload && systemctl stop rakectl rakectl-emulator",
+       timeout_s=STATE_TIMEOUT_S)
+    since_us = now_us()
+    try:
+        started = sh("systemctl start rakectl", timeout_s=STATE_TIMEOUT_S, check=False)
+        assert started.returncode != 0
+        lines = [str(e.get("MESSAGE", "")) for e in journal("rakectl", since_us)]
+        assert any("no heartbeat or boot-up within 30 s" in line for line in lines), lines[-15:]
+        assert not any("timed out" in line.lower() for line in lines), lines[-15:]
+        assert show("rakectl", "Result")["Result"] == "exit-code"
+    finally:
+        drop_in.unlink()
+        sh("systemctl daemon-reload")
+        fresh_emulator()
+        sh("systemctl start rakectl", timeout_s=STATE_TIMEOUT_S)
+    assert wait_for_state(["disarmed"])["state"] == "disarmed"
