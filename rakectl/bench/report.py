@@ -184,7 +184,7 @@ def markdown(options: BenchOptions, started: str, loop: LoopFigures | None, loop
              "never asserted in tests.", "",
              *(f"- **{key}**: {value}" for key, value in facts.items()), ""]
     lines += _loop_section(loop, loop_text, options.command, started, tree)
-    lines += _tick_section(tick)
+    lines += _tick_section(tick, options.command, started, tree)
     lines += _excavation_section(excavation, options.command, started, tree)
     return "\n".join(lines) + "\n"
 
@@ -252,21 +252,31 @@ def _loop_section(loop: LoopFigures | None, text: str, command: str, started: st
     return lines
 
 
-def _tick_section(tick: TickFigures) -> list[str]:
+TICK_START, TICK_END = markers("tick", "rakectl bench --tick")
+
+
+def write_tick_section(path: Path, tick: TickFigures, command: str, started: str,
+                       tree: str) -> None:
+    """Part (b) run alone, into ``path`` in place of its last version."""
+    write_section(path, TICK_START, TICK_END, _tick_section(tick, command, started, tree))
+
+
+def _tick_section(tick: TickFigures, command: str, started: str, tree: str) -> list[str]:
     rows = [(name, f"{tick.stages_us[name][0]:.1f}", f"{tick.stages_us[name][1]:.1f}", what)
             for name, what in STAGES]
     rows.append(("rest", f"{tick.rest_us[0]:.1f}", f"{tick.rest_us[1]:.1f}",
                  "the tick less the stages: states, checks, the timers' own calls"))
     rows.append(("**whole tick**", f"{tick.tick_us[0]:.1f}", f"{tick.tick_us[1]:.1f}",
                  f"Daemon.tick without timers (max {tick.tick_us[2]:.0f} µs)"))
-    return ["## (b) Per-tick compute, by stage", "",
+    return [TICK_START, "## (b) Per-tick compute, by stage", "",
+            f"`{command}` on {started}, tree {tree}.", "",
             f"The real `Daemon.tick` in lock-step with the emulated drives on python-can's "
             f"`virtual` bus, raking loam with the adaptive lane, {tick.ticks} ticks timed "
             "whole, then as many with each stage timed inside its own object (the real "
             f"methods, not copies; {tick.timer_overhead_ns:.0f} ns of timer per call "
             "subtracted). Decode and encode include python-can's `VirtualBus` (about 6 µs "
             "per frame sent), which a SocketCAN bus replaces.", "",
-            *markdown_table(("stage", "p50 µs", "p99 µs", "what"), rows), ""]
+            *markdown_table(("stage", "p50 µs", "p99 µs", "what"), rows), TICK_END, ""]
 
 
 EXCAVATION_START, EXCAVATION_END = markers("excavation", "rakectl bench --excavation")

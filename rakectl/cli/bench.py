@@ -23,7 +23,8 @@ def add_parser(sub: argparse._SubParsersAction[Any]) -> None:
     what.add_argument("--loop", action="store_true",
                       help="the daemon's loop on the emulated bench against cyclictest; "
                       "rewrites its sections of REPORT/BENCHMARKS.md alone")
-    what.add_argument("--tick", action="store_true", help="the daemon's tick, stage by stage")
+    what.add_argument("--tick", action="store_true", help="the daemon's tick, stage by "
+                      "stage; rewrites its section of REPORT/BENCHMARKS.md alone")
     what.add_argument("--excavation", action="store_true", help="time to rake a lane to "
                       "depth in three soils: adaptive vs position control vs fixed speed; "
                       "rewrites its section of REPORT/BENCHMARKS.md alone")
@@ -48,13 +49,13 @@ def add_parser(sub: argparse._SubParsersAction[Any]) -> None:
     bench.add_argument("--out", type=Path, default=Path("out/bench-loop"),
                        help="scratch: the loop benchmark's logs")
     bench.add_argument("--report", type=Path, default=None, help="where --all writes "
-                       "BENCHMARKS.md (--loop, --excavation, --profiles and --campaign their "
-                       "sections) "
-                       "and --all/--excavation the plots (default: bench, out/bench with "
-                       "--quick)")
+                       "BENCHMARKS.md (--loop, --tick, --excavation, --profiles and --campaign "
+                       "their sections) and --all/--excavation the plots (default: bench, "
+                       "out/bench with --quick)")
 
 
 QUICK_CAMPAIGN_CASES = 4  # --campaign --quick: each physics runs this many, not --cases
+QUICK_LOOP_S = 5.0  # --loop --quick, --all --quick: each phase of the loop benchmark
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -74,7 +75,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
                               "--all)")
         local_workers(args.scheduler)  # a bad one is named now, not after the other parts
     report = args.report or Path("bench" if (args.all or args.excavation or args.campaign
-                                             or args.loop or args.profiles)
+                                             or args.loop or args.profiles or args.tick)
                                  and not args.quick else "out/bench")
     if args.all or args.excavation or args.tick:
         return _cmd_bench_parts(args, report)
@@ -113,7 +114,7 @@ def _cmd_bench_loop(args: argparse.Namespace, report: Path) -> int:
     if not 1.0 <= args.seconds <= 3600.0:
         raise ConfigError("bench: --seconds must be in [1, 3600]")
     started = time.strftime("%Y-%m-%d %H:%M %Z")
-    figures = measure_loop(args.seconds, args.out)
+    figures = measure_loop(QUICK_LOOP_S if args.quick else args.seconds, args.out)
     text = format_loop(figures)
     print(text)
     path = report / BENCHMARKS_FILE
@@ -145,16 +146,23 @@ def _cmd_bench_campaign(args: argparse.Namespace, report: Path) -> int:
 def _cmd_bench_parts(args: argparse.Namespace, report: Path) -> int:
     tick_ticks = 2000 if args.quick else max(1000, args.ticks // 10)
     if args.tick:
+        from rakectl.bench.report import BENCHMARKS_FILE, git_revision, write_tick_section
         from rakectl.bench.tick import bench_tick, format_tick
 
-        print(format_tick(bench_tick(tick_ticks)))
+        started = time.strftime("%Y-%m-%d %H:%M %Z")
+        tick = bench_tick(tick_ticks)
+        print(format_tick(tick))
+        path = report / BENCHMARKS_FILE
+        write_tick_section(path, tick, "rakectl " + " ".join(args.argv), started,
+                           git_revision())
+        print(f"written: section (b) of {path}")
         return 0
     if args.excavation:
         from rakectl.bench.excavation_text import format_excavation
         from rakectl.bench.report import excavate, git_revision, write_excavation
         from rakectl.sim.plot import pyplot
 
-        pyplot()  # fail before the work, not after it
+        pyplot(None)  # fail before the work, not after it (bench always plots)
         started = time.strftime("%Y-%m-%d %H:%M %Z")
         result = excavate(args.scheduler, args.workers, args.quick, _echo_progress)
         print(format_excavation(result))
@@ -165,8 +173,8 @@ def _cmd_bench_parts(args: argparse.Namespace, report: Path) -> int:
     from rakectl.bench.report import BenchOptions, run_all
     from rakectl.sim.plot import pyplot
 
-    pyplot()
-    seconds = 5.0 if args.quick else args.seconds
+    pyplot(None)
+    seconds = QUICK_LOOP_S if args.quick else args.seconds
     if not 1.0 <= seconds <= 3600.0:
         raise ConfigError("bench: --seconds must be in [1, 3600]")
     command = "rakectl " + " ".join(args.argv)

@@ -100,11 +100,9 @@ class DaskExecutor:
     deterministic: it would raise again), its error ends the run."""
 
     def __init__(self, scheduler: str, retries: int = 0) -> None:
-        try:
-            from distributed import Client, LocalCluster
-        except ImportError as exc:
-            raise RakeError("--scheduler needs the [cluster] extra: pip install "
-                            f"'rakectl[cluster]' ({exc})") from exc
+        require_cluster_extra()
+        from distributed import Client, LocalCluster
+
         self.scheduler, self.retries = scheduler, retries
         self._cluster: Any = None
         self._before: set[Any] = set()
@@ -182,9 +180,20 @@ class DaskExecutor:
         return workers_physics(self._client.run(physics_status))
 
 
+def require_cluster_extra() -> None:
+    """RakeError saying how to install Dask's ``distributed`` where it is missing."""
+    try:
+        import distributed  # noqa: F401
+    except ImportError as exc:
+        raise RakeError("--scheduler needs the [cluster] extra: pip install "
+                        f"'rakectl[cluster]' ({exc})") from exc
+
+
 def local_workers(scheduler: str) -> int:
-    """N of ``local:N``, 0 for ``tcp://HOST:PORT``; ConfigError naming anything else (so a
-    command can check its --scheduler before long work that precedes the cluster's)."""
+    """N of ``local:N``, 0 for ``tcp://HOST:PORT``; ConfigError naming anything else, and
+    RakeError without the [cluster] extra (so a command can check its --scheduler before
+    long work that precedes the cluster's)."""
+    require_cluster_extra()
     if scheduler.startswith("tcp://"):
         return 0
     if scheduler.startswith("local:"):

@@ -13,17 +13,17 @@ from rakectl.sim.results import CaseResult, Report
 from rakectl.sim.simulate import SimulationResult
 
 
-def pyplot() -> Any:
-    """matplotlib.pyplot on the Agg backend, or a RakeError saying how to install it."""
+def pyplot(option: str | None = "--plot") -> Any:
+    """matplotlib.pyplot on the Agg backend, or a RakeError saying how to install it (and
+    which ``option`` asked for the plots, where one did)."""
     try:
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
-        raise RakeError(
-            "plotting needs matplotlib: pip install 'rakectl[plot]' (or drop --plot)"
-        ) from None
+        raise RakeError("plotting needs matplotlib: pip install 'rakectl[plot]'"
+                        + (f" (or drop {option})" if option else "")) from None
     return plt
 
 

@@ -21,6 +21,8 @@ from rakectl.bench.report import (
     EXCAVATION_START,
     LOOP_END,
     LOOP_START,
+    TICK_END,
+    TICK_START,
     BenchOptions,
     _loop_section,
     machine_facts,
@@ -29,6 +31,7 @@ from rakectl.bench.report import (
     write_loop_section,
 )
 from rakectl.bench.tick import STAGES, bench_tick, format_tick
+from rakectl.cli.main import main as rakectl_main
 from rakectl.config.files import config_dir
 from rakectl.config.loader import load_settings
 from rakectl.config.service import RtModeSetting
@@ -181,6 +184,30 @@ def test_the_loop_alone_rewrites_its_sections_and_nothing_else(tmp_path: Path) -
     assert "second printout" in section and "first printout" not in after
     assert "## (a) The loop's wake-up latency" in section and "## (c) Cross-process" in section
     assert "cyclictest was not measured: cyclictest not found" in section
+    assert "hot path text" in after
+
+
+def test_the_tick_alone_rewrites_its_section_and_nothing_else(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``rakectl bench --tick`` prints the stages and replaces section (b) in place (once
+    the file has its markers; appended before), the rest as it was."""
+    path = tmp_path / BENCHMARKS_FILE
+    path.write_text("# Benchmarks\n\nhead\n\n" + "\n".join(hot_path_section(
+        "rakectl bench --profiles", "then", "old1234", "hot path text")))
+    argv = ["bench", "--tick", "--ticks", "1000", "--report", str(tmp_path)]
+    assert rakectl_main(argv) == 0
+    out = capsys.readouterr().out
+    assert "whole Daemon.tick" in out and out.endswith(f"written: section (b) of {path}\n")
+    before = path.read_text()
+    assert before.count(TICK_START) == before.count(TICK_END) == 1
+    first = before.split(TICK_START)[1].split(TICK_END)[0]
+    assert f"`rakectl {' '.join(argv[:-2])} --report {tmp_path}` on " in first
+    assert "## (b) Per-tick compute, by stage" in first and "**whole tick**" in first
+    assert rakectl_main(argv) == 0
+    after = path.read_text()
+    assert after.count(TICK_START) == after.count(TICK_END) == 1
+    head, tail = before.split(TICK_START)[0], before.split(TICK_END)[1]
+    assert after.startswith(head + TICK_START) and after.endswith(TICK_END + tail)
     assert "hot path text" in after
 
 

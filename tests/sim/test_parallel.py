@@ -5,6 +5,8 @@ campaign skipping what is done. Slow-ish: each test starts a cluster."""
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -129,3 +131,20 @@ def test_the_command_line_runs_on_a_local_cluster_and_refuses_a_bad_scheduler(
     assert "--scheduler local:x: local:N needs N >= 1 workers" in capsys.readouterr().err
     assert main(["bench", "--tick", "--scheduler", "local:2"]) == 2
     assert "--scheduler is for the excavation runs" in capsys.readouterr().err
+
+
+def test_a_missing_cluster_extra_is_named_before_any_benchmark_runs(tmp_path: Path) -> None:
+    """`bench --all --scheduler local:2` without Dask's distributed ran every other part
+    (minutes) before the excavation's runs found it missing, and wrote nothing."""
+    hidden = tmp_path / "hidden" / "distributed"
+    hidden.mkdir(parents=True)
+    (hidden / "__init__.py").write_text("raise ImportError('hidden by the test')\n")
+    report = tmp_path / "report"
+    done = subprocess.run([sys.executable, "-m", "rakectl", "bench", "--all", "--quick",
+                           "--scheduler", "local:2", "--report", str(report)],
+                          capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": str(hidden.parent)})
+    assert done.returncode != 0 and done.stdout == ""  # no part ran (each prints)
+    assert done.stderr.strip() == ("rakectl: error: --scheduler needs the [cluster] extra: "
+                                   "pip install 'rakectl[cluster]' (hidden by the test)")
+    assert not report.exists()
