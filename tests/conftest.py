@@ -8,6 +8,7 @@ import os
 import shutil
 import tempfile
 import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -39,14 +40,54 @@ def physics_build(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return cache
 
 
+CHILD_EXIT_GRACE_S = 3.0  # a child killed at a test's end may take this long to go
+
+
+def _children() -> dict[int, str]:
+    """This process's children still running (not zombies), however started
+    (multiprocessing, subprocess): pid → command line, read from /proc."""
+    me, found = os.getpid(), {}
+    for entry in os.scandir("/proc"):
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = Path(entry.path, "stat").read_text()
+            state, ppid = stat.rsplit(")", 1)[1].split()[:2]
+            if int(ppid) != me or state in ("Z", "X"):
+                continue
+            command = Path(entry.path, "cmdline").read_bytes()
+        except (OSError, ValueError):
+            continue  # gone meanwhile
+        found[int(entry.name)] = command.replace(b"\0", b" ").decode(errors="replace").strip()
+    return found
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _resource_tracker() -> None:
+    """multiprocessing's resource tracker: one process for the whole session, started by
+    the first spawned process (Dask's workers); started here, before a test's leak check
+    would take it for that test's child."""
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
+
+
 @pytest.fixture(autouse=True)
 def _no_leaks() -> Iterator[None]:
     threads_before = set(threading.enumerate())
+    children_before = set(_children())  # (a wider fixture's: set up before this one)
     yield
     leaked_threads = [t for t in threading.enumerate() if t not in threads_before and t.is_alive()]
     leaked_children = multiprocessing.active_children()
     assert not leaked_threads, f"test leaked threads: {leaked_threads}"
     assert not leaked_children, f"test leaked child processes: {leaked_children}"
+    deadline = time.monotonic() + CHILD_EXIT_GRACE_S
+    while True:
+        running = {pid: cmd for pid, cmd in _children().items() if pid not in children_before}
+        if not running or time.monotonic() > deadline:
+            break
+        time.sleep(0.05)
+    assert not running, f"test left child processes running: {running}"
 
 
 @pytest.fixture(scope="session")

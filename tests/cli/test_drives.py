@@ -21,6 +21,10 @@ ROOT = Path(__file__).resolve().parents[2]
 EMULATOR = ROOT / "config" / "emulator-demo.yaml"
 DAEMON = ROOT / "config" / "rakectl-emulated.yaml"
 
+_reason = namespaces_unavailable()
+needs_namespace = pytest.mark.skipif(_reason is not None,
+                                     reason=f"no network namespace: {_reason}")
+
 _SCRIPT = """\
 set -u
 {setup}
@@ -44,7 +48,8 @@ wait $EMU
 """
 
 
-@pytest.mark.skipif(namespaces_unavailable() is not None, reason="no network namespace")
+@pytest.mark.crossprocess
+@needs_namespace
 def test_the_dry_run_reads_both_emulated_drives_back_and_leaves_them_stopped(
         tmp_path: Path) -> None:
     script = _SCRIPT.format(setup=NAMESPACE_SETUP)
@@ -110,7 +115,8 @@ def _run(script: str, out: Path, profile: str) -> None:
                    check=True)
 
 
-@pytest.mark.skipif(namespaces_unavailable() is not None, reason="no network namespace")
+@pytest.mark.crossprocess
+@needs_namespace
 def test_the_dry_run_reads_roboteq_class_drives_in_their_own_units(tmp_path: Path) -> None:
     """drives.profile: roboteq on both sides: the identity, the limits written in the
     drive's units (0x3002 in 0.1 A), the supply the commands are scaled by, and the drives

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
 import zipfile
@@ -55,8 +56,16 @@ def test_files_says_where_the_eds_files_are(capsys: pytest.CaptureFixture[str]) 
 
 
 def test_the_wheel_ships_the_configurations_and_units(tmp_path: Path) -> None:
+    """Built from a copy of what the wheel is made of: setuptools writes build/ and an
+    egg-info into the tree it builds, which would be left in the working tree."""
+    source = tmp_path / "source"
+    for name in ("rakectl", "drivers", "config", "systemd"):
+        shutil.copytree(ROOT / name, source / name,
+                        ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(ROOT / name, source / name)
     done = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "-w",
-                           str(tmp_path), str(ROOT)], capture_output=True, text=True,
+                           str(tmp_path), str(source)], capture_output=True, text=True,
                           timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     (wheel,) = tmp_path.glob("rakectl-*.whl")

@@ -13,7 +13,8 @@ import pytest
 from rakectl.sim.rig import NAMESPACE_SETUP, namespaces_unavailable, unshare_command
 
 _reason = namespaces_unavailable()
-pytestmark = pytest.mark.skipif(_reason is not None, reason=f"no network namespace: {_reason}")
+pytestmark = [pytest.mark.crossprocess,
+              pytest.mark.skipif(_reason is not None, reason=f"no network namespace: {_reason}")]
 
 PROBE = textwrap.dedent("""
     import sys, can

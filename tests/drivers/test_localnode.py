@@ -35,8 +35,9 @@ EMULATOR = ROOT / "config" / "emulator-vcan.yaml"
 DAEMON = ROOT / "config" / "rakectl-vcan.yaml"
 MODULE = "tests.drivers.localnode_drives"
 BUS = ["--set", "bus.interface=udp_multicast", "--set", "bus.channel=239.74.163.7"]
-needs_namespace = pytest.mark.skipif(namespaces_unavailable() is not None,
-                                     reason="no network namespace")
+_reason = namespaces_unavailable()
+needs_namespace = pytest.mark.skipif(_reason is not None,
+                                     reason=f"no network namespace: {_reason}")
 
 _SCRIPT = """\
 set -u
@@ -69,6 +70,7 @@ def test_cia402_transitions_of_the_slave() -> None:
     assert next_state(FAULT, 0x80, 0x00) == SWITCH_ON_DISABLED
 
 
+@pytest.mark.crossprocess
 @needs_namespace
 def test_the_dry_run_reads_a_localnode_slave_back(tmp_path: Path) -> None:
     script = _SCRIPT.format(setup=NAMESPACE_SETUP, module=MODULE, bus=" ".join(BUS))
@@ -96,6 +98,7 @@ def _truth(out: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
+@pytest.mark.crossprocess
 @needs_namespace
 @pytest.mark.parametrize("profile", ["cia402", "roboteq"])
 def test_the_daemon_brings_up_arms_and_jogs_a_localnode_slave(tmp_path: Path,
