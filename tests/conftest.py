@@ -64,7 +64,7 @@ def _children() -> dict[int, str]:
 
 @pytest.fixture(scope="session", autouse=True)
 def _resource_tracker() -> None:
-    """multiprocessing's resource tracker: one process for the whole session, started by
+    """multiprocessing's resource tracker: one process for the whole test run, started by
     the first spawned process (Dask's workers); started here, before a test's leak check
     would take it for that test's child."""
     from multiprocessing import resource_tracker

@@ -78,8 +78,8 @@ class LaneSettings:
         "drag has lifted is let go and drops.", unit="m/s", gt=0, le=1)
     max_stroke_speed_m_per_s: float = setting(
         0.15, "Adaptive: fastest stroke. The clamp's budget toward the robot shrinks with the "
-        "tip's speed (at 1.2 m with the 5 kN/m mount: 35 N at rest, 27 N at 0.1 m/s, 18 N at "
-        "0.15 m/s, none from 0.23 m/s): faster, a stroke at depth is cut until it rides up out "
+        "tip's speed (at 1.2 m with the 5 kN/m mount: 35 N at rest, 26 N at 0.1 m/s, 17 N at "
+        "0.15 m/s, none from 0.22 m/s): faster, a stroke at depth is cut until it rides up out "
         "of its cut.", unit="m/s",
         gt=0, le=1)
     max_plunge_speed_m_per_s: float = setting(

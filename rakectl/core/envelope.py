@@ -45,8 +45,8 @@ gives the budget along u, with D = F_L − τ k_u v_u:
     F_u ≤ B_u(v_u) = (D² − k_u m_u v_u²) / (2 D),
 
 F_L/2 at rest, shrinking with speed, negative (the motors must brake) once
-√(k_u m_u)·v_u + τ k_u v_u ≥ F_L: with the defaults at r = 1.2 m, from 0.56 m/s
-straight down or up (m_u ≈ 1.9 kg) and 0.23 m/s toward the robot (m_u ≈ 14 kg).
+√(k_u m_u)·v_u + τ k_u v_u ≥ F_L: with the defaults at r = 1.2 m, from 0.53 m/s
+straight down or up (m_u ≈ 1.9 kg) and 0.22 m/s toward the robot (m_u ≈ 14 kg).
 
 Energy envelope. A rounded edge can turn the tine's motion along u into motion
 along another direction u′ (a side met while the edge lifts the tine): what the
