@@ -32,7 +32,6 @@ from rakectl.errors import RakeError
 from rakectl.sim.rig import Bench, emulated_bench, namespaces_unavailable
 
 FRAME_OVERHEAD_BITS = 47  # a standard-ID data frame without stuffing: 47 + 8 × data bytes
-BUS_BITS_PER_CYCLE = CYCLE_BITS  # SYNC + 2 TPDO1 + 2 RPDO1, with frame overhead
 # the daemon's settings over config/rakectl-emulated.yaml: real-time set up, its failures
 # reported (the header says what was applied). Not enforce: enforce arms only with a drive
 # watchdog the clamp carries (the robot's 3 ms), and on a shared machine a stall of a few
@@ -319,8 +318,8 @@ def format_loop(f: LoopFigures) -> str:
         f"{bus.get('sync_to_tpdo_p50_us', float('nan'))} µs, p99 "
         f"{bus.get('sync_to_tpdo_p99_us', float('nan'))} µs, max "
         f"{bus.get('sync_to_tpdo_max_us', float('nan'))} µs",
-        f"  bus load at 1 Mbit/s, 1 kHz: {BUS_BITS_PER_CYCLE} bits per cycle = "
-        f"{BUS_BITS_PER_CYCLE / 10:.1f} % before bit stuffing (design); from the frames "
+        f"  bus load at 1 Mbit/s, 1 kHz: {CYCLE_BITS} bits per cycle = "
+        f"{CYCLE_BITS / 10:.1f} % before bit stuffing (design); from the frames "
         f"counted in this run {f.bits_per_cycle():.0f} bits = {f.bits_per_cycle() / 10:.1f} %",
     ]
     return "\n".join(lines)

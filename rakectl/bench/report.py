@@ -58,6 +58,7 @@ from rakectl.bench.throughput import (
 )
 from rakectl.bench.tick import STAGES, TickFigures, bench_tick, format_tick
 from rakectl.config.loader import load_settings
+from rakectl.config.settings import CYCLE_BITS
 from rakectl.errors import RakeError
 from rakectl.sim.parallel import executor_for
 from rakectl.sim.scenario import Scenario
@@ -247,7 +248,8 @@ def _loop_section(loop: LoopFigures | None, text: str, command: str, started: st
               f"{bus.get('sync_to_tpdo_max_us', math.nan)} µs",
               f"- bus load at 1 Mbit/s: {loop.bits_per_cycle():.0f} bits per 1 ms cycle = "
               f"{loop.bits_per_cycle() / 10:.1f} % before bit stuffing, from the frames the "
-              "daemon counted (design: SYNC + 2 TPDO1 + 2 RPDO1 = 435 bits, 43.5 %)", "",
+              f"daemon counted (design: SYNC + 2 TPDO1 + 2 RPDO1 = {CYCLE_BITS} bits, "
+              f"{CYCLE_BITS / 10:.1f} %)", "",
               "The whole printout:", "", "```text", text, "```", LOOP_END, ""]
     return lines
 

@@ -66,8 +66,9 @@ def check_places(settings: Settings) -> list[str]:
     ``daemon.dump_dir`` outside systemd is not judged: the service writes to its
     StateDirectory, not to the working directory of the one asking."""
     if settings.daemon.dump_dir or os.environ.get("STATE_DIRECTORY"):
-        check_directory(dump_dir_of(settings), "daemon.dump_dir")
-        lines = [f"dumps to {dump_dir_of(settings)}"]
+        dump_dir = dump_dir_of(settings)
+        check_directory(dump_dir, "daemon.dump_dir")
+        lines = [f"dumps to {dump_dir}"]
     else:
         lines = ["dumps to the service's StateDirectory (not checked here: daemon.dump_dir "
                  "is empty)"]

@@ -42,7 +42,7 @@ from rakectl.sim.results import (
     WORST_CASE_FILE,
     CaseResult,
     Report,
-    finished_results,
+    finished_among,
     open_results,
 )
 from rakectl.sim.scenario import PlantKind, PlantSettings, Scenario, TrajectoryKind
@@ -275,13 +275,14 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
     declared_site = declares_sites(family, declared_site)
     started = time.perf_counter()
     wanted = range(first, first + scenarios)
-    done = finished_results(out_dir / RESULTS_FILE, seed, wanted, family, declared_site) \
-        if out_dir is not None else {}
+    there = read_results(out_dir) if out_dir is not None and \
+        (out_dir / RESULTS_FILE).is_file() else []  # earlier runs' (read once)
+    done = finished_among(there, seed, wanted, family, declared_site)
     results: list[CaseResult] = list(done.values())
     jobs = [(seed, i, str(family), declared_site) for i in wanted if i not in done]
     code = chain.digest()
     if out_dir is not None and jobs:
-        _refuse_other_chains(out_dir, code)
+        _refuse_other_chains(out_dir / RESULTS_FILE, there, code)
     sink = open_results(out_dir) if out_dir is not None and jobs else None
     try:
         if progress is not None and results:
@@ -316,17 +317,15 @@ def campaign(scenarios: int, seed: int, workers: int = 1, out_dir: Path | None =
     return dataclasses.replace(report, worst_case_path=str(path), directory=directory)
 
 
-def _refuse_other_chains(out_dir: Path, code: str) -> None:
-    """:class:`~rakectl.sim.chain.MixedChains` if ``out_dir``'s results file holds results
-    of code other than ``code``."""
-    path = out_dir / RESULTS_FILE
-    others = [r.chain for r in read_results(out_dir) if r.chain != code] \
-        if path.is_file() else []
+def _refuse_other_chains(path: Path, there: Sequence[CaseResult], code: str) -> None:
+    """:class:`~rakectl.sim.chain.MixedChains` if the results ``there`` (those of the
+    results file ``path``) came from code other than ``code``."""
+    others = [r.chain for r in there if r.chain != code]
     if others:
         raise chain.MixedChains(
             f"{path} holds results of other code: {chain.counted(others)}; this code is "
             f"{code}. One campaign's results come from one version: run into a new --out "
-            f"(with --compare {out_dir}, to see what the change moved)")
+            f"(with --compare {path.parent}, to see what the change moved)")
 
 
 def merged(out_dirs: Sequence[Path]) -> tuple[Report, dict[Path, int]]:
@@ -339,6 +338,7 @@ def merged(out_dirs: Sequence[Path]) -> tuple[Report, dict[Path, int]]:
     than one version of the code."""
     found: dict[Key, tuple[Path, CaseResult]] = {}
     counts: dict[Path, int] = {}
+    chains: dict[Path, list[str]] = {}  # each directory's results' code
     for out_dir in out_dirs:
         if out_dir in counts:
             raise ValueError(f"{out_dir} is given twice")
@@ -354,11 +354,11 @@ def merged(out_dirs: Sequence[Path]) -> tuple[Report, dict[Path, int]]:
                                  f"{found[k][0]} and {out_dir}")
             found[k] = (out_dir, r)
         counts[out_dir] = len(here)
-    chains = {r.chain for _, r in found.values()}
-    if len(chains) > 1:
+        chains[out_dir] = [r.chain for r in here.values()]
+    if len({c for codes in chains.values() for c in codes}) > 1:
         raise chain.MixedChains("results of more than one version of the code: " + "; ".join(
-            f"{d}: {chain.counted(r.chain for where, r in found.values() if where == d)}"
-            for d in counts) + " (one campaign's results come from one version)")
+            f"{d}: {chain.counted(codes)}" for d, codes in chains.items())
+            + " (one campaign's results come from one version)")
     results = sorted((r for _, r in found.values()),
                      key=lambda r: (r.family, r.declared_site, r.seed, r.index))
     return _report(len(results), results, 0.0, len(results)), counts

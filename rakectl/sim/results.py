@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
@@ -187,9 +188,15 @@ def finished_results(path: Path, seed: int, wanted: range, family: Family = Fami
     """The results already in ``path`` for these cases of ``family``, run with their site
     declared or not (a line cut short by an interruption is ignored: that case runs
     again)."""
-    if not path.is_file():
-        return {}
-    return {r.index: r for r in read_results(path)
+    return finished_among(read_results(path) if path.is_file() else [], seed, wanted,
+                          family, declared_site)
+
+
+def finished_among(results: Iterable[CaseResult], seed: int, wanted: range,
+                   family: Family = Family.RANDOM, declared_site: bool = False
+                   ) -> dict[int, CaseResult]:
+    """:func:`finished_results` of results already read."""
+    return {r.index: r for r in results
             if r.seed == seed and r.index in wanted and r.family == family
             and r.declared_site == declared_site}
 

@@ -14,7 +14,7 @@ from rakectl.bench import loop as loop_module
 from rakectl.bench.excavation import SOILS, Controller, LaneShape, RunResult, run_excavation
 from rakectl.bench.excavation_text import format_excavation
 from rakectl.bench.hot_path import hot_path_section, write_hot_path_section
-from rakectl.bench.loop import BUS_BITS_PER_CYCLE, DAEMON_SETTINGS, LoopFigures, format_loop
+from rakectl.bench.loop import DAEMON_SETTINGS, LoopFigures, format_loop
 from rakectl.bench.report import (
     BENCHMARKS_FILE,
     EXCAVATION_END,
@@ -35,7 +35,7 @@ from rakectl.cli.main import main as rakectl_main
 from rakectl.config.files import config_dir
 from rakectl.config.loader import load_settings
 from rakectl.config.service import RtModeSetting
-from rakectl.config.settings import held_command_gap
+from rakectl.config.settings import CYCLE_BITS, held_command_gap
 from rakectl.errors import RakeError
 from rakectl.sim.parallel import DaskExecutor
 
@@ -67,7 +67,7 @@ def test_loop_figures_bus_load_and_ratio() -> None:
     figures = _loop_figures(cyclictest=True)
     assert figures.tpdo_missed() == (3, 20_000)
     # the design's 435 bits, plus heartbeats and TPDO2 refreshes, less 3 missed TPDO1s
-    assert BUS_BITS_PER_CYCLE < figures.bits_per_cycle() < BUS_BITS_PER_CYCLE + 5
+    assert CYCLE_BITS < figures.bits_per_cycle() < CYCLE_BITS + 5
     assert figures.wakeup_ratio(figures.idle) == pytest.approx(1.0)
     assert "p99 OS wake-up / cyclictest p99: 1.00×" in format_loop(figures)
 
