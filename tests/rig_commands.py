@@ -10,15 +10,16 @@ from typing import Any
 
 from rakectl.api.schema import Request, decode_request
 from rakectl.bench.tick import LockstepRig
+from rakectl.config.settings import Settings
 from rakectl.daemon.handlers import make_handler
 from rakectl.daemon.states import DaemonState
 
 
 @contextlib.contextmanager
-def disarmed_rig(directory: Path) -> Iterator[LockstepRig]:
-    """The default daemon and emulated drives in lock-step, brought up to DISARMED; closed
-    on the way out."""
-    rig = LockstepRig(directory)
+def disarmed_rig(directory: Path, defaults: Settings | None = None) -> Iterator[LockstepRig]:
+    """The daemon (its settings ``defaults``, else the default ones) and emulated drives in
+    lock-step, brought up to DISARMED; closed on the way out."""
+    rig = LockstepRig(directory, defaults)
     try:
         rig.bring_up()
         rig.until(DaemonState.DISARMED, 3000)

@@ -89,9 +89,13 @@ class Jog:
         """The measured tip, each tick before :meth:`step`."""
         self._tip = (reach_m, -depth_m)
 
-    def step(self) -> None:
-        """Advance the reference by one tick."""
+    def step(self, held: bool = False) -> None:
+        """Advance the reference by one tick; ``held`` (the force supervisor's caution):
+        the reference stays where it is and comes to rest, and the dead-man counts on."""
         self.tick += 1
+        if held:
+            self._velocity = (0.0, 0.0)
+            return
         target = (0.0, 0.0) if self.expired else self._target
         self._velocity = (_toward(self._velocity[0], target[0], self._accel[0]),
                           _toward(self._velocity[1], target[1], self._accel[1]))

@@ -193,7 +193,7 @@ def _jog(daemon: Daemon, request: Request) -> Reply:
         if ended is not None:  # every connection whose jog ended, not only the last one
             raise CommandRejected(f"this jog has ended ({ended}): start a new jog, on a new "
                                   "connection, to move again")
-        r_m, theta_rad = daemon.controller.servo.q_ref
+        r_m, theta_rad = _jog_start(daemon)
         daemon.jog = Jog(daemon.settings.jog, daemon.workspace, daemon.dt_s, r_m, theta_rad)
         daemon.jog_client = request.client
         daemon.jog_ended = {client: why for client, why in daemon.jog_ended.items()
@@ -208,6 +208,18 @@ def _jog(daemon: Daemon, request: Request) -> Reply:
         daemon.jog.command(JogFrame.JOINT, request.number("r_m_per_s") or 0.0,
                            request.number("theta_rad_per_s") or 0.0)
     return {"state": daemon.state.name.lower(), "jog": _jog_caps(daemon)}
+
+
+def _jog_start(daemon: Daemon) -> tuple[float, float]:
+    """Where a new jog's reference starts, in joint space: the tip reference held now,
+    before the impedance's offset (the joints' reference has it, and the controller adds
+    it again to the jog's). One the joints cannot reach (held as unreachable) starts
+    the jog where the joints' reference is."""
+    reach_m, depth_m = daemon._ref
+    try:
+        return kinematics.inverse(daemon.workspace, reach_m, -depth_m)
+    except KinematicsError:
+        return daemon.controller.servo.q_ref
 
 
 def _excavate(daemon: Daemon, request: Request) -> Reply:

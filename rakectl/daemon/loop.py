@@ -329,9 +329,8 @@ class Daemon(StateChanges):
 
     def _reference(self) -> tuple[float, float, bool]:
         """Tip reference (reach, depth) and contact flag of the current mode, one tick on.
-
-        At the caution level the reference holds still (jog and lane do not advance).
-        """
+        At the caution level the reference holds still (jog and lane do not advance); a
+        jog's dead-man counts on, and the jog starts again from rest."""
         state = self.state
         if state is DaemonState.CHECKING:
             c = self.controller
@@ -339,17 +338,17 @@ class Daemon(StateChanges):
             if verdict is not None:
                 self._judge(verdict)
             return reach, depth, False
-        moving = state in (DaemonState.JOG, DaemonState.EXCAVATE)
-        if self.supervisor.level is ForceLevel.CAUTION and moving:
-            return self._ref[0], self._ref[1], True
+        caution = self.supervisor.level is ForceLevel.CAUTION
         if state is DaemonState.JOG and self.jog is not None:
             self.jog.observe(self.controller.reach_m, self.controller.depth_m)
-            self.jog.step()
+            self.jog.step(held=caution)
             if self.jog.expired and not self.jog.moving:
                 self.hold = self.jog.tip()
                 self._transition(Event.STOP, "dead-man: no jog command")
             reach, depth = self.jog.tip()
-            return reach, depth, self.jog.contact
+            return reach, depth, caution or self.jog.contact
+        if caution and state is DaemonState.EXCAVATE:
+            return self._ref[0], self._ref[1], True
         if state is DaemonState.EXCAVATE and self.planner is not None:
             planner = self.planner
             planner.step()

@@ -32,6 +32,27 @@ def test_dead_man_stops_the_motion_after_the_timeout() -> None:
     assert jog.expired and not jog.moving
 
 
+def test_a_held_jog_stays_put_counts_its_dead_man_and_starts_again_from_rest() -> None:
+    """Held (the force supervisor's caution), the reference stays where it is and the
+    dead-man runs out in its own time; a jog held and released moves on from rest."""
+    jog = _jog()
+    jog.command(JogFrame.TASK, 0.05, 0.0)
+    for _ in range(200):
+        jog.step()
+    held_at = jog.tip()
+    for _ in range(50):
+        jog.step(held=True)
+    assert jog.tip() == held_at and not jog.moving and not jog.expired
+    jog.step()
+    assert 0.0 < jog.tip()[0] - held_at[0] <= (JOG.accel_per_s * JOG.max_tip_speed_m_per_s
+                                              * DT * DT + 1e-12)
+    for _ in range(round(JOG.deadman_s / DT)):
+        jog.step(held=True)
+    assert jog.expired
+    jog.step()
+    assert not jog.moving
+
+
 def test_commands_repeated_in_time_keep_it_moving() -> None:
     jog = _jog()
     start = jog.tip()
