@@ -164,6 +164,8 @@ def run_case(case: FuzzCase, clamp: VoltageClamp | None = None,
             reference.govern(loop.force_estimate_n, loop.caution_n)
         if level is not ForceLevel.CAUTION:  # caution holds the reference where it is
             reference.step()
+        elif isinstance(reference, JogReference):  # the operator and the dead-man go on
+            reference.step(held=True)
         hold -= reference.done
         if hold < 0:
             if not _asked_again(case, reference):

@@ -87,11 +87,13 @@ class JogReference:
     def observe(self, reach_m: float, depth_m: float) -> None:
         self._jog.observe(reach_m, depth_m)
 
-    def step(self) -> None:
+    def step(self, held: bool = False) -> None:
+        """One tick; ``held``: the force supervision's caution holds the jog where it is,
+        as the daemon holds it, while the operator's requests and the dead-man go on."""
         if self._tick % self._period == 0 and self._tick // self._period < self._commands:
             self._jog.command(self._space, *self._velocity)
         self._tick += 1
-        self._jog.step()
+        self._jog.step(held)
         self.reach_m, self.depth_m = self._jog.tip()
 
 

@@ -15,10 +15,13 @@ import pytest
 from drivers.ground_params import BuriedObjects, GroundParams, MineParams, StoneParams
 from drivers.soil_params import SoilLayer, SoilParams
 from rakectl.cli import fuzz as fuzz_cli
+from rakectl.core import kinematics
 from rakectl.core.clamp import VoltageClamp
+from rakectl.core.control import workspace_of
 from rakectl.limits import FORCE_LIMIT_N
 from rakectl.sim import campaign, case_files, cases, edge, results, scene
 from rakectl.sim.cases import FAULT_KINDS, CommandKind, Faults, FuzzCase, MotionCommand
+from rakectl.sim.injection import JOG_COMMAND_PERIOD_S, JogReference
 from rakectl.sim.scenario import Scenario
 from tests.png import png_size
 
@@ -514,6 +517,27 @@ def test_a_jog_at_full_speed_into_a_mine_side_holds() -> None:
     result = campaign.run_case(case)
     assert result.f_mine_side_max_n > 5.0  # it met the side
     assert result.safe and result.f_mine_max_n < 0.8 * FORCE_LIMIT_N
+
+
+def test_the_campaigns_jog_held_by_the_caution_level_ends_by_its_dead_man() -> None:
+    """The campaign's jog, as the daemon's: held at the caution level on every tick, it
+    stays where it is while the operator's requests (1 s of them, every 0.1 s) and the
+    dead-man go on, and ends the dead-man's time after the last request."""
+    command = MotionCommand(CommandKind.JOG, 1.15, 1.15, 0.0, 0.0, 0.0, 0.0, 0.05, True,
+                            jog_space="task", jog_angle_rad=0.0, jog_s=1.0)
+    case = FuzzCase(0, 0, GroundParams(SoilParams()), 7, command, Faults(), 3.0)
+    settings = campaign.scenario_of(case)
+    ws = workspace_of(settings)
+    reference = JogReference(case, settings, ws, *kinematics.inverse(ws, 1.15, 0.05))
+    start = (reference.reach_m, reference.depth_m)
+    reference.step(held=True)  # its first request
+    ticks = 1
+    while not reference.done and ticks < 10_000:
+        reference.step(held=True)
+        ticks += 1
+        assert (reference.reach_m, reference.depth_m) == start
+    period = round(JOG_COMMAND_PERIOD_S * settings.rate_hz)
+    assert ticks == 9 * period + round(settings.jog.deadman_s * settings.rate_hz) + 1
 
 
 @pytest.mark.slow
