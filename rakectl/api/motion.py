@@ -351,9 +351,10 @@ def excavate(args: argparse.Namespace) -> int:
     check_excavate(request)  # before the daemon is asked
     path = socket_of(args)
     if args.no_wait:
-        number = call(path, request).get("lane")
-        print(f"excavate: lane {number} started" if isinstance(number, int)
-              else "excavate: started")
+        started = call(path, request)
+        number = started.get("lane")
+        print_reply(args, started, f"excavate: lane {number} started" if isinstance(number, int)
+                    else "excavate: started")
         return 0
     with StopSignals() as signals:  # from before the request: a lane never left unfollowed
         call(path, request)

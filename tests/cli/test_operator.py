@@ -6,6 +6,7 @@ after a refusal, and the command line's usage and help."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import signal
 import subprocess
 import sys
@@ -448,7 +449,7 @@ def test_status_says_the_jog_caps_and_which_lane_runs(tmp_path: Path) -> None:
     """`rakectl status` on the daemon itself: the fastest it jogs, as configured, and
     the lane in progress by its number since start-up and its parameters; `excavate
     --no-wait` names the number it started (before, neither was said: two lanes alike in
-    progress could not be told apart)."""
+    progress could not be told apart), with --json as the daemon's reply."""
     settings = dataclasses.replace(Settings(), jog=JogSettings(max_tip_speed_m_per_s=0.05,
                                                                max_theta_speed_rad_per_s=0.12))
     lane = (*LANE, "--speed", "0.04", "--no-wait")
@@ -459,8 +460,12 @@ def test_status_says_the_jog_caps_and_which_lane_runs(tmp_path: Path) -> None:
         second = run_rakectl("excavate", *socket, *lane)
         shown = run_rakectl("status", *socket)
         daemon.request("stop")
+        third = run_rakectl("excavate", *socket, *lane, "--json")
+        daemon.request("stop")
     assert (first.stdout, second.stdout) == ("excavate: lane 1 started\n",
                                              "excavate: lane 2 started\n"), first.stderr
+    # --json: the daemon's reply, as every other command gives it (before: the text)
+    assert json.loads(third.stdout) == {"ok": True, "state": "excavate", "lane": 3}, third
     assert shown.returncode == 0, shown.stderr
     lines = shown.stdout.splitlines()
     assert "jog caps   reach and height 0.05 m/s each, r 0.1 m/s, θ 0.12 rad/s (faster " \
