@@ -76,15 +76,35 @@ def _plain(source: str, node: yaml.Node, within: frozenset[int] = frozenset()) -
     return _Value(_scalar(source, node), _where(source, node), node.value)
 
 
+class _ExplicitTag(yaml.YAMLError):
+    def __init__(self, tag: str, mark: yaml.Mark) -> None:
+        super().__init__(tag)
+        self.problem = f"the explicit tag {tag!r}: write the value as it is, untagged"
+        self.problem_mark = mark
+
+
+class _UntaggedLoader(yaml.SafeLoader):
+    """The safe loader refusing a tag written out (``!!str 3``, ``!!bool "yes"``, ``!foo``):
+    a value is read as it is written, never as a tag would make it."""
+
+    def compose_node(self, parent: yaml.Node | None, index: int) -> yaml.Node | None:
+        event = self.peek_event()  # type: ignore[no-untyped-call]
+        tag = None if isinstance(event, yaml.AliasEvent) else getattr(event, "tag", None)
+        if tag is not None:
+            raise _ExplicitTag(tag, event.start_mark)
+        return super().compose_node(parent, index)
+
+
 def parse_yaml(text: str, source: str) -> dict[str, Any]:
     """Parse YAML text into the annotated tree the validator reads."""
     try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        node = yaml.compose(text, Loader=_UntaggedLoader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f":{mark.line + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ConfigError(f"{source}{line}: malformed YAML: {problem}") from None
+        kind = "unsupported" if isinstance(exc, _ExplicitTag) else "malformed"
+        raise ConfigError(f"{source}{line}: {kind} YAML: {problem}") from None
     if node is None:
         return {}
     if not isinstance(node, yaml.MappingNode):
@@ -109,11 +129,13 @@ def _apply_override(tree: dict[str, Any], assignment: str) -> None:
     if not sep or not key.strip():
         raise ConfigError(f"{where}: expected dotted.key=value")
     try:
-        composed = yaml.compose(text, Loader=yaml.SafeLoader)  # parsed once, then
-        value = None  # refused as a file refuses it (tags, merge keys, an alias to a
-        if composed is not None:  # collection around it), else constructed as safe_load
-            _plain(where, composed)  # does
+        composed = yaml.compose(text, Loader=_UntaggedLoader)  # parsed once, then
+        value = "" if not text.strip() else None  # refused as a file refuses it (merge
+        if composed is not None:  # keys, an alias to a collection around it), else
+            _plain(where, composed)  # constructed as safe_load does; nothing: ""
             value = yaml.constructor.SafeConstructor().construct_document(composed)
+    except _ExplicitTag as exc:
+        raise ConfigError(f"{where}: unsupported YAML: {exc.problem}") from None
     except yaml.YAMLError:
         value = text
     parts = key.strip().split(".")
@@ -171,6 +193,9 @@ def _coerce(tp: Any, raw: _Value, dotted: str, bounds: Bounds | None) -> Any:
             raise ConfigError(f"{where}: {dotted} {problem}")
         return tp(value)
     if tp is str:
+        if value is None:
+            raise ConfigError(f'{where}: {dotted} must be a string, got no value (an empty '
+                              f'one: "")')
         if not isinstance(value, str):
             raise ConfigError(f"{where}: {dotted} must be a string, got {value!r}")
         if "\0" in value:  # no path, group or channel name holds one

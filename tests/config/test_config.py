@@ -97,10 +97,16 @@ def test_number_literals_yaml_1_1_would_read_as_strings(tmp_path: Path) -> None:
          "bring-up waits that long"),
         # a traceback before (yaml's ParserError, ConstructorError, RecursionError)
         ("clamp:\n", ":1: clamp must be a section"),
-        ("rate_hz: !foo 1\n", ":1: unsupported YAML: could not determine a constructor for "
-         "the tag '!foo'"),
-        ("rate_hz: !!python/object:os.system x\n", ":1: unsupported YAML: could not "
-         "determine a constructor for the tag 'tag:yaml.org,2002:python/object:os.system'"),
+        ("rate_hz: !foo 1\n", ":1: unsupported YAML: the explicit tag '!foo'"),
+        ("rate_hz: !!python/object:os.system x\n", ":1: unsupported YAML: the explicit tag "
+         "'tag:yaml.org,2002:python/object:os.system'"),
+        # a standard tag made a value of another kind: a string tagged as one read as 3.0
+        ("impedance:\n  damping_ns_per_m: !!str 3\n", ":2: unsupported YAML: the explicit "
+         "tag 'tag:yaml.org,2002:str'"),
+        ("lane:\n  adaptive: !!bool \"yes\"\n", ":2: unsupported YAML: the explicit tag"),
+        ("clamp: !!map\n  force_limit_n: 70\n", ":1: unsupported YAML: the explicit tag"),
+        ("bus:\n  trace_path:\n", ':2: bus.trace_path must be a string, got no value (an '
+         'empty one: "")'),
         ("b: &b {x: 1}\nclamp:\n  <<: *b\n", ":3: unsupported YAML: could not determine a "
          "constructor for the tag 'tag:yaml.org,2002:merge'"),
         ("a: &x [*x]\n", ":1: a value that contains itself"),
@@ -164,11 +170,23 @@ def test_missing_file_is_one_line(tmp_path: Path) -> None:
         ("lane={<<: {depth_step_m: 0.02}}", "unsupported YAML: could not determine a "
          "constructor for the tag 'tag:yaml.org,2002:merge'"),
         ("lane=&a [*a]", "a value that contains itself"),
+        ("impedance.damping_ns_per_m=!!float 3", "unsupported YAML: the explicit tag"),
+        ("rate_hz=", "rate_hz must be a number, got ''"),
         ("drives.r_node_id=010", "drives.r_node_id: '010' has a leading zero"),
     ],
 )
 def test_bad_overrides_are_named(override: str, expected: str) -> None:
     assert expected in _error(None, (override,))
+
+
+def test_an_override_with_nothing_after_the_sign_is_an_empty_string() -> None:
+    """`--set bus.trace_path=` turns the trace off, as the reference says an empty value
+    does; before, nothing read as YAML's null and was refused as no string."""
+    base = load_settings(None, ["bus.trace_path=/tmp/t.log", "daemon.socket_group=adm"])
+    assert (base.bus.trace_path, base.daemon.socket_group) == ("/tmp/t.log", "adm")
+    settings = load_settings(None, ["bus.trace_path=/tmp/t.log", "bus.trace_path=",
+                                    "daemon.socket_group= "])
+    assert (settings.bus.trace_path, settings.daemon.socket_group) == ("", "")
 
 
 def test_overrides_can_give_lists_of_sections() -> None:
