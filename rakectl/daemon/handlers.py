@@ -24,7 +24,7 @@ from rakectl.core.lane import LanePlanner
 from rakectl.daemon.loop import Daemon
 from rakectl.daemon.recorder import DumpError
 from rakectl.daemon.states import ARMED_STATES, DaemonState, Event, next_state
-from rakectl.daemon.timing import timing_verdict
+from rakectl.daemon.timing import ARM_AGAIN, timing_verdict
 from rakectl.errors import CommandRejected, ConfigError, KinematicsError
 
 Reply = Mapping[str, Any]
@@ -163,7 +163,7 @@ def status(daemon: Daemon) -> dict[str, Any]:
                     "stale_cycles": fb.stale_cycles[j]} for j, s in enumerate(fb.state)],
         "bus": client.stats.as_dict(),
         "timing": timing,
-        "timing_check": _timing_verdict(daemon, timing) or "ok",
+        "timing_check": _timing_status(daemon, timing),
         "timing_reference": daemon.timing_reference,
         "dumps": {"pending": daemon.pending_dumps(), "failed": list(daemon.dump_failures)},
         "jog": _jog_caps(daemon),
@@ -299,6 +299,19 @@ def _timing_verdict(daemon: Daemon, summary: dict[str, Any] | None = None) -> st
     reference = daemon.timing_reference.get("p99_us")
     return timing_verdict(summary, daemon.ticks, s.rate_hz, s.daemon,
                           reference if isinstance(reference, float) else None)
+
+
+def _timing_status(daemon: Daemon, summary: dict[str, Any]) -> str:
+    """The timing verdict as status gives it: "ok", what refuses an arming under rt_mode
+    enforce, or, under another rt_mode, that verdict as the warning it is there."""
+    verdict = _timing_verdict(daemon, summary)
+    if not verdict:
+        return "ok"
+    if daemon.settings.daemon.rt_mode is RtModeSetting.ENFORCE:
+        return verdict
+    return (f"a warning only, an arming goes on (daemon.rt_mode: "
+            f"{daemon.settings.daemon.rt_mode.value}): "
+            + verdict.removesuffix(f"; {ARM_AGAIN}"))
 
 
 def _check_before_arming(daemon: Daemon, timing_checked: bool) -> None:

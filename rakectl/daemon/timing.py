@@ -286,6 +286,9 @@ class LoopTiming:
         }
 
 
+ARM_AGAIN = "arm again shortly"  # what a verdict of too short a measurement advises
+
+
 def timing_verdict(summary: dict[str, Any], ticks: int, rate_hz: float,
                    daemon: DaemonSettings, reference_p99_us: float | None = None) -> str:
     """Why the loop's timing since start-up should not be armed on, or "" (pure).
@@ -298,7 +301,7 @@ def timing_verdict(summary: dict[str, Any], ticks: int, rate_hz: float,
     measured_s = ticks / rate_hz
     if measured_s < daemon.arm_timing_s:
         return (f"the loop has measured its timing for {measured_s:.1f} s of the "
-                f"{daemon.arm_timing_s:g} s daemon.arm_timing_s asks; arm again shortly")
+                f"{daemon.arm_timing_s:g} s daemon.arm_timing_s asks; {ARM_AGAIN}")
     p99_us = summary["oversleep_ns"]["p99"] * 1e-3
     if p99_us > daemon.arm_max_latency_p99_us:
         return (f"the loop's p99 wake-up latency is {p99_us:.0f} µs, above "

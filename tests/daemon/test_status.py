@@ -17,10 +17,11 @@ from typing import Any
 import pytest
 
 from rakectl.bench.tick import LockstepRig
+from rakectl.config.service import RtModeSetting
 from rakectl.config.settings import Settings
 from rakectl.daemon.states import DaemonState
 from rakectl.errors import CommandRejected
-from tests.rig_commands import command
+from tests.rig_commands import command, disarmed_rig
 
 API_DOC = Path(__file__).resolve().parents[2] / "docs" / "api.md"
 STATUS = b'{"cmd": "status"}'
@@ -136,3 +137,26 @@ def test_the_documented_status_fields_are_the_daemons(armed: LockstepRig) -> Non
     assert set(_documented("## The `status` reply")) == set(raking) == set(idle) | {
         "excavation"}
     assert set(_documented("`excavation` holds:")) == set(raking["excavation"])
+
+
+@pytest.mark.parametrize("mode", list(RtModeSetting))
+def test_the_timing_verdict_says_whether_it_refuses_an_arming(tmp_path: Path,
+                                                             mode: RtModeSetting) -> None:
+    """Moments after start-up the loop has not measured its timing for long enough. Under
+    rt_mode enforce status gives the verdict that refuses an arming; under the others
+    the verdict is a warning and an arming goes on, which status now says (before, it
+    read as a refusal, "arm again shortly", and `rakectl arm` then armed)."""
+    s = Settings()
+    s = dataclasses.replace(s, daemon=dataclasses.replace(s.daemon, rt_mode=mode))
+    with disarmed_rig(tmp_path, s) as rig:
+        check = command(rig, STATUS)["timing_check"]
+        if mode is RtModeSetting.ENFORCE:
+            assert check.endswith("daemon.arm_timing_s asks; arm again shortly"), check
+            with pytest.raises(CommandRejected, match="cannot arm: the loop has measured"):
+                command(rig, b'{"cmd": "arm"}')
+        else:
+            assert re.fullmatch(rf"a warning only, an arming goes on \(daemon\.rt_mode: "
+                                rf"{mode.value}\): the loop has measured its timing for "
+                                r"[0-9.]+ s of the 2 s daemon\.arm_timing_s asks", check), check
+            command(rig, b'{"cmd": "arm"}')
+            rig.until(DaemonState.ARMED, 8000)
