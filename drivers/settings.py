@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
+from typing import ClassVar
 
 from drivers.arm import DEFAULT_SUBSTEP_S
 from drivers.ground_params import GroundParams
@@ -94,6 +95,9 @@ class FaultInjectionSettings:
 @dataclass(frozen=True)
 class EmulatorConfig:
     """Root of config/emulator.yaml: the emulated drives on the bus and the physics behind."""
+
+    # a scenario's section emulator: is this file's physics: (its own, with the ground)
+    OTHER_NAMES: ClassVar[dict[str, str]] = {"emulator": "physics"}
 
     bus: BusSettings = section(BusSettings)
     geometry: GeometrySettings = section(GeometrySettings)

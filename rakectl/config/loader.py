@@ -234,9 +234,9 @@ def _build(cls: type[T], tree: Mapping[str, Any], prefix: str, where: str,
     fields = {f.name: f for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
     for key, (key_where, _) in tree.items():
         if key not in fields:
-            raise ConfigError(
-                f"{key_where}: {prefix}{key} is not a known option{_suggest(key, fields)}"
-            )
+            other = getattr(cls, "OTHER_NAMES", {}).get(key)  # its name in another root
+            hint = f" (here it is {other}: {other}.…)" if other else _suggest(key, fields)
+            raise ConfigError(f"{key_where}: {prefix}{key} is not a known option{hint}")
     kwargs: dict[str, Any] = {}
     for name, f in fields.items():
         if name not in tree:

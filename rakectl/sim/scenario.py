@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
+from typing import ClassVar
 
 from drivers.settings import EmulatorSettings
 from rakectl.config.declare import section, setting
@@ -55,6 +56,9 @@ class TrajectorySettings:
 @dataclass(frozen=True)
 class Scenario(Settings):
     """Settings of the controller under test and of the hardware it runs against."""
+
+    # the emulator process's section physics: is this emulator: (drivers.settings)
+    OTHER_NAMES: ClassVar[dict[str, str]] = {"physics": "emulator"}
 
     plant: PlantSettings = section(PlantSettings)
     trajectory: TrajectorySettings = section(TrajectorySettings)

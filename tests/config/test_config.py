@@ -292,3 +292,15 @@ def test_a_bit_rate_the_cycle_would_crowd_is_refused() -> None:
         "1000000 bit/s bus before bit stuffing (at most 60 %; the robot runs 1000 Hz on "
         "1 Mbit/s)")
     assert load_settings(None, ("bus.bitrate=500000", "rate_hz=500")).bus.bitrate == 500000
+
+
+def test_the_physics_section_named_as_the_other_root_names_it_is_pointed_to() -> None:
+    """A scenario's physics is its section emulator:, the emulator process's is physics:
+    (its root is the emulator): each name given to the other is refused saying which."""
+    from drivers.settings import EmulatorConfig
+
+    assert "physics is not a known option (here it is emulator: emulator.…)" in \
+        _error_root("physics.seed=3")
+    with pytest.raises(ConfigError) as info:
+        load_settings(None, ["emulator.seed=3"], root=EmulatorConfig)
+    assert "emulator is not a known option (here it is physics: physics.…)" in str(info.value)
