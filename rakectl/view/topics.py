@@ -65,7 +65,7 @@ def _number(*names: str) -> dict[str, Any]:
 
 JSON_SCHEMAS: dict[str, dict[str, Any]] = {
     "/force": {"type": "object", "properties": _number(
-        "f_hat_n", "f_current_n", "f_true_n", "clamp_worst_case_n", "clamp_budget_n",
+        "f_hat_n", "f_current_n", "clamp_worst_case_n", "clamp_budget_n",
         "clamp_limit_n")},
     "/voltage": {"type": "object", "properties": _number(
         "requested_r_v", "requested_theta_v", "applied_r_v", "applied_theta_v")},

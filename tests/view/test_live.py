@@ -23,6 +23,7 @@ import pytest
 import websockets
 
 from rakectl.sim.rig import emulated_bench, namespaces_unavailable
+from rakectl.view.topics import JSON_SCHEMAS
 
 CONFIG = Path(__file__).resolve().parents[2] / "config"
 EMULATOR = CONFIG / "emulator-demo.yaml"
@@ -106,6 +107,7 @@ def test_the_live_view_streams_a_running_bench(tmp_path: Path) -> None:
     states = {json.loads(p)["state"] for _, p in got["/state"]}
     assert states <= {"armed", "checking"} and "armed" in states
     force = json.loads(got["/force"][-1][1])
+    assert set(force) == set(JSON_SCHEMAS["/force"]["properties"])  # each field its schema's
     assert force["clamp_limit_n"] == pytest.approx(72.0)
     assert 0.0 < force["clamp_budget_n"] <= 0.5 * force["clamp_limit_n"]
     assert all(math.isfinite(force[k]) for k in ("f_hat_n", "f_current_n"))
