@@ -44,7 +44,8 @@ class PlantSettings:
 class TrajectorySettings:
     """Desired vertical trajectory x_d(t) (depth into the soil, positive down)."""
 
-    kind: TrajectoryKind = setting(TrajectoryKind.RAMP, "ramp or step.")
+    kind: TrajectoryKind = setting(TrajectoryKind.RAMP,
+                                   "ramp, step, or lane (a raking lane: lane.*).")
     start_m: float = setting(0.0, "x_d before the trajectory starts.", unit="m", ge=-1, le=1)
     start_time_s: float = setting(0.0, "When the ramp or step starts.", unit="s", ge=0)
     speed_m_per_s: float = setting(0.007, "Ramp speed.", unit="m/s", ge=-1, le=1)
