@@ -330,10 +330,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _replay_main(args.replay, args.json, args.mcap)
     if args.trace is not None:
         return _trace_main(args)
-    if args.scenarios < 1 or args.workers < 1 or args.first < 0:
-        print("rakectl: error: fuzz: --scenarios and --workers must be >= 1, --first >= 0",
-              file=sys.stderr)
-        return 2
+    for flag, value, least in (("--scenarios", args.scenarios, 1),
+                               ("--workers", args.workers, 1), ("--first", args.first, 0)):
+        if value < least:
+            print(f"rakectl: error: fuzz: {flag} must be >= {least}, got {value}",
+                  file=sys.stderr)
+            return 2
     if args.plot and args.out is None:
         print("rakectl: error: fuzz: --plot needs --out DIR (the plot is written there)",
               file=sys.stderr)

@@ -55,10 +55,11 @@ def _require(daemon: Daemon, event: Event, what: str) -> None:
     if next_state(daemon.state, event) is None:
         step = ("nothing moves: the drives are disabled" if daemon.state is
                 DaemonState.DISARMED and event in (Event.DISARM, Event.STOP)
-                else _NEXT_STEP.get(daemon.state))
+                else "nothing to reset: a reset clears a fault or an e-stop"
+                if event is Event.RESET else _NEXT_STEP.get(daemon.state))
         raise CommandRejected(f"cannot {what} while {daemon.state.name.lower()}"
                               + (f" ({daemon.fault_reason})" if daemon.fault_reason else "")
-                              + (f": {step}" if step and event is not Event.RESET else ""))
+                              + (f": {step}" if step else ""))
 
 
 def _finite(value: float) -> float | None:

@@ -122,8 +122,9 @@ def test_pass_through_commands_read_their_own_options(command: str) -> None:
     (("fuzz", "--bogus"), "rakectl: error: fuzz: unrecognized arguments: --bogus"),
     (("fuzz", "--scenarios", "x"),
      "rakectl: error: fuzz: argument --scenarios: invalid int value"),
-    (("fuzz", "--scenarios", "0"),
-     "rakectl: error: fuzz: --scenarios and --workers must be >= 1, --first >= 0"),
+    (("fuzz", "--scenarios", "0"), "rakectl: error: fuzz: --scenarios must be >= 1, got 0"),
+    (("fuzz", "--workers", "0"), "rakectl: error: fuzz: --workers must be >= 1, got 0"),
+    (("fuzz", "--first", "-3"), "rakectl: error: fuzz: --first must be >= 0, got -3"),
     (("fuzz", "--plot"), "rakectl: error: fuzz: --plot needs --out DIR"),
     (("fuzz", "--replay", "case.json", "--out", "x", "--plot"),  # ignored before
      "rakectl: error: fuzz: --replay runs one case; --out, --plot cannot go with it"),

@@ -305,6 +305,9 @@ def test_a_refusal_names_the_next_step(rig: LockstepRig) -> None:
 
     with pytest.raises(CommandRejected, match="cannot jog while disarmed: arm first"):
         _from(1, JOG_UP, rig)
+    with pytest.raises(CommandRejected, match="cannot reset while disarmed: nothing to "
+                       "reset: a reset clears a fault or an e-stop"):  # said nothing more
+        _from(1, b'{"cmd": "reset"}', rig)
     _from(1, b'{"cmd": "estop"}', rig)
     with pytest.raises(CommandRejected, match=r"cannot arm while estop \(operator e-stop\): "
                        "reset clears it, then arm"):
