@@ -1,8 +1,12 @@
 """Joint position loops: joint reference in, motor voltage out (pure).
 
 These are the physical counterpart of the seed paper's position loop P(s):
-a PID per joint with the derivative on the measured velocity (no kick on
-reference steps), a velocity feed-forward for the back-EMF, saturation at
+a PID per joint with the derivative on the measured velocity (the D term
+gives no kick on a reference step; the velocity feed-forward, which the
+caller computes from the reference's change in one tick, does: a step of the
+reference is a one-tick feed-forward of its size over the period, which the
+voltage clamp bounds like any other request), a velocity feed-forward for
+the back-EMF, saturation at
 the supply voltage and anti-windup by conditional integration (the integral
 only grows while the output is not saturated in the same direction).
 The integral term carries the gravity load; the voltage clamp of the safety
