@@ -127,8 +127,8 @@ _SPECS = (
     CommandSpec(ApiCommand.RESET, "Clear a latched emergency stop or fault; stays disarmed. "
                 "It ends once no drive problem is left and no sooner than 30 loop periods (at "
                 "the robot's 1 kHz a SYNC producer of 100 Hz or more still on the bus shows "
-                "within them; a slower one faults the daemon again once 10 answers are "
-                "extra); after 1 s, `reset failed` naming what is left."),
+                "within them; a slower one faults the daemon again once more than 10 "
+                "answers are extra); after 1 s, `reset failed` naming what is left."),
     CommandSpec(ApiCommand.DUMP, "Write the flight recorder's recent history to a file.", (
         Arg("path", ArgKind.STRING, "File to write, on the daemon's machine. Default: a new "
             "file in the daemon's state directory."),)),
