@@ -21,10 +21,11 @@ ALLOWED: dict[str, tuple[str, ...]] = {
     "rakectl.limits": (),
     # the motor model's declarations; the geometry that checks a configured pose (pure);
     # the drive profiles' names (a leaf: the protocol's data files); the descent budget's
-    # derivation that checks the configured soil bound (pure)
+    # derivation that checks the configured soil bound, and the loop's stability that
+    # checks the configured impedance (both pure)
     "rakectl.config": (*BASE, "rakectl.config", "rakectl.core.motor_model",
                        "rakectl.core.kinematics", "rakectl.core.descent",
-                       "rakectl.protocol.files"),
+                       "rakectl.core.stability", "rakectl.protocol.files"),
     "rakectl.core": (*BASE, "rakectl.config", "rakectl.core"),
     "rakectl.protocol": (*BASE, "rakectl.protocol"),
     "rakectl.drive": (*BASE, "rakectl.config", "rakectl.core", "rakectl.protocol",

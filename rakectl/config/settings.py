@@ -34,6 +34,7 @@ from rakectl.config.service import (
     SelfTestSettings,
 )
 from rakectl.core.kinematics import Workspace, inverse
+from rakectl.core.stability import MAX_DELAY_TICKS, spectral_radius
 from rakectl.errors import KinematicsError
 from rakectl.limits import FORCE_LIMIT_N
 
@@ -44,6 +45,9 @@ CYCLE_BITS = 55 + 2 * 111 + 2 * 79
 # The most of the bus the cycle may take before stuffing: worst-case stuffing adds about a
 # fifth, and heartbeats, TPDO2, EMCY and SDO need the rest
 MAX_BUS_LOAD = 0.6
+# The position loop's time constant in the load-time stability check when the
+# configuration has no first-order plant of its own: the paper's P(s) = 1/(0.2 s + 1)
+NOMINAL_TIME_CONSTANT_S = 0.2
 
 # re-exported: the declaration functions (rakectl.config.declare) and the control
 # sections (rakectl.config.motion, rakectl.config.machine, rakectl.config.safety)
@@ -151,9 +155,56 @@ def cross_checks(s: Settings) -> list[tuple[str, str]]:
     delay_ticks = s.estimator.delay_s * s.rate_hz
     if not math.isclose(delay_ticks, round(delay_ticks), abs_tol=1e-6):
         errors.append(
-            ("estimator.delay_s", f"must be a whole number of loop periods (1/{s.rate_hz:g} s)")
+            ("estimator.delay_s", f"{s.estimator.delay_s:g} s is not a whole number of loop "
+             f"periods at rate_hz {s.rate_hz:g} ({1 / s.rate_hz:g} s): the estimator delays "
+             "by whole ticks; change one or the other")
         )
+    elif s.estimator.delay_s <= s.estimator.max_delay_s:
+        errors.extend(_stability_check(s, round(delay_ticks)))
     return errors
+
+
+def _stability_check(s: Settings, delay_ticks: int) -> list[tuple[str, str]]:
+    """The nominal discrete loop (rakectl.core.stability) must be stable: spectral radius
+    < 1. Its position loop is P(s) = 1/(τs + 1) with τ a scenario's ``plant.time_constant_s``
+    (its first-order plant's) or, for the daemon, the paper's 0.2 s (the joint loops' own
+    response is not modelled; τ from 1 ms to 0.2 s moves the paper's radius by 1.2e-5)."""
+    imp, est = s.impedance, s.estimator
+    if delay_ticks > MAX_DELAY_TICKS:
+        return [("estimator.delay_s", f"{est.delay_s:g} s is {delay_ticks} loop periods at "
+                 f"rate_hz {s.rate_hz:g}: the load-time stability check covers at most "
+                 f"{MAX_DELAY_TICKS}")]
+    tau_s = getattr(getattr(s, "plant", None), "time_constant_s", NOMINAL_TIME_CONSTANT_S)
+    radius = spectral_radius(imp.mass_kg, imp.damping_ns_per_m, imp.stiffness_n_per_m,
+                             est.environment_stiffness_n_per_m, delay_ticks, tau_s,
+                             1.0 / s.rate_hz)
+    if radius < 1.0:
+        return []
+    key, value = _changed_loop_option(s)
+    return [(key, f"{value} makes the impedance loop unstable: the nominal discrete loop has "
+             f"spectral radius {radius:.6g} (stable needs < 1) with impedance.mass_kg "
+             f"{imp.mass_kg:g}, damping_ns_per_m {imp.damping_ns_per_m:g}, stiffness_n_per_m "
+             f"{imp.stiffness_n_per_m:g}, estimator.environment_stiffness_n_per_m "
+             f"{est.environment_stiffness_n_per_m:g}, delay_s {est.delay_s:g}, rate_hz "
+             f"{s.rate_hz:g} and P(s) = 1/({tau_s:g} s + 1)")]
+
+
+def _changed_loop_option(s: Settings) -> tuple[str, str]:
+    """The first of the loop's options that differs from its default (the defaults are
+    stable), with its value: the key an unstable loop is reported on."""
+    imp, est = s.impedance, s.estimator
+    options = (("impedance.damping_ns_per_m", imp.damping_ns_per_m,
+                ImpedanceSettings().damping_ns_per_m, "N·s/m"),
+               ("impedance.mass_kg", imp.mass_kg, ImpedanceSettings().mass_kg, "kg"),
+               ("impedance.stiffness_n_per_m", imp.stiffness_n_per_m,
+                ImpedanceSettings().stiffness_n_per_m, "N/m"),
+               ("estimator.environment_stiffness_n_per_m", est.environment_stiffness_n_per_m,
+                EstimatorSettings().environment_stiffness_n_per_m, "N/m"),
+               ("estimator.delay_s", est.delay_s, EstimatorSettings().delay_s, "s"))
+    for key, value, default, unit in options:
+        if value != default:
+            return key, f"{value:g} {unit}"
+    return "rate_hz", f"{s.rate_hz:g} Hz"
 
 
 PRESS_HEIGHT_TOLERANCE_M = 0.005  # how well the anvil's height must be known

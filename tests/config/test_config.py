@@ -82,7 +82,8 @@ def test_number_literals_yaml_1_1_would_read_as_strings(tmp_path: Path) -> None:
         ("estimator:\n  delay_s: 0.6\n",
          ":2: estimator.delay_s must be <= estimator.max_delay_s (0.5)"),
         ("estimator:\n  delay_s: 0.0105\n",
-         ":2: estimator.delay_s must be a whole number of loop periods"),
+         ":2: estimator.delay_s 0.0105 s is not a whole number of loop periods at rate_hz "
+         "1000 (0.001 s)"),
         ("geometry:\n  r_min_m: 1.0\n  r_max_m: 0.5\n",
          ":3: geometry.r_max_m must be > geometry.r_min_m (1)"),
         ("daemon:\n  rt_mode: on\n",
