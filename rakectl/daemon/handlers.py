@@ -212,11 +212,16 @@ def _jog(daemon: Daemon, request: Request) -> Reply:
 
 
 def _jog_start(daemon: Daemon) -> tuple[float, float]:
-    """Where a new jog's reference starts, in joint space: the tip reference held now,
-    before the impedance's offset (the joints' reference has it, and the controller adds
-    it again to the jog's). One the joints cannot reach (held as unreachable) starts
-    the jog where the joints' reference is."""
-    reach_m, depth_m = daemon._ref
+    """Where a new jog's reference starts, in joint space: the tip reference held
+    (``hold``: a back-off's, from its own tick), before the impedance's offset (the
+    joints' reference has it, and the controller adds it again to the jog's), and no
+    deeper than the descent limiter let the joints' reference go (a jog held at the
+    floor leaves its reference below it, which a jog started there cannot leave: each
+    step sideways would lag the tip more). One the joints cannot reach (held as
+    unreachable) starts the jog where the joints' reference is."""
+    c = daemon.controller
+    reach_m, depth_m = daemon.hold
+    depth_m = min(depth_m, c.x_ref_m - c.impedance.filter.x_c_m)
     try:
         return kinematics.inverse(daemon.workspace, reach_m, -depth_m)
     except KinematicsError:

@@ -12,32 +12,43 @@ from rakectl.daemon.states import DaemonState
 from tests.rig_commands import command, disarmed_rig
 
 JOG_DOWN = b'{"cmd": "jog", "space": "task", "reach_m_per_s": 0.0, "height_m_per_s": -0.05}'
+JOG_CREEP = b'{"cmd": "jog", "space": "task", "reach_m_per_s": 0.0, "height_m_per_s": -0.003}'
 JOG_STILL = b'{"cmd": "jog", "space": "task", "reach_m_per_s": 0.0, "height_m_per_s": 0.0}'
 
 
 def test_the_dead_man_counts_on_while_the_force_holds_a_jog(tmp_path: Path) -> None:
-    """A jog down into the ground, its requests every 0.1 s until the force supervisor's
-    caution level holds it (lowered to 8 N so that the ground alone reaches it), then no
-    request. The jog ends by the dead-man in its time, its reference within 1 mm of where
-    the caution held it (where the force falls below the caution level, the jog moves on
-    from rest until the dead-man ends it). Before, the dead-man's clock stood still at
-    the caution level: 3 s after the last request the daemon was still jogging, at the
-    caution level for 2.9 s of them, and would have moved on down at 0.05 m/s the moment
-    the force fell below it."""
+    """A jog down to 15 mm above the soil, stopped, then one creeping down at 3 mm/s,
+    its requests every 0.1 s until the force supervisor's caution level holds it in the
+    soil (the level lowered to 8 N, which the ground alone reaches: about 7 N true),
+    then no request. The jog ends by the dead-man in its time, its reference within
+    1 mm of where the caution held it (where the force falls below the caution level,
+    the jog moves on from rest until the dead-man ends it). Before, the dead-man's clock
+    stood still at the caution level: a jog held so was still jogging 3 s after its last
+    request, and moved on at its old speed whenever the force fell below the level."""
     s = Settings()
     s = dataclasses.replace(s, supervision=dataclasses.replace(s.supervision,
                                                                caution_force_n=8.0))
     with disarmed_rig(tmp_path, s) as rig:
-        d = rig.daemon
+        d, truth = rig.daemon, rig.emulator.ground.truth
         command(rig, b'{"cmd": "arm"}')
         rig.until(DaemonState.ARMED, 8000)
-        for tick in range(20_000):  # the rake starts 0.4 m above the ground
-            if d.supervisor.level is ForceLevel.CAUTION:
-                break
+        tick = 0
+        while d.controller.depth_m < -0.015:  # the rake starts 0.4 m above the soil
             if tick % 100 == 0:
                 command(rig, JOG_DOWN)
             rig.tick()
+            tick += 1
+        command(rig, b'{"cmd": "stop"}')
+        for _ in range(500):
+            rig.tick()
+        tick = 0
+        while d.supervisor.level is not ForceLevel.CAUTION and tick < 60_000:
+            if tick % 100 == 0:
+                command(rig, JOG_CREEP)
+            rig.tick()
+            tick += 1
         assert d.state is DaemonState.JOG and d.supervisor.level is ForceLevel.CAUTION
+        assert truth.force_down_n > 5.0  # held by the ground, not by the estimate alone
         held_depth_m = d._ref[1]
         deadman_ticks = round(s.jog.deadman_s * s.rate_hz)
         silent, deepest_m = 0, held_depth_m
