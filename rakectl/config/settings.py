@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from rakectl.config.declare import Bounds, has_default, section, setting
@@ -45,9 +46,10 @@ CYCLE_BITS = 55 + 2 * 111 + 2 * 79
 # The most of the bus the cycle may take before stuffing: worst-case stuffing adds about a
 # fifth, and heartbeats, TPDO2, EMCY and SDO need the rest
 MAX_BUS_LOAD = 0.6
-# The position loop's time constant in the load-time stability check when the
-# configuration has no first-order plant of its own: the paper's P(s) = 1/(0.2 s + 1)
-NOMINAL_TIME_CONSTANT_S = 0.2
+# The position loop's time constants the load-time stability check tries (s): from five
+# times faster than the rake's own (its vertical step: 63 % in 96 ms) to the paper's
+# P(s) = 1/(0.2 s + 1); a faster loop is the less stable one for the same impedance
+LOOP_TIME_CONSTANTS_S = (0.02, 0.05, 0.1, 0.2)
 
 # re-exported: the declaration functions (rakectl.config.declare) and the control
 # sections (rakectl.config.motion, rakectl.config.machine, rakectl.config.safety)
@@ -165,46 +167,54 @@ def cross_checks(s: Settings) -> list[tuple[str, str]]:
 
 
 def _stability_check(s: Settings, delay_ticks: int) -> list[tuple[str, str]]:
-    """The nominal discrete loop (rakectl.core.stability) must be stable: spectral radius
-    < 1. Its position loop is P(s) = 1/(τs + 1) with τ a scenario's ``plant.time_constant_s``
-    (its first-order plant's) or, for the daemon, the paper's 0.2 s (the joint loops' own
-    response is not modelled; τ from 1 ms to 0.2 s moves the paper's radius by 1.2e-5)."""
+    """The nominal discrete loop (rakectl.core.stability) must be stable, spectral radius
+    < 1, with its position loop P(s) = 1/(τs + 1) at each τ of LOOP_TIME_CONSTANTS_S and
+    a scenario's own ``plant.time_constant_s`` (its first-order plant's): the joint loops'
+    own response is not modelled, so the check holds for a range of them."""
     imp, est = s.impedance, s.estimator
     if delay_ticks > MAX_DELAY_TICKS:
         return [("estimator.delay_s", f"{est.delay_s:g} s is {delay_ticks} loop periods at "
                  f"rate_hz {s.rate_hz:g}: the load-time stability check covers at most "
                  f"{MAX_DELAY_TICKS}")]
-    tau_s = getattr(getattr(s, "plant", None), "time_constant_s", NOMINAL_TIME_CONSTANT_S)
-    radius = spectral_radius(imp.mass_kg, imp.damping_ns_per_m, imp.stiffness_n_per_m,
-                             est.environment_stiffness_n_per_m, delay_ticks, tau_s,
-                             1.0 / s.rate_hz)
-    if radius < 1.0:
+    own = getattr(getattr(s, "plant", None), "time_constant_s", None)
+    taus = sorted({*LOOP_TIME_CONSTANTS_S, *(() if own is None else (own,))})
+    values = (imp.mass_kg, imp.damping_ns_per_m, imp.stiffness_n_per_m,
+              est.environment_stiffness_n_per_m, est.delay_s)
+
+    def radius(v: tuple[float, ...], tau_s: float) -> float:
+        return spectral_radius(v[0], v[1], v[2], v[3], round(v[4] * s.rate_hz), tau_s,
+                               1.0 / s.rate_hz)
+
+    worst, tau_s = max((radius(values, tau), tau) for tau in taus)
+    if worst < 1.0:
         return []
-    key, value = _changed_loop_option(s)
-    return [(key, f"{value} makes the impedance loop unstable: the nominal discrete loop has "
-             f"spectral radius {radius:.6g} (stable needs < 1) with impedance.mass_kg "
+    key, changed = _blamed_loop_option(values, lambda v: radius(v, tau_s) < 1.0)
+    return [(key, f"{changed} the impedance loop unstable: the nominal discrete loop has "
+             f"spectral radius {worst:.6g} (stable needs < 1) with impedance.mass_kg "
              f"{imp.mass_kg:g}, damping_ns_per_m {imp.damping_ns_per_m:g}, stiffness_n_per_m "
              f"{imp.stiffness_n_per_m:g}, estimator.environment_stiffness_n_per_m "
              f"{est.environment_stiffness_n_per_m:g}, delay_s {est.delay_s:g}, rate_hz "
-             f"{s.rate_hz:g} and P(s) = 1/({tau_s:g} s + 1)")]
+             f"{s.rate_hz:g} and a position loop P(s) = 1/({tau_s:g} s + 1)")]
 
 
-def _changed_loop_option(s: Settings) -> tuple[str, str]:
-    """The first of the loop's options that differs from its default (the defaults are
-    stable), with its value: the key an unstable loop is reported on."""
-    imp, est = s.impedance, s.estimator
-    options = (("impedance.damping_ns_per_m", imp.damping_ns_per_m,
-                ImpedanceSettings().damping_ns_per_m, "N·s/m"),
-               ("impedance.mass_kg", imp.mass_kg, ImpedanceSettings().mass_kg, "kg"),
-               ("impedance.stiffness_n_per_m", imp.stiffness_n_per_m,
-                ImpedanceSettings().stiffness_n_per_m, "N/m"),
-               ("estimator.environment_stiffness_n_per_m", est.environment_stiffness_n_per_m,
-                EstimatorSettings().environment_stiffness_n_per_m, "N/m"),
-               ("estimator.delay_s", est.delay_s, EstimatorSettings().delay_s, "s"))
-    for key, value, default, unit in options:
-        if value != default:
-            return key, f"{value:g} {unit}"
-    return "rate_hz", f"{s.rate_hz:g} Hz"
+_LOOP_OPTIONS = (("impedance.mass_kg", "kg"), ("impedance.damping_ns_per_m", "N·s/m"),
+                 ("impedance.stiffness_n_per_m", "N/m"),
+                 ("estimator.environment_stiffness_n_per_m", "N/m"), ("estimator.delay_s", "s"))
+
+
+def _blamed_loop_option(values: tuple[float, ...], stable: Callable[[tuple[float, ...]], bool]
+                        ) -> tuple[str, str]:
+    """The key an unstable loop is reported on, and its text: the first option whose
+    default alone makes the loop stable again (the defaults are stable), else the
+    impedance's and estimator's values together."""
+    defaults = (ImpedanceSettings().mass_kg, ImpedanceSettings().damping_ns_per_m,
+                ImpedanceSettings().stiffness_n_per_m,
+                EstimatorSettings().environment_stiffness_n_per_m, EstimatorSettings().delay_s)
+    for i, ((key, unit), value, default) in enumerate(zip(_LOOP_OPTIONS, values, defaults,
+                                                         strict=True)):
+        if value != default and stable((*values[:i], default, *values[i + 1:])):
+            return key, f"{value:g} {unit} makes"
+    return "impedance", "and estimator values together make"
 
 
 PRESS_HEIGHT_TOLERANCE_M = 0.005  # how well the anvil's height must be known

@@ -18,9 +18,10 @@ import numpy as np
 
 from rakectl.core.discretize import Matrix, zoh
 
-# At most this many ticks of delay are checked: the eigenvalues of the (d + 3)-square
-# transition matrix cost O(d³), about 2 s at 1000 ticks on a 2-core machine.
-MAX_DELAY_TICKS = 1000
+# At most this many ticks of delay are checked (0.25 s at 1 kHz): the eigenvalues of the
+# (d + 3)-square transition matrix cost O(d³), about 0.3 s at 250 ticks on a 2-core
+# machine, and a load checks several position loops.
+MAX_DELAY_TICKS = 250
 
 
 def loop_matrix(mass_kg: float, damping_ns_per_m: float, stiffness_n_per_m: float,
