@@ -28,6 +28,21 @@ class _Captured:
         return lambda name, **fields: self.lines.append((level, name, fields))
 
 
+JOG_DOWN = b'{"cmd": "jog", "space": "task", "height_m_per_s": -0.1}'
+
+
+def _jog(rig: LockstepRig, line: bytes, ticks: int) -> list[float]:
+    """``line`` asked every 0.1 s for ``ticks`` ticks, as the operator's client asks it;
+    the tip's height after each tick."""
+    heights = []
+    for k in range(ticks):
+        if k % 100 == 0:
+            command(rig, line)
+        rig.tick()
+        heights.append(-rig.daemon.controller.depth_m)
+    return heights
+
+
 def _declared_loam() -> Settings:
     """The ceiling 300 mm above ground level 0 and a site declared loam: 6 kPa, 28°, δ 18°,
     cells ±20 %."""
@@ -59,12 +74,8 @@ def test_a_jog_down_is_held_at_the_floor_and_the_log_says_so(tmp_path: Path) -> 
         daemon.events = EventLog(captured)
         command(rig, b'{"cmd": "arm"}')
         rig.until(DaemonState.ARMED, 8000)
-        lowest_m = math.inf
-        for k in range(3000):
-            if k % 100 == 0:
-                command(rig, b'{"cmd": "jog", "space": "task", "height_m_per_s": -0.1}')
-            rig.tick()
-            lowest_m = min(lowest_m, -daemon.controller.depth_m)
+        heights = _jog(rig, JOG_DOWN, 3000)
+        lowest_m = min(heights)
         assert daemon.state is DaemonState.JOG, daemon.fault_reason
         daemon.events.flush(daemon.state.name)
     finally:
@@ -88,25 +99,16 @@ def test_a_jog_after_one_held_at_the_floor_moves_sideways_and_up_at_once(tmp_pat
         d, c = rig.daemon, rig.daemon.controller
         command(rig, b'{"cmd": "arm"}')
         rig.until(DaemonState.ARMED, 8000)
-        for k in range(3000):
-            if k % 100 == 0:
-                command(rig, b'{"cmd": "jog", "space": "task", "height_m_per_s": -0.1}')
-            rig.tick()
+        _jog(rig, JOG_DOWN, 3000)
         rig.until(DaemonState.HOLD, 2000)
         for _ in range(300):
             rig.tick()
         assert d.hold[1] > c.depth_m + 0.01  # the held reference: 10 mm or more below the tip
         reach_m = c.reach_m
-        for k in range(1000):
-            if k % 100 == 0:
-                command(rig, b'{"cmd": "jog", "space": "task", "reach_m_per_s": 0.05}')
-            rig.tick()
+        _jog(rig, b'{"cmd": "jog", "space": "task", "reach_m_per_s": 0.05}', 1000)
         assert d.jog is not None and d.jog.waiting == 0
         assert c.reach_m - reach_m > 0.04, c.reach_m - reach_m
         rig.until(DaemonState.HOLD, 2000)
         depth_m = c.depth_m
-        for k in range(200):
-            if k % 100 == 0:
-                command(rig, b'{"cmd": "jog", "space": "task", "height_m_per_s": 0.05}')
-            rig.tick()
+        _jog(rig, b'{"cmd": "jog", "space": "task", "height_m_per_s": 0.05}', 200)
         assert depth_m - c.depth_m > 0.003, depth_m - c.depth_m
