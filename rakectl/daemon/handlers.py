@@ -24,7 +24,7 @@ from rakectl.core.lane import LanePlanner
 from rakectl.daemon.loop import Daemon
 from rakectl.daemon.recorder import DumpError
 from rakectl.daemon.states import ARMED_STATES, DaemonState, Event, next_state
-from rakectl.daemon.timing import ARM_AGAIN, timing_verdict
+from rakectl.daemon.timing import timing_verdict
 from rakectl.errors import CommandRejected, ConfigError, KinematicsError
 
 Reply = Mapping[str, Any]
@@ -53,10 +53,13 @@ _NEXT_STEP = {DaemonState.ESTOP: "reset clears it, then arm",
 
 def _require(daemon: Daemon, event: Event, what: str) -> None:
     if next_state(daemon.state, event) is None:
-        step = ("nothing moves: the drives are disabled" if daemon.state is
-                DaemonState.DISARMED and event in (Event.DISARM, Event.STOP)
-                else "nothing to reset: a reset clears a fault or an e-stop"
-                if event is Event.RESET else _NEXT_STEP.get(daemon.state))
+        step: str | None
+        if event is Event.RESET:
+            step = "nothing to reset: a reset clears a fault or an e-stop"
+        elif daemon.state is DaemonState.DISARMED and event in (Event.DISARM, Event.STOP):
+            step = "nothing moves: the drives are disabled"
+        else:
+            step = _NEXT_STEP.get(daemon.state)
         raise CommandRejected(f"cannot {what} while {daemon.state.name.lower()}"
                               + (f" ({daemon.fault_reason})" if daemon.fault_reason else "")
                               + (f": {step}" if step else ""))
@@ -300,24 +303,23 @@ def _dump_path_problem(path: Path) -> str | None:
 
 
 def _timing_verdict(daemon: Daemon, summary: dict[str, Any] | None = None) -> str:
+    """The loop's timing verdict; advice to arm again only where it refuses an arming
+    (rt_mode enforce)."""
     s = daemon.settings
     summary = daemon.timing.summary() if summary is None else summary
     reference = daemon.timing_reference.get("p99_us")
     return timing_verdict(summary, daemon.ticks, s.rate_hz, s.daemon,
-                          reference if isinstance(reference, float) else None)
+                          reference if isinstance(reference, float) else None,
+                          advise=s.daemon.rt_mode is RtModeSetting.ENFORCE)
 
 
 def _timing_status(daemon: Daemon, summary: dict[str, Any]) -> str:
     """The timing verdict as status gives it: "ok", what refuses an arming under rt_mode
     enforce, or, under another rt_mode, that verdict as the warning it is there."""
-    verdict = _timing_verdict(daemon, summary)
-    if not verdict:
-        return "ok"
-    if daemon.settings.daemon.rt_mode is RtModeSetting.ENFORCE:
-        return verdict
-    return (f"a warning only, an arming goes on (daemon.rt_mode: "
-            f"{daemon.settings.daemon.rt_mode.value}): "
-            + verdict.removesuffix(f"; {ARM_AGAIN}"))
+    verdict, mode = _timing_verdict(daemon, summary), daemon.settings.daemon.rt_mode
+    if not verdict or mode is RtModeSetting.ENFORCE:
+        return verdict or "ok"
+    return f"a warning only, an arming goes on (daemon.rt_mode: {mode.value}): {verdict}"
 
 
 def _check_before_arming(daemon: Daemon, timing_checked: bool) -> None:

@@ -286,22 +286,22 @@ class LoopTiming:
         }
 
 
-ARM_AGAIN = "arm again shortly"  # what a verdict of too short a measurement advises
-
-
 def timing_verdict(summary: dict[str, Any], ticks: int, rate_hz: float,
-                   daemon: DaemonSettings, reference_p99_us: float | None = None) -> str:
+                   daemon: DaemonSettings, reference_p99_us: float | None = None,
+                   advise: bool = True) -> str:
     """Why the loop's timing since start-up should not be armed on, or "" (pure).
 
     ``summary`` is :meth:`LoopTiming.summary`; ``ticks`` the ticks run so far;
-    ``reference_p99_us`` cyclictest's p99 measured at start-up, if any. The wake-up
+    ``reference_p99_us`` cyclictest's p99 measured at start-up, if any; ``advise``: a
+    measurement too short says to arm again shortly (where it refuses an arming). The wake-up
     latency is the OS's (how late the sleep woke, before the spin: what cyclictest
     measures); late ticks are the overruns.
     """
     measured_s = ticks / rate_hz
     if measured_s < daemon.arm_timing_s:
         return (f"the loop has measured its timing for {measured_s:.1f} s of the "
-                f"{daemon.arm_timing_s:g} s daemon.arm_timing_s asks; {ARM_AGAIN}")
+                f"{daemon.arm_timing_s:g} s daemon.arm_timing_s asks"
+                + ("; arm again shortly" if advise else ""))
     p99_us = summary["oversleep_ns"]["p99"] * 1e-3
     if p99_us > daemon.arm_max_latency_p99_us:
         return (f"the loop's p99 wake-up latency is {p99_us:.0f} µs, above "
