@@ -82,6 +82,10 @@ def _build_parser() -> tuple[Parser, dict[str, Callable[[argparse.Namespace], in
                      help="check the configuration as the daemon loads it (the command "
                      "socket's path and group on this machine too), say what it would drive "
                      "and exit (0: it loads; 2: it does not, naming the key); opens nothing")
+    run.add_argument("--user", metavar="NAME",
+                     help="with --check: judge where the daemon writes, and that it can read "
+                     "--config, as this user (default, run as root: rakectl, the service's "
+                     "user, where it exists)")
     sub.add_parser("emulator", help="the emulated drives and physics (bench set-ups); "
                    "its options: rakectl emulator --help", add_help=False)
     client = Parser(add_help=False)
@@ -277,46 +281,15 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     if args.check:
-        return _check_config(args.config, args.overrides)
+        from rakectl.cli.check import check_config
+
+        return check_config(args.config, args.overrides, args.user)
+    if args.user is not None:
+        raise ConfigError("run --user: only with --check (the service's user is its unit's "
+                          "User=)")
     from rakectl.daemon.service import run
 
     return run(args.config, args.overrides)
-
-
-def _check_config(config: Path | None, overrides: list[str]) -> int:
-    """``rakectl run --check``: the configuration loaded and cross-checked as the daemon
-    loads it, and what bring-up would write checked against the drives' EDS limits (a
-    ConfigError names the key), the command socket's path and group as the daemon checks
-    them before bring-up, where it writes (its dumps, its bus trace), then what the daemon
-    would drive."""
-    from rakectl.api.client import socket_path
-    from rakectl.api.endpoint import check_endpoint
-    from rakectl.config.loader import load_settings
-    from rakectl.config.service import RtModeSetting
-    from rakectl.config.settings import Settings, held_command_gap
-    from rakectl.daemon.places import check_places
-    from rakectl.drive.profiles import check_parameter_ranges
-
-    s = load_settings(config, overrides, root=Settings)
-    check_parameter_ranges(s.drives, s.motors)  # bring-up's own check, before it sends
-    check_endpoint(socket_path(s.daemon.socket_path or None), s.daemon.socket_group or None)
-    places = check_places(s)
-    d = s.drives
-    print(f"{config or '<defaults>'}: the configuration loads")
-    print(f"  bus {s.bus.interface.value}:{s.bus.channel} at {s.bus.bitrate} bit/s; drives "
-          f"{d.profile.value}, r node {d.r_node_id}, θ node {d.theta_node_id}, watchdog "
-          f"{d.watchdog_timeout_ms} ms; loop {s.rate_hz:g} Hz, rt_mode {s.daemon.rt_mode.value}")
-    checks = ("weight check" + (" and tine-mount check" if s.selftest.press else "")
-              if s.selftest.enabled else "none (selftest.enabled: false)")
-    print(f"  force limit {s.clamp.force_limit_n:g} N; checks before arming: {checks}; "
-          f"surveyed points: {len(s.descent.survey)}")
-    print(f"  {'; '.join(places)}")
-    gap = held_command_gap(s)
-    if gap:
-        refusal = ("arming is refused" if s.daemon.rt_mode is RtModeSetting.ENFORCE else
-                   "logged as clamp_warning at start-up and at each arming")
-        print(f"  warning: {gap} ({refusal})")
-    return 0
 
 
 def _cmd_emulator(args: argparse.Namespace) -> int:

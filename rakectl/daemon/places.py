@@ -4,7 +4,9 @@ trace with the trace's inputs (``bus.trace_path``).
 :func:`check_places` judges them without touching anything (``rakectl run --check``);
 the daemon then makes the dump directory and keeps earlier runs' traces
 (:func:`keep_earlier_traces`) before it opens the bus, so that a place it cannot write
-is refused, naming its setting, before the drives are touched. A trace is worth most
+is refused, naming its setting, before the drives are touched. Root may write where
+the service's user may not: run as root, the check judges as that user
+(:func:`service_user`, :func:`judged_as`). A trace is worth most
 after a failure, which is when systemd restarts the service: each start moves the
 last run's trace and inputs to ``TRACE.1`` (``TRACE.1.inputs.jsonl``), the one before
 to ``TRACE.2`` …, up to ``bus.trace_keep`` of them; a start that failed before its
@@ -13,12 +15,17 @@ loop ran is not kept.
 
 from __future__ import annotations
 
+import json
 import os
+import pwd
+from collections.abc import Callable
 from pathlib import Path
 
 from rakectl.config.settings import Settings
 from rakectl.daemon.inputs import sidecar_path
 from rakectl.errors import ConfigError
+
+SERVICE_USER = "rakectl"  # the unit's User= (systemd/rakectl.service, rakectl.sysusers)
 
 
 def dump_dir_of(settings: Settings) -> Path:
@@ -27,36 +34,119 @@ def dump_dir_of(settings: Settings) -> Path:
     return Path(configured) if configured else Path.cwd()
 
 
-def _nearest_existing(path: Path) -> Path:
+def _nearest_existing(path: Path, setting: str) -> Path:
+    blocked = False  # a directory on the way is not searchable: named once it is found
     for place in (path, *path.parents):
-        if place.exists():
-            return place
+        try:
+            os.stat(place)
+        except PermissionError:
+            blocked = True
+            continue
+        except (FileNotFoundError, NotADirectoryError):
+            continue
+        if blocked:
+            raise ConfigError(f"{setting}: {path}: {place} is not searchable by {_me()}")
+        return place
     return Path("/")  # pragma: no cover (the root exists)
 
 
 def check_directory(path: Path, setting: str) -> None:
     """ConfigError naming ``setting`` unless ``path`` is a directory this process may write
     in, or one it may make (its nearest existing ancestor a directory it may write in)."""
-    place = _nearest_existing(path)
+    place = _nearest_existing(path, setting)
     if not place.is_dir():
         raise ConfigError(f"{setting}: {path}: {place} is not a directory")
     if os.statvfs(place).f_flag & os.ST_RDONLY:
         raise ConfigError(f"{setting}: {path}: {place} is on a read-only filesystem")
     if not os.access(place, os.W_OK | os.X_OK):
         verb = "write in" if place == path else f"make {path} in"
-        raise ConfigError(f"{setting}: cannot {verb} {place} (not writable by uid "
-                          f"{os.geteuid()})")
+        raise ConfigError(f"{setting}: cannot {verb} {place} (not writable by {_me()})")
 
 
 def check_file(path: Path, setting: str) -> None:
     """ConfigError naming ``setting`` unless ``path`` is a file this process may write, or
     one it may make."""
-    if path.is_dir():
-        raise ConfigError(f"{setting}: {path} is a directory")
-    if path.exists() and not os.access(path, os.W_OK):
-        raise ConfigError(f"{setting}: cannot write {path} (not writable by uid "
-                          f"{os.geteuid()})")
+    if _nearest_existing(path, setting) == path:
+        if path.is_dir():
+            raise ConfigError(f"{setting}: {path} is a directory")
+        if not os.access(path, os.W_OK):
+            raise ConfigError(f"{setting}: cannot write {path} (not writable by {_me()})")
     check_directory(path.parent, setting)
+
+
+def check_readable(path: Path, what: str) -> None:
+    """ConfigError naming ``what`` unless this process may read the file ``path``."""
+    if not os.access(path, os.R_OK):
+        raise ConfigError(f"{what}: cannot read {path} (not readable by {_me()})")
+
+
+def _me() -> str:
+    uid = os.geteuid()
+    try:
+        return f"{pwd.getpwuid(uid).pw_name} (uid {uid})"
+    except KeyError:
+        return f"uid {uid}"
+
+
+def service_user(name: str | None) -> pwd.struct_passwd | None:
+    """Whom ``run --check`` judges as: the user ``name``; else, run as root, the service's
+    user where it exists (root may write and read where the service cannot); else None,
+    this process. ConfigError if ``name`` is no user here."""
+    if name is not None:
+        try:
+            return pwd.getpwnam(name)
+        except KeyError:
+            raise ConfigError(f"run --check --user: no user {name!r} on this machine") from None
+    if os.geteuid() != 0:
+        return None
+    try:
+        return pwd.getpwnam(SERVICE_USER)
+    except KeyError:
+        return None
+
+
+def judged_as(user: pwd.struct_passwd, judge: Callable[[], list[str]]) -> list[str]:
+    """``judge()`` run in a child process with ``user``'s uid, gid and groups, so that the
+    kernel decides what it may read and write (its modes, ACLs and groups), as it will for
+    the service: its lines, or the ConfigError it raised, raised here. Judging as another
+    user takes root."""
+    if user.pw_uid == os.geteuid():
+        return judge()
+    if os.geteuid() != 0:
+        raise ConfigError(f"run --check --user: judging as {user.pw_name} takes root "
+                          f"(this is uid {os.geteuid()})")
+    read, write = os.pipe()
+    pid = os.fork()
+    if pid == 0:  # pragma: no cover (the child: its coverage is not collected)
+        status = 1
+        try:
+            os.close(read)
+            os.initgroups(user.pw_name, user.pw_gid)
+            os.setgid(user.pw_gid)
+            os.setuid(user.pw_uid)
+            verdict: dict[str, object]
+            try:
+                verdict = {"lines": judge()}
+            except ConfigError as error:
+                verdict = {"error": str(error)}
+            except OSError as error:  # what the judging itself met, named
+                verdict = {"error": f"run --check as {user.pw_name}: {error}"}
+            with os.fdopen(write, "w") as out:
+                json.dump(verdict, out)
+            status = 0
+        finally:
+            os._exit(status)
+    os.close(write)
+    with os.fdopen(read) as answer:
+        text = answer.read()
+    _, status = os.waitpid(pid, 0)
+    if status or not text:
+        raise ConfigError(f"run --check: judging as {user.pw_name} failed (the child's "
+                          f"wait status {status})")
+    reply = json.loads(text)
+    if "error" in reply:
+        raise ConfigError(str(reply["error"]))
+    return [str(line) for line in reply["lines"]]
 
 
 def check_places(settings: Settings) -> list[str]:

@@ -6,9 +6,13 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import pwd
+import shutil
 import socket
 import subprocess
 import sys
+import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -16,7 +20,7 @@ import pytest
 from rakectl.config.service import BusSettings
 from rakectl.config.settings import Settings
 from rakectl.daemon.inputs import sidecar_path
-from rakectl.daemon.places import check_places, keep_earlier_traces, make_dump_dir
+from rakectl.daemon.places import check_places, judged_as, keep_earlier_traces, make_dump_dir
 from rakectl.errors import ConfigError
 from tests.cli_run import ROOT, run_rakectl
 
@@ -144,3 +148,97 @@ def test_a_restart_keeps_the_trace_and_bring_up_extends_the_start_timeout(
     assert sidecar_path(f"{trace}.1").read_text() == inputs_before
     assert "trace_kept" in done.stderr
     assert "EXTEND_TIMEOUT_USEC=31800000\nSTATUS=bringing up the drives" in messages, messages
+
+
+def _user(name: str) -> pwd.struct_passwd | None:
+    try:
+        return pwd.getpwnam(name)
+    except KeyError:
+        return None
+
+
+NOBODY = _user("nobody")  # an unprivileged user every Debian has, standing for rakectl
+as_root = pytest.mark.skipif(os.geteuid() != 0 or NOBODY is None,
+                             reason="judging as another user takes root and a user nobody")
+
+
+@pytest.fixture
+def shared_dir() -> Iterator[Path]:
+    """A directory any user can reach (pytest's own are root's alone): ``closed`` (root's,
+    0755), ``open`` (0777), ``private`` (0700), a configuration ``root-only.yaml`` (0600)."""
+    base = Path(tempfile.mkdtemp(prefix="rakectl-places-", dir="/tmp"))
+    try:
+        base.chmod(0o755)
+        for name, mode in (("closed", 0o755), ("open", 0o777), ("private", 0o700)):
+            (base / name).mkdir()
+            (base / name).chmod(mode)
+        (base / "root-only.yaml").write_text("clamp:\n  force_limit_n: 90\n")
+        (base / "root-only.yaml").chmod(0o600)
+        yield base
+    finally:
+        shutil.rmtree(base)
+
+
+@as_root
+def test_run_check_judges_as_the_services_user_what_root_could_write(shared_dir: Path) -> None:
+    """Root may write anywhere: run as root, `run --check` passed places the service's
+    user could not write, and the service refused them at its start. Now it judges as that
+    user (`--user`; by default rakectl where it exists): a child process with the user's
+    uid and groups asks the kernel. Each refusal names the setting and the user."""
+    closed, private = shared_dir / "closed", shared_dir / "private"
+    nobody = "nobody (uid 65534)"
+    for settings, expected in (
+            ([f"daemon.dump_dir={closed / 'dumps'}"],
+             f"daemon.dump_dir: cannot make {closed / 'dumps'} in {closed} (not writable by "
+             f"{nobody})"),
+            ([f"bus.trace_path={private / 'logs' / 'bus.log'}"],
+             f"bus.trace_path: {private / 'logs' / 'bus.log'}: {private} is not searchable "
+             f"by {nobody}"),
+            (["--config", str(shared_dir / "root-only.yaml")],
+             f"--config: cannot read {shared_dir / 'root-only.yaml'} (not readable by "
+             f"{nobody})")):
+        args = (settings if settings[0] == "--config" else ["--set", settings[0]])
+        refused = run_rakectl("run", "--check", "--user", "nobody", *args)
+        assert (refused.returncode, refused.stderr.strip()) == (2, f"rakectl: error: {expected}")
+        as_root_itself = run_rakectl("run", "--check", "--user", "root", *args)
+        assert as_root_itself.returncode == 0, as_root_itself.stderr
+        assert "judged as user root (uid 0)" in as_root_itself.stdout
+    opened = shared_dir / "open"
+    passed = run_rakectl("run", "--check", "--user", "nobody", "--set",
+                         f"daemon.dump_dir={opened / 'dumps'}", "--set",
+                         f"bus.trace_path={opened / 'bus.log'}")
+    assert passed.returncode == 0, passed.stderr
+    assert passed.stdout.splitlines()[-1] == (
+        f"  dumps to {opened / 'dumps'}; bus trace {opened / 'bus.log'}, the last 3 runs' "
+        "kept; judged as user nobody (uid 65534)")
+    assert sorted(p.name for p in opened.iterdir()) == []  # nothing made
+    if _user("rakectl") is None:  # the default, as root on a machine without the service
+        default = run_rakectl("run", "--check")
+        assert default.returncode == 0, default.stderr
+        assert ("judged as this process (uid 0), not the service's user (no user rakectl "
+                "here)") in default.stdout
+
+
+@as_root
+def test_a_place_behind_a_directory_it_cannot_search_is_refused_not_raised(
+        shared_dir: Path) -> None:
+    """The daemon's own check, as an unprivileged service user, met a directory it cannot
+    search: Path.exists() raised PermissionError instead of a refusal naming the setting."""
+    assert NOBODY is not None
+    hidden = shared_dir / "private" / "dumps"
+    with pytest.raises(ConfigError) as refused:
+        judged_as(NOBODY, lambda: check_places(_settings(dump_dir=hidden)))
+    assert str(refused.value) == (f"daemon.dump_dir: {hidden}: {shared_dir / 'private'} is "
+                                  "not searchable by nobody (uid 65534)")
+    assert judged_as(NOBODY, lambda: check_places(_settings(
+        dump_dir=shared_dir / "open"))) == [f"dumps to {shared_dir / 'open'}"]
+
+
+def test_user_names_what_it_cannot_judge_as() -> None:
+    for args, expected in (
+            (("--check", "--user", "no-such-user-here"),
+             "run --check --user: no user 'no-such-user-here' on this machine"),
+            (("--user", "nobody"),
+             "run --user: only with --check (the service's user is its unit's User=)")):
+        done = run_rakectl("run", *args)
+        assert (done.returncode, done.stderr.strip()) == (2, f"rakectl: error: {expected}")

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import pwd
 import re
 import subprocess
 import time
@@ -184,6 +185,20 @@ def test_outsider_is_refused(installed: None) -> None:
     refused = as_user(OUTSIDER, "status", check=False)
     assert refused.returncode != 0
     assert "ermission" in refused.stderr, refused.stderr  # "Permission denied", named
+
+
+def test_run_check_as_root_judges_as_the_services_user(installed: None) -> None:
+    """The installation's `run --check`, as root, judges as user rakectl: a place root may
+    write and the service may not (/etc/rakectl, root's) is refused, naming the user."""
+    check = "/usr/local/bin/rakectl run --config /etc/rakectl/rakectl.yaml --check"
+    passed = sh(check)
+    uid = pwd.getpwnam("rakectl").pw_uid
+    assert f"; judged as user rakectl (uid {uid})\n" in passed.stdout, passed.stdout
+    refused = sh(f"{check} --set daemon.dump_dir=/etc/rakectl/dumps", check=False)
+    assert refused.returncode == 2, refused
+    assert refused.stderr.strip() == (
+        "rakectl: error: daemon.dump_dir: cannot make /etc/rakectl/dumps in /etc/rakectl "
+        f"(not writable by rakectl (uid {uid}))"), refused.stderr
 
 
 def test_stalled_loop_is_restarted_by_the_watchdog(installed: None) -> None:
