@@ -11,10 +11,10 @@ from pathlib import Path
 def check_config(config: Path | None, overrides: list[str], user_name: str | None) -> int:
     """``rakectl run --check``: the configuration loaded and cross-checked as the daemon
     loads it, and what bring-up would write checked against the drives' EDS limits (a
-    ConfigError names the key), the command socket's path and group as the daemon checks
-    them before bring-up, where it writes (its dumps, its bus trace) and that it can read
-    the file, as the service's user (:func:`rakectl.daemon.places.service_user`), then
-    what the daemon would drive."""
+    ConfigError names the key), the command socket's path and group and the CAN link's
+    bit rate as the daemon checks them before bring-up, where it writes (its dumps, its
+    bus trace) and that it can read the file, as the service's user
+    (:func:`rakectl.daemon.places.service_user`), then what the daemon would drive."""
     from rakectl.api.client import socket_path
     from rakectl.api.endpoint import check_endpoint
     from rakectl.config.loader import load_settings
@@ -27,11 +27,13 @@ def check_config(config: Path | None, overrides: list[str], user_name: str | Non
         judged_as,
         service_user,
     )
+    from rakectl.drive.link import check_link_bitrate
     from rakectl.drive.profiles import check_parameter_ranges
 
     s = load_settings(config, overrides, root=Settings)
     check_parameter_ranges(s.drives, s.motors)  # bring-up's own check, before it sends
     check_endpoint(socket_path(s.daemon.socket_path or None), s.daemon.socket_group or None)
+    link = check_link_bitrate(s.bus)
     user = service_user(user_name)
 
     def judge() -> list[str]:
@@ -51,6 +53,7 @@ def check_config(config: Path | None, overrides: list[str], user_name: str | Non
     print(f"  bus {s.bus.interface.value}:{s.bus.channel} at {s.bus.bitrate} bit/s; drives "
           f"{d.profile.value}, r node {d.r_node_id}, θ node {d.theta_node_id}, watchdog "
           f"{d.watchdog_timeout_ms} ms; loop {s.rate_hz:g} Hz, rt_mode {s.daemon.rt_mode.value}")
+    print(f"  link: {link}")
     checks = ("weight check" + (" and tine-mount check" if s.selftest.press else "")
               if s.selftest.enabled else "none (selftest.enabled: false)")
     print(f"  force limit {s.clamp.force_limit_n:g} N; checks before arming: {checks}; "

@@ -141,8 +141,8 @@ def judged_as(user: pwd.struct_passwd, judge: Callable[[], list[str]]) -> list[s
         text = answer.read()
     _, status = os.waitpid(pid, 0)
     if status or not text:
-        raise ConfigError(f"run --check: judging as {user.pw_name} failed (the child's "
-                          f"wait status {status})")
+        raise ConfigError(f"run --check: judging as {user.pw_name} failed (its child "
+                          f"exited with {os.waitstatus_to_exitcode(status)})")
     reply = json.loads(text)
     if "error" in reply:
         raise ConfigError(str(reply["error"]))

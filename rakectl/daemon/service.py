@@ -7,7 +7,8 @@ ends its tick, sends 0 V with the drives disabled, dumps the flight recorder and
 returns 0. Before (cyclictest, the drives' bring-up, nothing enabled yet) a stop ends
 the start-up where it is, status 0. Before the bus is opened the daemon checks its
 command socket (``check_endpoint``), refuses one a daemon listens on and claims it
-(``claim``: ``<socket>.lock``, held until the process ends).
+(``claim``: ``<socket>.lock``, held until the process ends), and a CAN link running at
+another bit rate than ``bus.bitrate`` is refused (:mod:`rakectl.drive.link`).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from rakectl.drive.bringup import CONFIGURE_ATTEMPTS
 from rakectl.drive.canbus import TraceRecorder, open_bus, open_trace
 from rakectl.drive.client import DriveClient
 from rakectl.drive.joints import receive_ids
+from rakectl.drive.link import check_link_bitrate
 
 
 def configure_logging() -> None:
@@ -112,6 +114,7 @@ def run(config: Path | None, overrides: list[str]) -> int:
     # what would refuse the command socket or the dumps must not wait until after it
     path = socket_path(settings.daemon.socket_path or None)
     check_endpoint(path, settings.daemon.socket_group or None)
+    link = check_link_bitrate(settings.bus)  # a link at another rate hears no drive
     refuse_if_listening(path)  # a running daemon, named as such
     claimed = claim(path)  # one starting at the same moment, refused here
     trace: TraceRecorder | None = None
@@ -129,6 +132,7 @@ def run(config: Path | None, overrides: list[str]) -> int:
                     recording.close()
         os.close(claimed)
         raise
+    log.info("can_link", bitrate=link)
     if kept:
         log.info("trace_kept", last_run=str(kept[0]), kept=len(kept))
     server: CommandServer | None = None
