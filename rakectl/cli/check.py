@@ -33,7 +33,7 @@ def check_config(config: Path | None, overrides: list[str], user_name: str | Non
     s = load_settings(config, overrides, root=Settings)
     check_parameter_ranges(s.drives, s.motors)  # bring-up's own check, before it sends
     check_endpoint(socket_path(s.daemon.socket_path or None), s.daemon.socket_group or None)
-    link = check_link_bitrate(s.bus)
+    _, link = check_link_bitrate(s.bus)
     user = service_user(user_name)
 
     def judge() -> list[str]:
@@ -46,6 +46,8 @@ def check_config(config: Path | None, overrides: list[str], user_name: str | Non
         if os.geteuid() == 0:  # no service user here (a bench, a test machine)
             judged += (f", not the service's user (no user {SERVICE_USER} here): root may "
                        "write where it may not; --user NAME judges as another")
+        else:
+            judged += f", not the service's user: judging as {SERVICE_USER} takes root"
     else:
         places, judged = judged_as(user, judge), f"as user {user.pw_name} (uid {user.pw_uid})"
     d = s.drives

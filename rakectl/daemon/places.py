@@ -35,6 +35,9 @@ def dump_dir_of(settings: Settings) -> Path:
 
 
 def _nearest_existing(path: Path, setting: str) -> Path:
+    """``path`` or its nearest ancestor that exists (a relative path's, from the working
+    directory); ConfigError naming ``setting`` where the way there cannot be followed."""
+    path = Path(os.path.abspath(path))
     blocked = False  # a directory on the way is not searchable: named once it is found
     for place in (path, *path.parents):
         try:
@@ -44,15 +47,18 @@ def _nearest_existing(path: Path, setting: str) -> Path:
             continue
         except (FileNotFoundError, NotADirectoryError):
             continue
+        except OSError as error:  # a symbolic link's loop, a name too long …
+            raise ConfigError(f"{setting}: {path}: {error.strerror or error}") from None
         if blocked:
             raise ConfigError(f"{setting}: {path}: {place} is not searchable by {_me()}")
         return place
-    return Path("/")  # pragma: no cover (the root exists)
+    raise ConfigError(f"{setting}: {path}: / cannot be read by {_me()}")
 
 
 def check_directory(path: Path, setting: str) -> None:
     """ConfigError naming ``setting`` unless ``path`` is a directory this process may write
     in, or one it may make (its nearest existing ancestor a directory it may write in)."""
+    path = Path(os.path.abspath(path))  # a relative one from the working directory
     place = _nearest_existing(path, setting)
     if not place.is_dir():
         raise ConfigError(f"{setting}: {path}: {place} is not a directory")
@@ -66,6 +72,7 @@ def check_directory(path: Path, setting: str) -> None:
 def check_file(path: Path, setting: str) -> None:
     """ConfigError naming ``setting`` unless ``path`` is a file this process may write, or
     one it may make."""
+    path = Path(os.path.abspath(path))  # a relative one from the working directory
     if _nearest_existing(path, setting) == path:
         if path.is_dir():
             raise ConfigError(f"{setting}: {path} is a directory")
@@ -76,7 +83,8 @@ def check_file(path: Path, setting: str) -> None:
 
 def check_readable(path: Path, what: str) -> None:
     """ConfigError naming ``what`` unless this process may read the file ``path``."""
-    if not os.access(path, os.R_OK):
+    _nearest_existing(path, what)
+    if not os.access(os.path.abspath(path), os.R_OK):
         raise ConfigError(f"{what}: cannot read {path} (not readable by {_me()})")
 
 
@@ -121,16 +129,17 @@ def judged_as(user: pwd.struct_passwd, judge: Callable[[], list[str]]) -> list[s
         status = 1
         try:
             os.close(read)
-            os.initgroups(user.pw_name, user.pw_gid)
-            os.setgid(user.pw_gid)
-            os.setuid(user.pw_uid)
             verdict: dict[str, object]
             try:
+                os.initgroups(user.pw_name, user.pw_gid)
+                os.setgid(user.pw_gid)
+                os.setuid(user.pw_uid)
                 verdict = {"lines": judge()}
             except ConfigError as error:
                 verdict = {"error": str(error)}
-            except OSError as error:  # what the judging itself met, named
-                verdict = {"error": f"run --check as {user.pw_name}: {error}"}
+            except BaseException as error:  # what the judging itself met, named
+                verdict = {"error": f"run --check as {user.pw_name}: {type(error).__name__}: "
+                                    f"{error}"}
             with os.fdopen(write, "w") as out:
                 json.dump(verdict, out)
             status = 0
@@ -141,8 +150,9 @@ def judged_as(user: pwd.struct_passwd, judge: Callable[[], list[str]]) -> list[s
         text = answer.read()
     _, status = os.waitpid(pid, 0)
     if status or not text:
-        raise ConfigError(f"run --check: judging as {user.pw_name} failed (its child "
-                          f"exited with {os.waitstatus_to_exitcode(status)})")
+        code = os.waitstatus_to_exitcode(status)
+        ended = f"exited with {code}" if code >= 0 else f"was killed by signal {-code}"
+        raise ConfigError(f"run --check: judging as {user.pw_name} failed (its child {ended})")
     reply = json.loads(text)
     if "error" in reply:
         raise ConfigError(str(reply["error"]))

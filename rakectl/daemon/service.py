@@ -114,7 +114,8 @@ def run(config: Path | None, overrides: list[str]) -> int:
     # what would refuse the command socket or the dumps must not wait until after it
     path = socket_path(settings.daemon.socket_path or None)
     check_endpoint(path, settings.daemon.socket_group or None)
-    link = check_link_bitrate(settings.bus)  # a link at another rate hears no drive
+    bitrate, link = check_link_bitrate(settings.bus)  # at another rate it hears no drive
+    log.info("can_link", bitrate=bitrate, link=link)
     refuse_if_listening(path)  # a running daemon, named as such
     claimed = claim(path)  # one starting at the same moment, refused here
     trace: TraceRecorder | None = None
@@ -132,7 +133,6 @@ def run(config: Path | None, overrides: list[str]) -> int:
                     recording.close()
         os.close(claimed)
         raise
-    log.info("can_link", bitrate=link)
     if kept:
         log.info("trace_kept", last_run=str(kept[0]), kept=len(kept))
     server: CommandServer | None = None

@@ -242,3 +242,23 @@ def test_user_names_what_it_cannot_judge_as() -> None:
              "run --user: only with --check (the service's user is its unit's User=)")):
         done = run_rakectl("run", *args)
         assert (done.returncode, done.stderr.strip()) == (2, f"rakectl: error: {expected}")
+
+
+def test_a_way_that_cannot_be_followed_is_refused_naming_the_setting(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A symbolic link's loop on the way raised a bare OSError (exit 1) from the check and
+    from the daemon's own making of its dump directory; a relative place is judged from the
+    working directory, as the daemon would make it, and named whole."""
+    loop = tmp_path / "loop"
+    loop.symlink_to(loop)
+    expected = f"daemon.dump_dir: {loop / 'dumps'}: Too many levels of symbolic links"
+    for judge in (check_places, make_dump_dir):
+        with pytest.raises(ConfigError) as refused:
+            judge(_settings(dump_dir=loop / "dumps"))
+        assert str(refused.value) == expected
+    (tmp_path / "a-file").write_text("")
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ConfigError) as relative:
+        check_places(_settings(trace="a-file/bus.log", dump_dir=tmp_path))
+    assert str(relative.value) == (f"bus.trace_path: {tmp_path / 'a-file'}: "
+                                   f"{tmp_path / 'a-file'} is not a directory")
