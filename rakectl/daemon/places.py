@@ -46,6 +46,9 @@ def _nearest_existing(path: Path, setting: str) -> Path:
             blocked = True
             continue
         except (FileNotFoundError, NotADirectoryError):
+            if os.path.islink(place):  # it would not be made: the name is taken
+                raise ConfigError(f"{setting}: {path}: {place} is a symbolic link to "
+                                  f"{os.readlink(place)}, which does not exist") from None
             continue
         except OSError as error:  # a symbolic link's loop, a name too long …
             raise ConfigError(f"{setting}: {path}: {error.strerror or error}") from None

@@ -247,8 +247,9 @@ def test_user_names_what_it_cannot_judge_as() -> None:
 def test_a_way_that_cannot_be_followed_is_refused_naming_the_setting(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A symbolic link's loop on the way raised a bare OSError (exit 1) from the check and
-    from the daemon's own making of its dump directory; a relative place is judged from the
-    working directory, as the daemon would make it, and named whole."""
+    from the daemon's own making of its dump directory; a link to nowhere passed the check
+    and the daemon could not make it; a relative place is judged from the working
+    directory, as the daemon would make it, and named whole."""
     loop = tmp_path / "loop"
     loop.symlink_to(loop)
     expected = f"daemon.dump_dir: {loop / 'dumps'}: Too many levels of symbolic links"
@@ -256,6 +257,13 @@ def test_a_way_that_cannot_be_followed_is_refused_naming_the_setting(
         with pytest.raises(ConfigError) as refused:
             judge(_settings(dump_dir=loop / "dumps"))
         assert str(refused.value) == expected
+    dangling = tmp_path / "dangling"
+    dangling.symlink_to(tmp_path / "gone")
+    for judge in (check_places, make_dump_dir):  # passed, then the daemon's mkdir failed
+        with pytest.raises(ConfigError) as refused:
+            judge(_settings(dump_dir=dangling))
+        assert str(refused.value) == (f"daemon.dump_dir: {dangling}: {dangling} is a symbolic "
+                                      f"link to {tmp_path / 'gone'}, which does not exist")
     (tmp_path / "a-file").write_text("")
     monkeypatch.chdir(tmp_path)
     with pytest.raises(ConfigError) as relative:
