@@ -25,8 +25,10 @@ def check_config(config: Path | None, overrides: list[str], user_name: str | Non
         check_places,
         check_readable,
         judged_as,
+        places_of,
         service_user,
     )
+    from rakectl.daemon.sandbox import sandbox_verdict, unit_sandbox
     from rakectl.drive.link import check_link_bitrate
     from rakectl.drive.profiles import check_parameter_ranges
 
@@ -41,6 +43,7 @@ def check_config(config: Path | None, overrides: list[str], user_name: str | Non
             check_readable(config, "--config")
         return check_places(s)
 
+    sandbox: dict[str, str] | None = None  # the unit's, judged for its user
     if user is None:
         places, judged = judge(), f"as this process (uid {os.geteuid()})"
         if os.geteuid() == 0:  # no service user here (a bench, a test machine)
@@ -48,8 +51,13 @@ def check_config(config: Path | None, overrides: list[str], user_name: str | Non
                        "write where it may not; --user NAME judges as another")
         else:
             judged += f", not the service's user: judging as {SERVICE_USER} takes root"
-    else:
-        places, judged = judged_as(user, judge), f"as user {user.pw_name} (uid {user.pw_uid})"
+    else:  # then the unit's sandbox, where systemd has it
+        places = judged_as(user, judge)
+        sandbox, in_sandbox = unit_sandbox()
+        judged = f"as user {user.pw_name} (uid {user.pw_uid}), {in_sandbox}"
+    warnings = [] if sandbox is None else [
+        warning for setting, path in places_of(s)
+        if (warning := sandbox_verdict(setting, path, sandbox)) is not None]
     d = s.drives
     print(f"{config or '<defaults>'}: the configuration loads")
     print(f"  bus {s.bus.interface.value}:{s.bus.channel} at {s.bus.bitrate} bit/s; drives "
@@ -61,6 +69,8 @@ def check_config(config: Path | None, overrides: list[str], user_name: str | Non
     print(f"  force limit {s.clamp.force_limit_n:g} N; checks before arming: {checks}; "
           f"surveyed points: {len(s.descent.survey)}")
     print(f"  {'; '.join(places)}; judged {judged}")
+    for warning in warnings:
+        print(f"  {warning}")
     gap = held_command_gap(s)
     if gap:
         refusal = ("arming is refused" if s.daemon.rt_mode is RtModeSetting.ENFORCE else

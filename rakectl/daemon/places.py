@@ -162,10 +162,24 @@ def judged_as(user: pwd.struct_passwd, judge: Callable[[], list[str]]) -> list[s
     return [str(line) for line in reply["lines"]]
 
 
+def places_of(settings: Settings) -> list[tuple[str, Path]]:
+    """Where the daemon writes, each with its setting: the dump directory where one is
+    given (else the service's StateDirectory), the bus trace, its inputs and the earlier
+    runs' kept."""
+    places = []
+    if settings.daemon.dump_dir or os.environ.get("STATE_DIRECTORY"):
+        places.append(("daemon.dump_dir", dump_dir_of(settings)))
+    trace = settings.bus.trace_path
+    if trace:
+        places += [("bus.trace_path", path) for path in
+                   (Path(trace), sidecar_path(trace), *_earlier(trace, settings))]
+    return places
+
+
 def check_places(settings: Settings) -> list[str]:
     """What the daemon would refuse of where it writes, judged without touching anything
-    as this process (a filesystem read-only in the service's sandbox alone is not seen
-    from outside it); what was judged, as lines for a person. An empty
+    as this process (the unit's sandbox is judged apart: :mod:`rakectl.daemon.sandbox`);
+    what was judged, as lines for a person. An empty
     ``daemon.dump_dir`` outside systemd is not judged: the service writes to its
     StateDirectory, not to the working directory of the one asking."""
     if settings.daemon.dump_dir or os.environ.get("STATE_DIRECTORY"):

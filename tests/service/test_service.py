@@ -189,16 +189,28 @@ def test_outsider_is_refused(installed: None) -> None:
 
 def test_run_check_as_root_judges_as_the_services_user(installed: None) -> None:
     """The installation's `run --check`, as root, judges as user rakectl: a place root may
-    write and the service may not (/etc/rakectl, root's) is refused, naming the user."""
+    write and the service may not (/etc/rakectl, root's) is refused, naming the user; and
+    in the installed unit's sandbox: a place the user may write and the sandbox keeps
+    read-only is refused, naming the unit's setting."""
     check = "/usr/local/bin/rakectl run --config /etc/rakectl/rakectl.yaml --check"
     passed = sh(check)
     uid = pwd.getpwnam("rakectl").pw_uid
-    assert f"; judged as user rakectl (uid {uid})\n" in passed.stdout, passed.stdout
+    assert (f"; judged as user rakectl (uid {uid}), in rakectl.service's sandbox\n"
+            in passed.stdout), passed.stdout
     refused = sh(f"{check} --set daemon.dump_dir=/etc/rakectl/dumps", check=False)
     assert refused.returncode == 2, refused
     assert refused.stderr.strip() == (
         "rakectl: error: daemon.dump_dir: cannot make /etc/rakectl/dumps in /etc/rakectl "
         f"(not writable by rakectl (uid {uid}))"), refused.stderr
+    # rakectl may write in /srv/rakectl, but the unit's ProtectSystem=strict keeps it
+    # read-only to the service: judged from the unit systemd has loaded
+    sh("install -d -o rakectl -g rakectl /srv/rakectl")
+    sandboxed = sh(f"{check} --set bus.trace_path=/srv/rakectl/bus.log", check=False)
+    assert (sandboxed.returncode, sandboxed.stderr.strip()) == (2, (
+        "rakectl: error: bus.trace_path: /srv/rakectl/bus.log is read-only to the service "
+        "(rakectl.service: ProtectSystem=strict; it may write under /var/lib/rakectl, "
+        "/run/rakectl, /tmp, /var/tmp): a place there, or ReadWritePaths= for it in a "
+        "drop-in (systemctl edit rakectl)")), sandboxed
 
 
 def test_stalled_loop_is_restarted_by_the_watchdog(installed: None) -> None:

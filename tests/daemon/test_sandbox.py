@@ -1,0 +1,62 @@
+"""The service's places judged against its unit's sandbox (rakectl.daemon.sandbox), with
+the properties systemd reports for the shipped unit (systemd/rakectl.service). The same
+judged from the unit systemd has loaded: tests/service/test_service.py, in the VM."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from rakectl.daemon.sandbox import sandbox_verdict, writable_roots
+from rakectl.errors import ConfigError
+
+SHIPPED = {"LoadState": "loaded", "ProtectSystem": "strict", "ProtectHome": "yes",
+           "PrivateTmp": "yes", "ReadWritePaths": "", "StateDirectory": "rakectl",
+           "RuntimeDirectory": "rakectl", "LogsDirectory": "", "CacheDirectory": ""}
+
+
+def test_the_shipped_unit_writes_in_its_own_directories_and_private_tmp() -> None:
+    assert writable_roots(SHIPPED) == [Path("/var/lib/rakectl"), Path("/run/rakectl"),
+                                       Path("/tmp"), Path("/var/tmp")]
+    for place in ("/var/lib/rakectl/dumps", "/var/lib/rakectl", "/run/rakectl/x.log"):
+        assert sandbox_verdict("daemon.dump_dir", Path(place), SHIPPED) is None
+    assert sandbox_verdict("bus.trace_path", Path("/tmp/bus.log"), SHIPPED) == (
+        "warning: bus.trace_path: /tmp/bus.log is in the service's own /tmp "
+        "(PrivateTmp=yes), emptied when it stops")
+
+
+@pytest.mark.parametrize(("place", "expected"), [
+    ("/var/log/rakectl/bus.log", "bus.trace_path: /var/log/rakectl/bus.log is read-only to "
+     "the service (rakectl.service: ProtectSystem=strict; it may write under "
+     "/var/lib/rakectl, /run/rakectl, /tmp, /var/tmp): a place there, or ReadWritePaths= "
+     "for it in a drop-in (systemctl edit rakectl)"),
+    ("/var/lib/rakectl-other/bus.log", "bus.trace_path: /var/lib/rakectl-other/bus.log is "
+     "read-only to the service (rakectl.service: ProtectSystem=strict; it may write under "
+     "/var/lib/rakectl, /run/rakectl, /tmp, /var/tmp): a place there, or ReadWritePaths= "
+     "for it in a drop-in (systemctl edit rakectl)"),
+    ("/home/field/bus.log", "bus.trace_path: /home/field/bus.log is hidden from the service "
+     "(rakectl.service: ProtectHome=yes): a place outside /home, /root and /run/user"),
+])
+def test_a_place_the_sandbox_keeps_from_the_service_is_refused(place: str,
+                                                               expected: str) -> None:
+    with pytest.raises(ConfigError) as refused:
+        sandbox_verdict("bus.trace_path", Path(place), SHIPPED)
+    assert str(refused.value) == expected
+
+
+def test_a_drop_in_or_a_looser_unit_lets_it_write_there() -> None:
+    dropped_in = {**SHIPPED, "ReadWritePaths": "-/var/log/rakectl /srv/traces",
+                  "LogsDirectory": "rakectl-logs"}
+    assert writable_roots(dropped_in) == [
+        Path("/var/lib/rakectl"), Path("/run/rakectl"), Path("/var/log/rakectl-logs"),
+        Path("/var/log/rakectl"), Path("/srv/traces"), Path("/tmp"), Path("/var/tmp")]
+    for place in ("/var/log/rakectl/bus.log", "/srv/traces/a/bus.log"):
+        assert sandbox_verdict("bus.trace_path", Path(place), dropped_in) is None
+    full = {**SHIPPED, "ProtectSystem": "full", "ProtectHome": "no", "PrivateTmp": "no"}
+    assert sandbox_verdict("bus.trace_path", Path("/var/log/rakectl/bus.log"), full) is None
+    assert sandbox_verdict("bus.trace_path", Path("/home/field/bus.log"), full) is None
+    with pytest.raises(ConfigError, match=r"^bus\.trace_path: /etc/rakectl/bus\.log is "
+                                          r"read-only to the service \(rakectl\.service: "
+                                          r"ProtectSystem=full\)$"):
+        sandbox_verdict("bus.trace_path", Path("/etc/rakectl/bus.log"), full)
