@@ -76,6 +76,8 @@ def check_file(path: Path, setting: str) -> None:
     """ConfigError naming ``setting`` unless ``path`` is a file this process may write, or
     one it may make."""
     path = Path(os.path.abspath(path))  # a relative one from the working directory
+    if os.path.islink(path) and not os.path.exists(path):  # opened, it makes its target
+        path = Path(os.path.realpath(path))
     if _nearest_existing(path, setting) == path:
         if path.is_dir():
             raise ConfigError(f"{setting}: {path} is a directory")

@@ -247,8 +247,9 @@ def test_user_names_what_it_cannot_judge_as() -> None:
 def test_a_way_that_cannot_be_followed_is_refused_naming_the_setting(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A symbolic link's loop on the way raised a bare OSError (exit 1) from the check and
-    from the daemon's own making of its dump directory; a link to nowhere passed the check
-    and the daemon could not make it; a relative place is judged from the working
+    from the daemon's own making of its dump directory; a dump directory that is a link to
+    nowhere passed the check and the daemon could not make it (a trace file that is one
+    is judged by its target: opened, the link makes it); a relative place is judged from the working
     directory, as the daemon would make it, and named whole."""
     loop = tmp_path / "loop"
     loop.symlink_to(loop)
@@ -264,6 +265,9 @@ def test_a_way_that_cannot_be_followed_is_refused_naming_the_setting(
             judge(_settings(dump_dir=dangling))
         assert str(refused.value) == (f"daemon.dump_dir: {dangling}: {dangling} is a symbolic "
                                       f"link to {tmp_path / 'gone'}, which does not exist")
+    assert check_places(_settings(trace=dangling, keep=0, dump_dir=tmp_path)) == [
+        f"dumps to {tmp_path}", f"bus trace {dangling}, the last 0 runs' kept"]  # a file:
+    # opened, the link makes its target
     (tmp_path / "a-file").write_text("")
     monkeypatch.chdir(tmp_path)
     with pytest.raises(ConfigError) as relative:
