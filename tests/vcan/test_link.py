@@ -68,11 +68,11 @@ def test_a_link_at_another_bit_rate_or_none_is_refused_naming_it(slcan: str,
         check_link_bitrate(_socketcan(link))
     assert str(unset.value) == (f"bus.channel: {link} is a CAN controller whose bit rate is "
                                 f"not set, and it cannot come up so ({set_it})")
-    subprocess.run(["ip", "link", "set", link, "type", "can", "bitrate", "500000"],
+    subprocess.run(["ip", "link", "set", link, "type", "can", "bitrate", "800000"],
                    check=True, capture_output=True)
-    assert check_link_bitrate(_socketcan(link, 500_000)) == (
-        500_000, f"{link} runs at 500000 bit/s, as bus.bitrate says")
-    expected = (f"bus.bitrate: 1000000 bit/s, but {link} runs at 500000 bit/s; the link, "
+    assert check_link_bitrate(_socketcan(link, 800_000)) == (
+        800_000, f"{link} runs at 800000 bit/s, as bus.bitrate says")
+    expected = (f"bus.bitrate: 1000000 bit/s, but {link} runs at 800000 bit/s; the link, "
                 f"the drives and bus.bitrate must agree ({set_it})")
     with pytest.raises(ConfigError) as refused:
         check_link_bitrate(_socketcan(link))
@@ -87,9 +87,9 @@ def test_a_link_at_another_bit_rate_or_none_is_refused_naming_it(slcan: str,
     assert daemon.returncode == 2, daemon.stderr
     assert daemon.stderr.strip().splitlines()[-1] == f"rakectl: error: {expected}"
     assert not Path(f"{sock}.lock").exists()  # refused before it claims the socket
-    agreed = _rakectl("run", "--check", *bus, "--set", "bus.bitrate=500000")
+    agreed = _rakectl("run", "--check", *bus, "--set", "bus.bitrate=800000")
     assert agreed.returncode == 0, agreed.stderr
-    assert f"  link: {link} runs at 500000 bit/s, as bus.bitrate says" in agreed.stdout
+    assert f"  link: {link} runs at 800000 bit/s, as bus.bitrate says" in agreed.stdout
 
 
 def test_vcan_has_no_bit_rate_to_check() -> None:
