@@ -35,9 +35,8 @@ def dump_dir_of(settings: Settings) -> Path:
 
 
 def _nearest_existing(path: Path, setting: str) -> Path:
-    """``path`` or its nearest ancestor that exists (a relative path's, from the working
-    directory); ConfigError naming ``setting`` where the way there cannot be followed."""
-    path = Path(os.path.abspath(path))
+    """``path`` (absolute) or its nearest ancestor that exists; ConfigError naming
+    ``setting`` where the way there cannot be followed."""
     blocked = False  # a directory on the way is not searchable: named once it is found
     for place in (path, *path.parents):
         try:
@@ -88,8 +87,8 @@ def check_file(path: Path, setting: str) -> None:
 
 def check_readable(path: Path, what: str) -> None:
     """ConfigError naming ``what`` unless this process may read the file ``path``."""
-    _nearest_existing(path, what)
-    if not os.access(os.path.abspath(path), os.R_OK):
+    _nearest_existing(Path(os.path.abspath(path)), what)
+    if not os.access(path, os.R_OK):
         raise ConfigError(f"{what}: cannot read {path} (not readable by {_me()})")
 
 
@@ -179,23 +178,20 @@ def places_of(settings: Settings) -> list[tuple[str, Path]]:
 
 
 def check_places(settings: Settings) -> list[str]:
-    """What the daemon would refuse of where it writes, judged without touching anything
-    as this process (the unit's sandbox is judged apart: :mod:`rakectl.daemon.sandbox`);
-    what was judged, as lines for a person. An empty
+    """What the daemon would refuse of where it writes (:func:`places_of`), judged without
+    touching anything as this process (the unit's sandbox is judged apart:
+    :mod:`rakectl.daemon.sandbox`); what was judged, as lines for a person. An empty
     ``daemon.dump_dir`` outside systemd is not judged: the service writes to its
     StateDirectory, not to the working directory of the one asking."""
-    if settings.daemon.dump_dir or os.environ.get("STATE_DIRECTORY"):
-        dump_dir = dump_dir_of(settings)
-        check_directory(dump_dir, "daemon.dump_dir")
-        lines = [f"dumps to {dump_dir}"]
-    else:
-        lines = ["dumps to the service's StateDirectory (not checked here: daemon.dump_dir "
-                 "is empty)"]
-    trace = settings.bus.trace_path
-    if trace:
-        for path in (Path(trace), sidecar_path(trace), *_earlier(trace, settings)):
-            check_file(path, "bus.trace_path")
-        lines.append(f"bus trace {trace}, the last {settings.bus.trace_keep} runs' kept")
+    places = places_of(settings)
+    for setting, path in places:
+        (check_directory if setting == "daemon.dump_dir" else check_file)(path, setting)
+    dump_dirs = [path for setting, path in places if setting == "daemon.dump_dir"]
+    lines = [f"dumps to {dump_dirs[0]}" if dump_dirs else "dumps to the service's "
+             "StateDirectory (not checked here: daemon.dump_dir is empty)"]
+    if settings.bus.trace_path:
+        lines.append(f"bus trace {settings.bus.trace_path}, the last "
+                     f"{settings.bus.trace_keep} runs' kept")
     return lines
 
 

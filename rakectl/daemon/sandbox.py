@@ -27,6 +27,8 @@ PROPERTIES = ("LoadState", "ProtectSystem", "ProtectHome", "PrivateTmp", "ReadWr
 SYSTEMCTL_TIMEOUT_S = 10.0
 HOMES = ("/home", "/root", "/run/user")
 TMPS = ("/tmp", "/var/tmp")
+READ_ONLY = {"yes": ("/usr", "/boot", "/efi"),  # by ProtectSystem=, below "strict"
+             "full": ("/usr", "/boot", "/efi", "/etc")}
 UNIT_DIRECTORIES = {"StateDirectory": "/var/lib", "RuntimeDirectory": "/run",
                     "LogsDirectory": "/var/log", "CacheDirectory": "/var/cache"}
 
@@ -76,8 +78,7 @@ def sandbox_verdict(setting: str, path: Path, properties: dict[str, str]) -> str
         raise ConfigError(f"{setting}: {path} is hidden from the service ({UNIT}: "
                           f"ProtectHome={home}): a place outside /home, /root and /run/user")
     protect = properties.get("ProtectSystem", "no")
-    read_only = {"yes": ("/usr", "/boot", "/efi"), "full": ("/usr", "/boot", "/efi", "/etc")}
-    if _under(path, read_only.get(protect, ())):
+    if _under(path, READ_ONLY.get(protect, ())):
         raise ConfigError(f"{setting}: {path} is read-only to the service ({UNIT}: "
                           f"ProtectSystem={protect})")
     if protect == "strict":

@@ -13,7 +13,6 @@ import fcntl
 import os
 import struct
 import subprocess
-import sys
 import termios
 from collections.abc import Iterator
 from pathlib import Path
@@ -23,11 +22,12 @@ import pytest
 from rakectl.config.service import BusInterface, BusSettings
 from rakectl.drive.link import check_link_bitrate
 from rakectl.errors import ConfigError
+from tests.cli_run import run_rakectl
 from tests.vcan.vcan_bench import CHANNEL, vcan_unavailable
 
+CLI_TIMEOUT_S = 300.0  # Python under the VM's software emulation
 N_SLCAN = 17  # the serial-line CAN line discipline (include/uapi/linux/tty.h)
 SIOCGIFNAME = 0x8910  # the tty's network interface's name, as slcan answers it
-ROOT = Path(__file__).resolve().parents[2]
 
 _reason = vcan_unavailable()
 pytestmark = [pytest.mark.vcan,
@@ -48,11 +48,6 @@ def slcan() -> Iterator[str]:
     finally:
         os.close(slave)
         os.close(master)
-
-
-def _rakectl(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "rakectl", *args], capture_output=True,
-                          text=True, timeout=300, cwd=ROOT)
 
 
 def _socketcan(channel: str, bitrate: int = 1_000_000) -> BusSettings:
@@ -78,16 +73,17 @@ def test_a_link_at_another_bit_rate_or_none_is_refused_naming_it(slcan: str,
         check_link_bitrate(_socketcan(link))
     assert str(refused.value) == expected
     bus = ["--set", "bus.interface=socketcan", "--set", f"bus.channel={link}"]
-    check = _rakectl("run", "--check", *bus)
+    check = run_rakectl("run", "--check", *bus, timeout_s=CLI_TIMEOUT_S)
     assert (check.returncode, check.stderr.strip()) == (2, f"rakectl: error: {expected}")
     sock = tmp_path / "r.sock"
-    daemon = _rakectl("run", *bus, "--set", f"daemon.socket_path={sock}",
-                      "--set", f"daemon.dump_dir={tmp_path}",
-                      "--set", "daemon.startup_cyclictest_s=0")
+    daemon = run_rakectl("run", *bus, "--set", f"daemon.socket_path={sock}",
+                         "--set", f"daemon.dump_dir={tmp_path}",
+                         "--set", "daemon.startup_cyclictest_s=0", timeout_s=CLI_TIMEOUT_S)
     assert daemon.returncode == 2, daemon.stderr
     assert daemon.stderr.strip().splitlines()[-1] == f"rakectl: error: {expected}"
     assert not Path(f"{sock}.lock").exists()  # refused before it claims the socket
-    agreed = _rakectl("run", "--check", *bus, "--set", "bus.bitrate=800000")
+    agreed = run_rakectl("run", "--check", *bus, "--set", "bus.bitrate=800000",
+                         timeout_s=CLI_TIMEOUT_S)
     assert agreed.returncode == 0, agreed.stderr
     assert f"  link: {link} runs at 800000 bit/s, as bus.bitrate says" in agreed.stdout
 
