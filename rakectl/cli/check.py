@@ -26,9 +26,10 @@ def check_config(config: Path | None, overrides: list[str], user_name: str | Non
         check_readable,
         judged_as,
         places_of,
+        relative_places,
         service_user,
     )
-    from rakectl.daemon.sandbox import sandbox_verdict, unit_sandbox
+    from rakectl.daemon.sandbox import sandbox_verdict, unit_sandbox, working_directory
     from rakectl.drive.link import check_link_bitrate
     from rakectl.drive.profiles import check_parameter_ranges
 
@@ -37,13 +38,17 @@ def check_config(config: Path | None, overrides: list[str], user_name: str | Non
     check_endpoint(socket_path(s.daemon.socket_path or None), s.daemon.socket_group or None)
     _, link = check_link_bitrate(s.bus)
     user = service_user(user_name)
+    sandbox: dict[str, str] | None = None  # the unit's, judged for its user
+    base: Path | None = None  # the service's working directory, where the unit gives it
+    if user is not None:
+        sandbox, in_sandbox = unit_sandbox()
+        base = None if sandbox is None else working_directory(sandbox, user.pw_dir)
 
     def judge() -> list[str]:
         if config is not None:
             check_readable(config, "--config")
-        return check_places(s)
+        return check_places(s, base)
 
-    sandbox: dict[str, str] | None = None  # the unit's, judged for its user
     if user is None:
         places, judged = judge(), f"as this process (uid {os.geteuid()})"
         if os.geteuid() == 0:  # no service user here (a bench, a test machine)
@@ -53,11 +58,16 @@ def check_config(config: Path | None, overrides: list[str], user_name: str | Non
             judged += f", not the service's user: judging as {SERVICE_USER} takes root"
     else:  # then the unit's sandbox, where systemd has it
         places = judged_as(user, judge)
-        sandbox, in_sandbox = unit_sandbox()
         judged = f"as user {user.pw_name} (uid {user.pw_uid}), {in_sandbox}"
     warnings = [] if sandbox is None else [
-        warning for setting, path in places_of(s)
+        warning for setting, path in places_of(s, base)
         if (warning := sandbox_verdict(setting, path, sandbox)) is not None]
+    for setting, value in relative_places(s):
+        warnings.append(
+            f"warning: {setting}: {value} is relative: the daemon takes it from its working "
+            + (f"directory, {base} in the unit" if base is not None else
+               f"directory (judged from this one, {Path.cwd()}; the service's is / unless "
+               "its unit sets WorkingDirectory=)"))
     d = s.drives
     print(f"{config or '<defaults>'}: the configuration loads")
     print(f"  bus {s.bus.interface.value}:{s.bus.channel} at {s.bus.bitrate} bit/s; drives "

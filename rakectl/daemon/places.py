@@ -163,10 +163,11 @@ def judged_as(user: pwd.struct_passwd, judge: Callable[[], list[str]]) -> list[s
     return [str(line) for line in reply["lines"]]
 
 
-def places_of(settings: Settings) -> list[tuple[str, Path]]:
+def places_of(settings: Settings, base: Path | None = None) -> list[tuple[str, Path]]:
     """Where the daemon writes, each with its setting: the dump directory where one is
     given (else the service's StateDirectory), the bus trace, its inputs and the earlier
-    runs' kept."""
+    runs' kept. A relative one is taken from ``base``, the daemon's working directory
+    (by default this process's: the service's is its unit's, :mod:`rakectl.daemon.sandbox`)."""
     places = []
     if settings.daemon.dump_dir or os.environ.get("STATE_DIRECTORY"):
         places.append(("daemon.dump_dir", dump_dir_of(settings)))
@@ -174,24 +175,34 @@ def places_of(settings: Settings) -> list[tuple[str, Path]]:
     if trace:
         places += [("bus.trace_path", path) for path in
                    (Path(trace), sidecar_path(trace), *_earlier(trace, settings))]
-    return places
+    start = base or Path.cwd()
+    return [(setting, Path(os.path.normpath(start / path))) for setting, path in places]
 
 
-def check_places(settings: Settings) -> list[str]:
-    """What the daemon would refuse of where it writes (:func:`places_of`), judged without
-    touching anything as this process (the unit's sandbox is judged apart:
-    :mod:`rakectl.daemon.sandbox`); what was judged, as lines for a person. An empty
-    ``daemon.dump_dir`` outside systemd is not judged: the service writes to its
-    StateDirectory, not to the working directory of the one asking."""
-    places = places_of(settings)
+def relative_places(settings: Settings) -> list[tuple[str, str]]:
+    """The configured places given relative, each with its setting: the daemon takes them
+    from its working directory, which for the service is not the one a person asks from."""
+    given = (("daemon.dump_dir", settings.daemon.dump_dir), ("bus.trace_path",
+                                                             settings.bus.trace_path))
+    return [(setting, value) for setting, value in given
+            if value and not os.path.isabs(value)]
+
+
+def check_places(settings: Settings, base: Path | None = None) -> list[str]:
+    """What the daemon would refuse of where it writes (:func:`places_of`, a relative place
+    taken from ``base``), judged without touching anything as this process (the unit's
+    sandbox is judged apart: :mod:`rakectl.daemon.sandbox`); what was judged, as lines for
+    a person. An empty ``daemon.dump_dir`` outside systemd is not judged: the service
+    writes to its StateDirectory, not to the working directory of the one asking."""
+    places = places_of(settings, base)
     for setting, path in places:
         (check_directory if setting == "daemon.dump_dir" else check_file)(path, setting)
     dump_dirs = [path for setting, path in places if setting == "daemon.dump_dir"]
     lines = [f"dumps to {dump_dirs[0]}" if dump_dirs else "dumps to the service's "
              "StateDirectory (not checked here: daemon.dump_dir is empty)"]
-    if settings.bus.trace_path:
-        lines.append(f"bus trace {settings.bus.trace_path}, the last "
-                     f"{settings.bus.trace_keep} runs' kept")
+    traces = [path for setting, path in places if setting == "bus.trace_path"]
+    if traces:
+        lines.append(f"bus trace {traces[0]}, the last {settings.bus.trace_keep} runs' kept")
     return lines
 
 

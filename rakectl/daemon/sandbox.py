@@ -8,7 +8,9 @@ also judges each place against its sandbox: ``ProtectSystem=strict`` leaves writ
 the unit's state, runtime, logs and cache directories and its ``ReadWritePaths=``;
 ``ProtectHome=`` hides /home, /root and /run/user; ``PrivateTmp=`` gives the service a
 /tmp and /var/tmp of its own, emptied when it stops (a warning: a trace there is lost).
-Without systemd, or without the unit, the sandbox is said to be not judged.
+A place configured relative is taken from the unit's ``WorkingDirectory=`` (/ unless it
+sets one), where the service resolves it, not from where the check is run. Without
+systemd, or without the unit, the sandbox is said to be not judged.
 """
 
 from __future__ import annotations
@@ -23,7 +25,8 @@ from rakectl.errors import ConfigError
 
 UNIT = "rakectl.service"
 PROPERTIES = ("LoadState", "ProtectSystem", "ProtectHome", "PrivateTmp", "ReadWritePaths",
-              "StateDirectory", "RuntimeDirectory", "LogsDirectory", "CacheDirectory")
+              "StateDirectory", "RuntimeDirectory", "LogsDirectory", "CacheDirectory",
+              "WorkingDirectory")
 SYSTEMCTL_TIMEOUT_S = 10.0
 HOMES = ("/home", "/root", "/run/user")
 TMPS = ("/tmp", "/var/tmp")
@@ -51,6 +54,14 @@ def unit_sandbox(unit: str = UNIT) -> tuple[dict[str, str] | None, str]:
         why = said[0] if said else f"LoadState={properties.get('LoadState', '?')}"
         return None, f"{unit}'s sandbox not judged ({why})"
     return properties, f"in {unit}'s sandbox"
+
+
+def working_directory(properties: dict[str, str], home: str) -> Path:
+    """Where the service takes a relative path from: its ``WorkingDirectory=`` ("~" its
+    user's home; the "!" systemd shows for "-", a directory that may be missing, dropped),
+    else / (a system service's default)."""
+    value = properties.get("WorkingDirectory", "").lstrip("!-")
+    return Path(home if value == "~" else value or "/")
 
 
 def writable_roots(properties: dict[str, str]) -> list[Path]:

@@ -274,3 +274,26 @@ def test_a_way_that_cannot_be_followed_is_refused_naming_the_setting(
         check_places(_settings(trace="a-file/bus.log", dump_dir=tmp_path))
     assert str(relative.value) == (f"bus.trace_path: {tmp_path / 'a-file'}: "
                                    f"{tmp_path / 'a-file'} is not a directory")
+
+
+def test_a_relative_place_is_judged_where_the_daemon_would_resolve_it(tmp_path: Path) -> None:
+    """The service resolves a relative place from its unit's working directory (/ unless
+    the unit sets one), not from where `run --check` is asked: the check took it from its
+    own working directory and passed places the service could not write. The places are
+    judged from the directory given, and `run --check` names each relative one."""
+    service = tmp_path / "service"
+    service.mkdir()
+    assert check_places(_settings(trace="traces/bus.log", dump_dir="dumps"), base=service) == [
+        f"dumps to {service / 'dumps'}",
+        f"bus trace {service / 'traces' / 'bus.log'}, the last 3 runs' kept"]
+    (service / "dumps").write_text("")  # then one of them is taken: refused where it is
+    with pytest.raises(ConfigError) as refused:
+        check_places(_settings(dump_dir="dumps"), base=service)
+    assert str(refused.value) == (f"daemon.dump_dir: {service / 'dumps'}: "
+                                  f"{service / 'dumps'} is not a directory")
+    asked = run_rakectl("run", "--check", "--set", "daemon.dump_dir=build/dumps-relative")
+    assert asked.returncode == 0, asked.stderr
+    assert f"dumps to {ROOT / 'build' / 'dumps-relative'};" in asked.stdout, asked.stdout
+    assert ("  warning: daemon.dump_dir: build/dumps-relative is relative: the daemon takes "
+            f"it from its working directory (judged from this one, {ROOT}; the service's is "
+            "/ unless its unit sets WorkingDirectory=)\n") in asked.stdout, asked.stdout

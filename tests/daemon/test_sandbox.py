@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from rakectl.daemon.sandbox import sandbox_verdict, writable_roots
+from rakectl.daemon.sandbox import sandbox_verdict, working_directory, writable_roots
 from rakectl.errors import ConfigError
 
 SHIPPED = {"LoadState": "loaded", "ProtectSystem": "strict", "ProtectHome": "yes",
@@ -60,3 +60,15 @@ def test_a_drop_in_or_a_looser_unit_lets_it_write_there() -> None:
                                           r"read-only to the service \(rakectl\.service: "
                                           r"ProtectSystem=full\)$"):
         sandbox_verdict("bus.trace_path", Path("/etc/rakectl/bus.log"), full)
+
+
+@pytest.mark.parametrize(("shown", "expected"), [
+    ("", "/"), ("/srv/rakectl", "/srv/rakectl"), ("!/srv/rakectl", "/srv/rakectl"),
+    ("~", "/var/lib/rakectl-home"), ("!~", "/var/lib/rakectl-home")])
+def test_a_relative_place_is_taken_from_the_units_working_directory(shown: str,
+                                                                    expected: str) -> None:
+    """As `systemctl show` reports WorkingDirectory=: empty where the unit sets none (a
+    system service runs in /), "~" for its user's home, "!" before a directory that may
+    be missing (the unit's "-")."""
+    unit = {**SHIPPED, "WorkingDirectory": shown}
+    assert working_directory(unit, "/var/lib/rakectl-home") == Path(expected)

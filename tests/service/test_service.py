@@ -211,6 +211,16 @@ def test_run_check_as_root_judges_as_the_services_user(installed: None) -> None:
         "(rakectl.service: ProtectSystem=strict; it may write under /var/lib/rakectl, "
         "/run/rakectl, /tmp, /var/tmp): a place there, or ReadWritePaths= for it in a "
         "drop-in (systemctl edit rakectl)")), sandboxed
+    # a relative place is the service's working directory's (/, the unit sets none), not
+    # the asker's: from /var/lib/rakectl, "dumps" would be rakectl's own directory
+    relative = sh(f"cd /var/lib/rakectl && {check} --set daemon.dump_dir=dumps", check=False)
+    assert (relative.returncode, relative.stderr.strip()) == (2, (
+        f"rakectl: error: daemon.dump_dir: cannot make /dumps in / (not writable by rakectl "
+        f"(uid {uid}))")), relative
+    rooted = sh(f"cd /tmp && {check} --set daemon.dump_dir=var/lib/rakectl/dumps")
+    assert ("  warning: daemon.dump_dir: var/lib/rakectl/dumps is relative: the daemon takes "
+            "it from its working directory, / in the unit\n") in rooted.stdout, rooted.stdout
+    assert "dumps to /var/lib/rakectl/dumps;" in rooted.stdout, rooted.stdout
 
 
 def test_stalled_loop_is_restarted_by_the_watchdog(installed: None) -> None:
