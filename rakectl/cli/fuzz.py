@@ -78,7 +78,8 @@ def _parser() -> argparse.ArgumentParser:
                    "and show, substep by substep, where an object pushed the tines hardest "
                    "along the reach: the object's force, the soil's and the mount's, what "
                    "the massless tines' balance leaves over, and the soil's cutting "
-                   "resistance at their cut (rakectl.sim.trace)")
+                   "resistance at their cut; then the largest vertical reading against what "
+                   "the mount carried into the ground (rakectl.sim.trace)")
     p.add_argument("--compare", type=Path, default=None, metavar="DIR",
                    help="after the campaign, compare its results case by case with the same "
                    "cases in an earlier run's --out DIR (another chain's): how many differ, "

@@ -15,6 +15,7 @@ from rakectl.sim.cases import Family
 from tests.cli_run import run_rakectl
 
 RIM = Path(__file__).resolve().parents[1] / "data" / "fuzz" / "open-mine-rim-9937.json"
+OVER_READ = RIM.parent / "20261202-5801.json"
 
 
 def test_a_traced_case_runs_as_the_campaign_runs_it() -> None:
@@ -64,14 +65,44 @@ def test_a_case_without_a_push_along_the_reach_has_no_peak() -> None:
     objects' tops only (rows, all up)."""
     untouched = trace.trace_case(campaign.generated_case(20261127, 2, Family.RANDOM, False))
     assert untouched.rows == () and untouched.peak == -1
-    assert trace.describe(untouched)[-1] == "no object pushed the tines along the reach"
-    assert trace.summary(untouched) == {"index": 2, "seed": 20261127, "family": "random",
-                                        "traced_calls": 0}
+    assert "no object pushed the tines along the reach" in trace.describe(untouched)
+    figures = trace.summary(untouched)
+    assert {key: figures[key] for key in ("index", "seed", "family", "traced_calls")} == {
+        "index": 2, "seed": 20261127, "family": "random", "traced_calls": 0}
+    assert "body" not in figures and figures["ground_soil_pressed_by"] == "tines"
     tops = trace.trace_case(campaign.generated_case(20261127, 0, Family.RANDOM, False))
     assert tops.rows and tops.peak == -1
     assert all(row.body_reach_n == 0.0 < row.body_up_n for row in tops.rows)
-    assert trace.describe(tops)[-1].startswith(
-        "no object pushed the tines along the reach (tops only: ")
+    assert any(line.startswith("no object pushed the tines along the reach (tops only: ")
+               for line in trace.describe(tops))
+
+
+def test_the_largest_vertical_reading_is_the_results_against_what_the_mount_carried() -> None:
+    """The largest vertical reading is the result's, to the bit, with the calls around it.
+    Where the soil alone is pressed by the tines (case 2 of 20261127), the reading is what
+    the mount carried into the ground. 20261202/5801 read 65.6 N while the mount carried
+    14.2 N: the tines rest in a root's rounded side, the soil the root hides from them is
+    pressed by its surface and counted on them (docs/safety-log.md, 2026-12-01)."""
+    plain = trace.trace_case(campaign.generated_case(20261127, 2, Family.RANDOM, False))
+    peak = plain.ground_peak
+    assert peak is not None and peak.reading_n == plain.result.f_true_z_max_n > 0.0
+    assert peak.hidden_by == -1 and peak.mount_n == pytest.approx(peak.reading_n, abs=1e-9)
+    assert plain.excess is not None and abs(plain.excess.excess_n) < 1e-6
+    assert peak in plain.ground and len(plain.ground) == 2 * trace.WINDOW + 1
+    assert [row.time_s for row in plain.ground] == sorted(row.time_s for row in plain.ground)
+    case, recorded = read_case_file(OVER_READ)
+    over = trace.trace_case(case)
+    assert over.result == recorded
+    peak = over.ground_peak
+    assert peak is not None and peak.reading_n == over.result.f_true_z_max_n
+    assert over.body_kinds[peak.hidden_by] == "root"
+    assert 14.0 < peak.mount_n < 15.5 and peak.reading_n - peak.mount_n > 45.0
+    assert peak.reading_n == pytest.approx(peak.soil_up_n + peak.bodies_up_n, abs=1e-9)
+    assert over.excess is not None and over.excess.excess_n >= peak.excess_n
+    lines = trace.describe(over)
+    assert any(line.startswith("largest vertical reading: 65.6 N at t = 1.312 s") and
+               "the mount carried 14.2 N into the ground" in line and
+               "pressed by the root's surface (body 0)" in line for line in lines), lines
 
 
 def test_the_cli_traces_a_case_file_and_a_campaign_case() -> None:
@@ -79,7 +110,10 @@ def test_the_cli_traces_a_case_file_and_a_campaign_case() -> None:
     assert out.returncode == 1, out.stderr  # the case is over the limit: as --replay says
     figures = json.loads(out.stdout.splitlines()[-1])
     assert figures["body"] == "mine" and abs(figures["body_reach_n"]) > 90.0
+    assert figures["ground_n"] == pytest.approx(31.6, abs=0.05)
+    assert figures["ground_soil_pressed_by"] == "mine"
     assert "largest push along the reach: the mine" in out.stdout
+    assert "largest vertical reading: 31.6 N" in out.stdout
     out = run_rakectl("fuzz", "--trace", "0", "--seed", "20261128", "--family", "edge",
                       "--json")
     assert out.returncode in (0, 1), out.stderr
