@@ -16,6 +16,7 @@ systemd, or without the unit, the sandbox is said to be not judged.
 from __future__ import annotations
 
 import os
+import pwd
 import shutil
 import subprocess
 from collections.abc import Iterable
@@ -26,7 +27,7 @@ from rakectl.errors import ConfigError
 UNIT = "rakectl.service"
 PROPERTIES = ("LoadState", "ProtectSystem", "ProtectHome", "PrivateTmp", "ReadWritePaths",
               "StateDirectory", "RuntimeDirectory", "LogsDirectory", "CacheDirectory",
-              "WorkingDirectory")
+              "WorkingDirectory", "User")
 SYSTEMCTL_TIMEOUT_S = 10.0
 HOMES = ("/home", "/root", "/run/user")
 TMPS = ("/tmp", "/var/tmp")
@@ -57,11 +58,16 @@ def unit_sandbox(unit: str = UNIT) -> tuple[dict[str, str] | None, str]:
 
 
 def working_directory(properties: dict[str, str], home: str) -> Path:
-    """Where the service takes a relative path from: its ``WorkingDirectory=`` ("~" its
-    user's home; the "!" systemd shows for "-", a directory that may be missing, dropped),
-    else / (a system service's default)."""
+    """Where the service takes a relative path from: its ``WorkingDirectory=`` ("~" the
+    home of its ``User=``, else ``home``; the "!" systemd shows for "-", a directory that
+    may be missing, dropped), else / (a system service's default)."""
     value = properties.get("WorkingDirectory", "").lstrip("!-")
-    return Path(home if value == "~" else value or "/")
+    if value != "~":
+        return Path(value or "/")
+    try:
+        return Path(pwd.getpwnam(properties["User"]).pw_dir)
+    except KeyError:  # no User= (root's service), or one not on this machine
+        return Path(home)
 
 
 def writable_roots(properties: dict[str, str]) -> list[Path]:

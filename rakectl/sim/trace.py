@@ -84,7 +84,8 @@ class GroundReading:
     soil_up_n: float
     bodies_up_n: float  # the objects' tops and edges pushing the tines up
     hidden_by: int  # the object whose surface pressed the soil in the tines' place (-1: none)
-    mount_n: float  # what the mount carried into the ground (NaN: none said, rigid tines)
+    mount_n: float  # what the mount carried into the ground (NaN: none said: rigid
+    # tines, or tines an object's bottom holds)
 
     @property
     def excess_n(self) -> float:
@@ -288,7 +289,8 @@ def _along_the_reach(trace: Trace) -> list[str]:
 
 
 def _mount(row: GroundReading) -> str:
-    return "not said (rigid tines)" if math.isnan(row.mount_n) else f"{row.mount_n:.1f} N"
+    return ("not said (rigid tines, or tines held at an object's bottom)"
+            if math.isnan(row.mount_n) else f"{row.mount_n:.1f} N")
 
 
 def _pressed(trace: Trace, row: GroundReading) -> str:

@@ -4,6 +4,7 @@ judged from the unit systemd has loaded: tests/service/test_service.py, in the V
 
 from __future__ import annotations
 
+import pwd
 from pathlib import Path
 
 import pytest
@@ -72,3 +73,10 @@ def test_a_relative_place_is_taken_from_the_units_working_directory(shown: str,
     be missing (the unit's "-")."""
     unit = {**SHIPPED, "WorkingDirectory": shown}
     assert working_directory(unit, "/var/lib/rakectl-home") == Path(expected)
+
+
+def test_the_units_home_is_its_users_not_the_one_judged_as() -> None:
+    """WorkingDirectory=~ is the home of the unit's User=, whoever `--user` judges as."""
+    unit = {**SHIPPED, "WorkingDirectory": "~", "User": "nobody"}
+    assert working_directory(unit, "/root") == Path(pwd.getpwnam("nobody").pw_dir)
+    assert working_directory({**unit, "User": "no-such-user-here"}, "/root") == Path("/root")
