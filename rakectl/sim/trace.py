@@ -110,8 +110,8 @@ class TracingRecorder(PeakRecorder):
     call in which an object pushes the tines, and the ground's vertical readings around
     the largest and where one most exceeds what the mount carried (see the module)."""
 
-    __slots__ = ("_arm", "_c_h", "_call", "_collecting", "_k_h", "_open", "_peak_n",
-                 "_recent", "_start_s", "_tick_s", "excess", "peak_window", "rows")
+    __slots__ = ("_arm", "_c_h", "_call", "_collecting", "_k_h", "_open", "_open_mount_n",
+                 "_peak_n", "_recent", "_start_s", "_tick_s", "excess", "peak_window", "rows")
 
     def __init__(self, ground: Ground, arm: ArmPlant, k_h: float, c_h: float) -> None:
         super().__init__(ground)
@@ -119,7 +119,8 @@ class TracingRecorder(PeakRecorder):
         self._tick_s, self._call = -1.0, 0
         self._start_s = arm.time_s  # the case starts here, after the loop's settling
         self.rows: list[SubstepForces] = []
-        self._open: list[float] | None = None  # this call's reading, until the next call
+        self._open: GroundReading | None = None  # this call's, read in full at the next
+        self._open_mount_n = math.nan  # what the mount carried in this call
         self._recent: deque[GroundReading] = deque(maxlen=WINDOW + 1)
         self._collecting = 0  # readings still to keep after the largest
         self._peak_n = -math.inf
@@ -128,17 +129,15 @@ class TracingRecorder(PeakRecorder):
 
     def transmitted(self, force_down_n: float) -> None:
         super().transmitted(force_down_n)
-        if self._open is not None:
-            self._open[-1] = force_down_n
+        self._open_mount_n = force_down_n
 
     def close(self) -> None:
         """Keep the last call's reading (its transmitted force comes after it)."""
         if self._open is None:
             return
-        t_s, part, height_m, vel, soil_n, bodies_n, hidden, mount_n = self._open
+        row = dataclasses.replace(self._open, reading_n=self.truth.force_down_n,
+                                  mount_n=self._open_mount_n)
         self._open = None
-        row = GroundReading(t_s, int(part), height_m, vel, self.truth.force_down_n, soil_n,
-                            bodies_n, int(hidden), mount_n)
         self._recent.append(row)
         if row.reading_n > self._peak_n:
             self._peak_n, self.peak_window, self._collecting = (row.reading_n,
@@ -158,10 +157,11 @@ class TracingRecorder(PeakRecorder):
             self._tick_s, self._call = arm.time_s, 0
         self._call += 1
         bodies = self.ground.bodies
-        self._open = [self._tick_s - self._start_s, self._call, height_m, height_vel_m_per_s,
-                      self.ground.soil.force_up_n,
-                      sum(b.force_up_n for b in bodies if b.force_up_n > 0.0),
-                      hidden_by(self.ground, reach_m, height_m), math.nan]
+        self._open = GroundReading(
+            self._tick_s - self._start_s, self._call, height_m, height_vel_m_per_s, math.nan,
+            self.ground.soil.force_up_n, sum(b.force_up_n for b in bodies if b.force_up_n > 0.0),
+            hidden_by(self.ground, reach_m, height_m), math.nan)
+        self._open_mount_n = math.nan
         pushed = [(i, body) for i, body in enumerate(bodies)
                   if body.force_reach_n != 0.0 or body.force_up_n != 0.0]
         if not pushed:
@@ -293,10 +293,15 @@ def _mount(row: GroundReading) -> str:
             if math.isnan(row.mount_n) else f"{row.mount_n:.1f} N")
 
 
+def _presser(trace: Trace, row: GroundReading) -> str:
+    """What pressed the soil: "tines", or the kind of the object hiding it."""
+    return "tines" if row.hidden_by < 0 else trace.body_kinds[row.hidden_by]
+
+
 def _pressed(trace: Trace, row: GroundReading) -> str:
     if row.hidden_by < 0:
         return "by the tines"
-    return (f"by the {trace.body_kinds[row.hidden_by]}'s surface (body {row.hidden_by}), "
+    return (f"by the {_presser(trace, row)}'s surface (body {row.hidden_by}), "
             "which hides it from the tines")
 
 
@@ -316,7 +321,7 @@ def _vertical(trace: Trace) -> list[str]:
     lines.append("     t s call  height mm  v_up mm/s  reading N  mount N  soil N  objects N"
                  "  over N  soil pressed by")
     for row in trace.ground:
-        by = "tines" if row.hidden_by < 0 else f"{trace.body_kinds[row.hidden_by]} {row.hidden_by}"
+        by = _presser(trace, row) + ("" if row.hidden_by < 0 else f" {row.hidden_by}")
         lines.append(f"{row.time_s:8.3f} {row.part:4d} {row.tine_height_m * 1e3:10.2f} "
                      f"{row.tine_height_vel_m_per_s * 1e3:10.1f} {row.reading_n:10.1f} "
                      f"{row.mount_n:8.1f} {row.soil_up_n:7.1f} {row.bodies_up_n:10.1f} "
@@ -334,8 +339,7 @@ def summary(trace: Trace) -> dict[str, float | int | str]:
     if g is not None:
         out.update({"ground_n": g.reading_n, "ground_time_s": g.time_s,
                     "ground_soil_up_n": g.soil_up_n, "ground_bodies_up_n": g.bodies_up_n,
-                    "ground_soil_pressed_by": "tines" if g.hidden_by < 0 else
-                    trace.body_kinds[g.hidden_by]})
+                    "ground_soil_pressed_by": _presser(trace, g)})
         if not math.isnan(g.mount_n):
             out["ground_mount_n"] = g.mount_n
     if trace.excess is not None:
