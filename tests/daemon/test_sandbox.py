@@ -80,3 +80,49 @@ def test_the_units_home_is_its_users_not_the_one_judged_as() -> None:
     unit = {**SHIPPED, "WorkingDirectory": "~", "User": "nobody"}
     assert working_directory(unit, "/root") == Path(pwd.getpwnam("nobody").pw_dir)
     assert working_directory({**unit, "User": "no-such-user-here"}, "/root") == Path("/root")
+
+
+@pytest.mark.parametrize(("unit", "place", "expected"), [
+    ({"ReadOnlyPaths": "/var/lib/rakectl/dumps"}, "/var/lib/rakectl/dumps/a",
+     "daemon.dump_dir: /var/lib/rakectl/dumps/a is read-only to the service "
+     "(rakectl.service: ReadOnlyPaths=/var/lib/rakectl/dumps)"),
+    ({"ReadOnlyPaths": "-/var/lib/rakectl", "ReadWritePaths": "/var/lib/rakectl"},
+     "/var/lib/rakectl/dumps", "daemon.dump_dir: /var/lib/rakectl/dumps is read-only to "
+     "the service (rakectl.service: ReadOnlyPaths=/var/lib/rakectl)"),
+    ({"InaccessiblePaths": "/var/lib/rakectl", "ReadWritePaths": "/var/lib/rakectl/dumps"},
+     "/var/lib/rakectl/dumps", "daemon.dump_dir: /var/lib/rakectl/dumps is hidden from the "
+     "service (rakectl.service: InaccessiblePaths=/var/lib/rakectl)"),
+    ({"ProtectHome": "read-only", "ProtectSystem": "full"}, "/root/dumps",
+     "daemon.dump_dir: /root/dumps is read-only to the service (rakectl.service: "
+     "ProtectHome=read-only): a place outside /home, /root and /run/user"),
+])
+def test_read_only_and_inaccessible_paths_keep_a_place_from_the_service(
+        unit: dict[str, str], place: str, expected: str) -> None:
+    """ReadOnlyPaths= and InaccessiblePaths= (a drop-in's) narrow the unit's own
+    directories: a place under one is refused, naming it; a path listed both read-only
+    and writable is read-only, and nothing nested in a hidden path is reachable."""
+    with pytest.raises(ConfigError) as refused:
+        sandbox_verdict("daemon.dump_dir", Path(place), {**SHIPPED, **unit})
+    assert str(refused.value) == expected
+
+
+def test_the_innermost_path_decides() -> None:
+    """As systemd nests its mounts: a writable path inside a read-only one is writable,
+    and a read-only one inside it read-only again, under ProtectSystem=strict and =full."""
+    nested = {**SHIPPED, "ReadOnlyPaths": "/var/lib/rakectl/archive",
+              "ReadWritePaths": "/var/lib/rakectl/archive/incoming"}
+    assert sandbox_verdict("daemon.dump_dir", Path("/var/lib/rakectl/archive/incoming/d"),
+                           nested) is None
+    assert sandbox_verdict("daemon.dump_dir", Path("/var/lib/rakectl/dumps"), nested) is None
+    with pytest.raises(ConfigError, match=r"ReadOnlyPaths=/var/lib/rakectl/archive\)$"):
+        sandbox_verdict("daemon.dump_dir", Path("/var/lib/rakectl/archive/d"), nested)
+    full = {**SHIPPED, "ProtectSystem": "full", "ReadWritePaths": "/etc/rakectl/traces"}
+    assert sandbox_verdict("bus.trace_path", Path("/etc/rakectl/traces/bus.log"),
+                           full) is None
+    with pytest.raises(ConfigError, match=r"ProtectSystem=full\)$"):
+        sandbox_verdict("bus.trace_path", Path("/etc/rakectl/bus.log"), full)
+    private = {**SHIPPED, "ReadOnlyPaths": "/tmp/ro"}
+    with pytest.raises(ConfigError, match=r"ReadOnlyPaths=/tmp/ro\)$"):
+        sandbox_verdict("bus.trace_path", Path("/tmp/ro/bus.log"), private)
+    no_private = {**SHIPPED, "PrivateTmp": "no", "ReadWritePaths": "/tmp"}
+    assert sandbox_verdict("bus.trace_path", Path("/tmp/bus.log"), no_private) is None

@@ -223,6 +223,39 @@ def test_run_check_as_root_judges_as_the_services_user(installed: None) -> None:
     assert "dumps to /var/lib/rakectl/dumps;" in rooted.stdout, rooted.stdout
 
 
+def test_run_check_judges_a_drop_ins_read_only_and_inaccessible_paths(
+        installed: None) -> None:
+    """A drop-in's ReadOnlyPaths= and InaccessiblePaths= inside the unit's own state
+    directory, as systemd reports them: a place under either is refused, naming the
+    setting; a ReadWritePaths= nested in the read-only one is writable again."""
+    check = "/usr/local/bin/rakectl run --config /etc/rakectl/rakectl.yaml --check"
+    drop_in = Path("/run/systemd/system/rakectl.service.d/narrower.conf")
+    drop_in.parent.mkdir(parents=True, exist_ok=True)
+    drop_in.write_text("[Service]\nReadOnlyPaths=/var/lib/rakectl/archive\n"
+                       "ReadWritePaths=/var/lib/rakectl/archive/incoming\n"
+                       "InaccessiblePaths=-/var/lib/rakectl/sealed\n")
+    sh("systemctl daemon-reload")
+    try:
+        # rakectl's own directories: only the drop-in stands in the way
+        sh("install -d -o rakectl -g rakectl /var/lib/rakectl/archive "
+           "/var/lib/rakectl/archive/incoming /var/lib/rakectl/sealed")
+        read_only = sh(f"{check} --set daemon.dump_dir=/var/lib/rakectl/archive/d",
+                       check=False)
+        assert (read_only.returncode, read_only.stderr.strip()) == (2, (
+            "rakectl: error: daemon.dump_dir: /var/lib/rakectl/archive/d is read-only to "
+            "the service (rakectl.service: ReadOnlyPaths=/var/lib/rakectl/archive)")), read_only
+        hidden = sh(f"{check} --set bus.trace_path=/var/lib/rakectl/sealed/bus.log",
+                    check=False)
+        assert (hidden.returncode, hidden.stderr.strip()) == (2, (
+            "rakectl: error: bus.trace_path: /var/lib/rakectl/sealed/bus.log is hidden from "
+            "the service (rakectl.service: InaccessiblePaths=/var/lib/rakectl/sealed)")), hidden
+        sh(f"{check} --set daemon.dump_dir=/var/lib/rakectl/archive/incoming/d")
+    finally:
+        drop_in.unlink()
+        sh("systemctl daemon-reload")
+        sh("rm -rf /var/lib/rakectl/archive /var/lib/rakectl/sealed")
+
+
 def test_stalled_loop_is_restarted_by_the_watchdog(installed: None) -> None:
     armed()  # the drives enabled: their command watchdog is armed
     before = show("rakectl", "MainPID", "NRestarts")
