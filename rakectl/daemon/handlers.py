@@ -1,9 +1,8 @@
 """What each command of the API does to the running daemon (runs in the loop's slack).
 
-A request that the state table does not allow, or that cannot be carried
-out, is refused with one sentence naming why; nothing changes then. With a bus
-trace, each request of :data:`CHANGING` that is carried out goes to the trace's
-inputs (rakectl.daemon.inputs) with the tick after which it took effect.
+A request the state table does not allow, or that cannot be carried out, is refused with
+one sentence naming why; nothing changes then. With a bus trace, each :data:`CHANGING`
+request carried out goes to the trace's inputs (rakectl.daemon.inputs) at its effective tick.
 """
 
 from __future__ import annotations
